@@ -1,0 +1,35 @@
+//! `hood`: HOOD-style neural cloth.
+//!
+//! A hierarchical graph network advances a garment on an animated body by one frame at a time
+//! (Grigorev et al., *HOOD*, CVPR 2023). This crate holds the garment graph and its coarse levels,
+//! the network features, the body queries, and (in later modules) the allocation-free inference
+//! step, the physics objective and the trainer.
+//!
+//! Units everywhere: metres, kilograms, seconds; **y is up**; positions handed to the network are
+//! per frame at the model's 30 Hz.
+//!
+//! The library is `#![no_std]` with `alloc`; the `std` feature (default) adds file I/O, run-time
+//! CPU dispatch and threads.
+//!
+//! ```
+//! use hood::mesh::{Garment, GarmentDesc};
+//! // One quad of 1 m x 1 m cloth, split into two triangles.
+//! let rest = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]];
+//! let faces = [[0, 2, 1], [0, 3, 2]];
+//! let garment = Garment::new(GarmentDesc::new(&rest, &faces)).unwrap();
+//! assert_eq!(garment.edges().len(), 5);
+//! assert_eq!(garment.hinges().len(), 1);
+//! ```
+#![no_std]
+#![deny(unsafe_op_in_unsafe_fn)]
+#![warn(missing_docs, clippy::missing_safety_doc)]
+
+extern crate alloc;
+#[cfg(feature = "std")]
+extern crate std;
+
+pub mod error;
+pub mod math;
+pub mod mesh;
+
+pub use error::{Error, Result};

@@ -1,0 +1,157 @@
+//! Float math in one place: `libm` underneath so the crate works without `std`, and a [`Real`]
+//! trait so the physics runs the same code in `f32` and `f64`.
+
+use core::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
+
+/// A floating-point scalar (`f32` or `f64`).
+pub trait Real:
+    Copy
+    + PartialOrd
+    + Default
+    + core::fmt::Debug
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+    + AddAssign
+    + SubAssign
+    + MulAssign
+    + Send
+    + Sync
+    + 'static
+{
+    /// 0.
+    const ZERO: Self;
+    /// 1.
+    const ONE: Self;
+    /// Conversion from `f64` (rounding for `f32`).
+    fn from_f64(x: f64) -> Self;
+    /// Conversion from `f32` (exact).
+    fn from_f32(x: f32) -> Self;
+    /// Conversion to `f64` (exact).
+    fn to_f64(self) -> f64;
+    /// Square root.
+    fn sqrt(self) -> Self;
+    /// Absolute value.
+    fn abs(self) -> Self;
+    /// Four-quadrant arctangent of `self / x`.
+    fn atan2(self, x: Self) -> Self;
+    /// Natural logarithm.
+    fn ln(self) -> Self;
+    /// Exponential.
+    fn exp(self) -> Self;
+    /// Larger of two (NaN-ignoring like `f32::max`).
+    fn max(self, o: Self) -> Self;
+    /// Smaller of two.
+    fn min(self, o: Self) -> Self;
+    /// True unless NaN or infinite.
+    fn is_finite(self) -> bool;
+}
+
+macro_rules! impl_real {
+    ($t:ty, $sqrt:path, $atan2:path, $ln:path, $exp:path) => {
+        impl Real for $t {
+            const ZERO: Self = 0.0;
+            const ONE: Self = 1.0;
+            #[inline(always)]
+            fn from_f64(x: f64) -> Self {
+                x as $t
+            }
+            #[inline(always)]
+            fn from_f32(x: f32) -> Self {
+                x as $t
+            }
+            #[inline(always)]
+            fn to_f64(self) -> f64 {
+                self as f64
+            }
+            #[inline(always)]
+            fn sqrt(self) -> Self {
+                $sqrt(self)
+            }
+            #[inline(always)]
+            fn abs(self) -> Self {
+                <$t>::abs(self)
+            }
+            #[inline(always)]
+            fn atan2(self, x: Self) -> Self {
+                $atan2(self, x)
+            }
+            #[inline(always)]
+            fn ln(self) -> Self {
+                $ln(self)
+            }
+            #[inline(always)]
+            fn exp(self) -> Self {
+                $exp(self)
+            }
+            #[inline(always)]
+            fn max(self, o: Self) -> Self {
+                <$t>::max(self, o)
+            }
+            #[inline(always)]
+            fn min(self, o: Self) -> Self {
+                <$t>::min(self, o)
+            }
+            #[inline(always)]
+            fn is_finite(self) -> bool {
+                <$t>::is_finite(self)
+            }
+        }
+    };
+}
+
+impl_real!(f32, libm::sqrtf, libm::atan2f, libm::logf, libm::expf);
+impl_real!(f64, libm::sqrt, libm::atan2, libm::log, libm::exp);
+
+/// A 3-vector of [`Real`]s, for code generic over precision (glam covers the `f32` fast paths).
+pub type V3<T> = [T; 3];
+
+/// `a - b`.
+#[inline(always)]
+pub fn sub3<T: Real>(a: V3<T>, b: V3<T>) -> V3<T> {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// `a + b`.
+#[inline(always)]
+pub fn add3<T: Real>(a: V3<T>, b: V3<T>) -> V3<T> {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+/// `a * s`.
+#[inline(always)]
+pub fn scale3<T: Real>(a: V3<T>, s: T) -> V3<T> {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
+/// Dot product.
+#[inline(always)]
+pub fn dot3<T: Real>(a: V3<T>, b: V3<T>) -> T {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Cross product.
+#[inline(always)]
+pub fn cross3<T: Real>(a: V3<T>, b: V3<T>) -> V3<T> {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+/// Euclidean length.
+#[inline(always)]
+pub fn norm3<T: Real>(a: V3<T>) -> T {
+    dot3(a, a).sqrt()
+}
+
+/// Converts an `f32` triple to any [`Real`].
+#[inline(always)]
+pub fn v3_from_f32<T: Real>(a: [f32; 3]) -> V3<T> {
+    [T::from_f32(a[0]), T::from_f32(a[1]), T::from_f32(a[2])]
+}
+
+/// True when all three components are finite.
+#[inline(always)]
+pub fn finite3(a: [f32; 3]) -> bool {
+    a[0].is_finite() && a[1].is_finite() && a[2].is_finite()
+}

@@ -1,0 +1,34 @@
+//! Simple procedural cloth shapes (no files needed), used by tests, benches and examples.
+
+use alloc::vec::Vec;
+
+/// A flat rectangular cloth in the x-z plane at height `y`, `nx` x `nz` vertices spanning
+/// `width` x `depth` metres, centred on the origin. Each quad is split along alternating
+/// diagonals; faces are counter-clockwise seen from +y.
+pub fn grid(nx: usize, nz: usize, width: f32, depth: f32, y: f32) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    assert!(nx >= 2 && nz >= 2, "a grid needs at least 2 x 2 vertices");
+    let mut rest = Vec::with_capacity(nx * nz);
+    for j in 0..nz {
+        for i in 0..nx {
+            let x = width * (i as f32 / (nx - 1) as f32 - 0.5);
+            let z = depth * (j as f32 / (nz - 1) as f32 - 0.5);
+            rest.push([x, y, z]);
+        }
+    }
+    let mut faces = Vec::with_capacity(2 * (nx - 1) * (nz - 1));
+    let id = |i: usize, j: usize| (j * nx + i) as u32;
+    for j in 0..nz - 1 {
+        for i in 0..nx - 1 {
+            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+            // Seen from +y with x right and z down the page, (a, d, c) is counter-clockwise.
+            if (i + j) % 2 == 0 {
+                faces.push([a, d, c]);
+                faces.push([a, c, b]);
+            } else {
+                faces.push([a, d, b]);
+                faces.push([b, d, c]);
+            }
+        }
+    }
+    (rest, faces)
+}
