@@ -29,6 +29,8 @@ extern crate alloc;
 extern crate std;
 
 pub mod error;
+#[cfg(feature = "std")]
+pub mod io;
 pub mod math;
 pub mod mesh;
 
