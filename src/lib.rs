@@ -23,6 +23,8 @@
 #![no_std]
 #![deny(unsafe_op_in_unsafe_fn)]
 #![warn(missing_docs, clippy::missing_safety_doc)]
+// Numeric kernels read better with explicit index loops over several parallel arrays.
+#![allow(clippy::needless_range_loop)]
 
 extern crate alloc;
 #[cfg(feature = "std")]
