@@ -31,9 +31,11 @@ extern crate alloc;
 extern crate std;
 
 pub mod error;
+pub mod features;
 #[cfg(feature = "std")]
 pub mod io;
 pub mod math;
 pub mod mesh;
+pub mod normaliser;
 
 pub use error::{Error, Result};
