@@ -36,6 +36,8 @@ pub mod features;
 pub mod io;
 pub mod math;
 pub mod mesh;
+pub mod model;
 pub mod normaliser;
+pub mod rng;
 
 pub use error::{Error, Result};

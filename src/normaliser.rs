@@ -1,6 +1,7 @@
 //! Feature normalisers (MODEL.md section 3): running sums during training, frozen statistics at
 //! inference.
 
+use crate::math::Real;
 use alloc::vec;
 use alloc::vec::Vec;
 

@@ -16,7 +16,7 @@ pub use normals::vertex_normals;
 pub use topology::{Hinge, Topology};
 
 use crate::error::{Error, Result};
-use crate::math::finite3;
+use crate::math::{finite3, Real};
 use alloc::vec;
 use alloc::vec::Vec;
 
