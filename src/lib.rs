@@ -34,6 +34,7 @@ pub mod error;
 pub mod features;
 #[cfg(feature = "std")]
 pub mod io;
+pub mod kernels;
 pub mod math;
 pub mod mesh;
 pub mod model;
