@@ -228,7 +228,9 @@ unsafe fn store_tile<S: Simd, const R: usize, const NV: usize>(
         for (r, acc_r) in acc.iter().enumerate() {
             let row = row0 + r;
             let o = out.add(row * ldo);
-            let g = epi.gather.map(|g| (g.pt.add(*g.tgt.add(row) as usize * g.ld), g.ps.add(*g.src.add(row) as usize * g.ld)));
+            let g = epi
+                .gather
+                .map(|g| (g.pt.add(*g.tgt.add(row) as usize * g.ld), g.ps.add(*g.src.add(row) as usize * g.ld)));
             if c0 + width <= n {
                 for (v, &a) in acc_r.iter().enumerate() {
                     let c = c0 + v * S::LANES;
@@ -336,7 +338,15 @@ unsafe fn row_block<S: Simd, const R: usize>(
 /// panels; `out` has `rows` rows of stride `ldo >= n`; the epilogue's pointers cover `n` columns
 /// (and, for a gather, `rows` valid indices).
 #[inline(always)]
-pub(crate) unsafe fn gemm<S: Simd>(s: S, segs: Segs<'_>, rows: usize, n: usize, out: *mut f32, ldo: usize, epi: &TileEpi) {
+pub(crate) unsafe fn gemm<S: Simd>(
+    s: S,
+    segs: Segs<'_>,
+    rows: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
     let mut row0 = 0;
     // SAFETY: forwarded; each call covers rows below `rows`.
     unsafe {
@@ -380,7 +390,8 @@ pub(crate) unsafe fn linear<S: Simd>(
     while b0 < rows {
         let br = (rows - b0).min(LINEAR_BLOCK_ROWS);
         let mut f32_segs = [SegF32 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), k: 0 }; super::MAX_OPERANDS];
-        let mut bf_segs = [SegBf16 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), pairs: 0 }; super::MAX_OPERANDS];
+        let mut bf_segs =
+            [SegBf16 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), pairs: 0 }; super::MAX_OPERANDS];
         let mut off = 0;
         for (i, op) in ops.iter().enumerate() {
             let k = op.w.k();
@@ -399,7 +410,8 @@ pub(crate) unsafe fn linear<S: Simd>(
                 }
             }
         }
-        let segs = if ops[0].w.is_bf16() { Segs::Bf16(&bf_segs[..ops.len()]) } else { Segs::F32(&f32_segs[..ops.len()]) };
+        let segs =
+            if ops[0].w.is_bf16() { Segs::Bf16(&bf_segs[..ops.len()]) } else { Segs::F32(&f32_segs[..ops.len()]) };
         let out_blk = &mut out[b0 * n..(b0 + br) * n];
         let tepi = TileEpi { bias: bias_ptr(bias), gather: None, relu: epi.relu, accumulate: false };
         match (&epi.layer_norm, epi.residual) {

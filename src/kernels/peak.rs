@@ -71,27 +71,19 @@ pub fn measure(k: Kernels, target_ms: f64) -> Peak {
         use super::x86::{peak_loops, Avx2Fma, Avx512, Avx512Bf16};
         let f32_gflops = match tier {
             Tier::Scalar => None,
-            Tier::Avx2Fma => Avx2Fma::new().map(|t| {
-                best_gflops(12.0 * 8.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx2(t, n, a, b))
-            }),
-            Tier::Avx512 | Tier::Avx512Bf16 => Avx512::new().map(|t| {
-                best_gflops(12.0 * 16.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx512(t, n, a, b))
-            }),
+            Tier::Avx2Fma => Avx2Fma::new()
+                .map(|t| best_gflops(12.0 * 8.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx2(t, n, a, b))),
+            Tier::Avx512 | Tier::Avx512Bf16 => Avx512::new()
+                .map(|t| best_gflops(12.0 * 16.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx512(t, n, a, b))),
         };
         if let Some(f32_gflops) = f32_gflops {
             let native = if tier == Tier::Avx512Bf16 {
-                Avx512Bf16::new().map(|t| {
-                    best_gflops(12.0 * 16.0 * 4.0, target_ms, reps, |n| peak_loops::dpbf16(t, n, a, b))
-                })
+                Avx512Bf16::new()
+                    .map(|t| best_gflops(12.0 * 16.0 * 4.0, target_ms, reps, |n| peak_loops::dpbf16(t, n, a, b)))
             } else {
                 None
             };
-            return Peak {
-                tier,
-                f32_gflops,
-                bf16_gflops: native.unwrap_or(f32_gflops),
-                bf16_native: native.is_some(),
-            };
+            return Peak { tier, f32_gflops, bf16_gflops: native.unwrap_or(f32_gflops), bf16_native: native.is_some() };
         }
     }
     let f = best_gflops(8.0 * 2.0, target_ms, reps, |n| scalar_loop(n, a, b));
