@@ -29,6 +29,7 @@ extern crate alloc;
 extern crate std;
 
 pub mod error;
+pub mod hierarchy;
 pub mod math;
 pub mod mesh;
 
