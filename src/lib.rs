@@ -32,6 +32,7 @@ extern crate std;
 
 pub mod error;
 pub mod features;
+pub mod hierarchy;
 #[cfg(feature = "std")]
 pub mod io;
 pub mod kernels;
