@@ -28,8 +28,11 @@ extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod body;
 pub mod error;
 pub mod math;
 pub mod mesh;
+#[cfg(feature = "std")]
+pub mod io;
 
 pub use error::{Error, Result};
