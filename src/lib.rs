@@ -30,6 +30,7 @@ extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod body;
 pub mod error;
 pub mod features;
 pub mod hierarchy;
