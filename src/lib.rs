@@ -42,5 +42,6 @@ pub mod mesh;
 pub mod model;
 pub mod normaliser;
 pub mod rng;
+pub mod sim;
 
 pub use error::{Error, Result};
