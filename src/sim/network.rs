@@ -110,6 +110,7 @@ pub struct Workspace {
     slots: Vec<Vec<f32>>,
     proj_t: Vec<f32>,
     proj_s: Vec<f32>,
+    proj_edge: Vec<f32>,
     gathered: Vec<f32>,
     local_agg: Vec<f32>,
     g2b_offsets: Vec<u32>,
@@ -181,6 +182,7 @@ impl Workspace {
             slots: (0..max_slots).map(|_| vec![0.0; rows * h]).collect(),
             proj_t: vec![0.0; v.max(max_active) * h],
             proj_s: vec![0.0; v.max(max_active) * h],
+            proj_edge: vec![0.0; b * h],
             gathered: vec![0.0; v * h],
             local_agg: vec![0.0; v * h],
             g2b_offsets: vec![0; max_active + 1],
@@ -309,7 +311,7 @@ impl Workspace {
                             Edges::Split { list: e, split: &self.mesh_split },
                             &mut self.mesh_latents[..e.target.len() * h],
                             &mut slot[..v * h],
-                            (&mut self.proj_t, &mut self.proj_s),
+                            (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
                         )?;
                     }
                     Some(l) => {
@@ -326,7 +328,7 @@ impl Workspace {
                             Edges::Split { list: &level.edges, split: &self.coarse_split[l] },
                             &mut self.coarse_latents[l][..level.edges.target.len() * h],
                             local,
-                            (&mut self.proj_t, &mut self.proj_s),
+                            (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
                         )?;
                         scatter(&self.local_agg[..nl * h], &level.nodes, h, slot);
                     }
@@ -349,10 +351,10 @@ impl Workspace {
                         net,
                         mlp,
                         (xg, xb),
-                        Edges::PerEdge { source: &body.body[..n], iota: graph.iota() },
+                        Edges::PerEdge { source: &body.body[..n], iota: graph.iota(), target_rows: None },
                         &mut self.b2g_latents[..n * h],
                         msgs,
-                        (&mut self.proj_t, &mut self.proj_s),
+                        (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
                     )?;
                     scatter(&self.local_agg[..n * h], &body.garment[..n], h, slot);
                     // garment -> body: per-edge messages, then a sum per active body node in
@@ -363,10 +365,14 @@ impl Workspace {
                         net,
                         mlp,
                         (xb, xg),
-                        Edges::PerEdge { source: &graph.iota()[..n], iota: graph.iota() },
+                        Edges::PerEdge {
+                            source: &graph.iota()[..n],
+                            iota: graph.iota(),
+                            target_rows: Some(&body.body[..n]),
+                        },
                         &mut self.g2b_latents[..n * h],
                         msgs,
-                        (&mut self.proj_t, &mut self.proj_s),
+                        (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
                     )?;
                     let offsets = &mut self.g2b_offsets[..a + 1];
                     let perm = &mut self.g2b_perm[..n];
@@ -441,7 +447,9 @@ enum Edges<'a> {
     /// A static list sorted by target, split at target changes.
     Split { list: &'a EdgeList, split: &'a EdgeSplit },
     /// One message row per edge (target `e` is edge `e`), any split; `iota` is `0, 1, 2, ...`.
-    PerEdge { source: &'a [u32], iota: &'a [u32] },
+    /// With `target_rows`, the target-side rows `x.0` are per node and edge `e` reads row
+    /// `target_rows[e]` (its projection is gathered per edge first).
+    PerEdge { source: &'a [u32], iota: &'a [u32], target_rows: Option<&'a [u32]> },
 }
 
 /// The executor with per-task scratch.
@@ -506,7 +514,7 @@ impl Par<'_> {
         edges: Edges<'_>,
         latent: &mut [f32],
         aggregate: &mut [f32],
-        proj: (&mut [f32], &mut [f32]),
+        proj: (&mut [f32], &mut [f32], &mut [f32]),
     ) -> Result<()> {
         let l = &mlp.layers;
         let p1 = l[0].parts(net.bf16);
@@ -515,7 +523,15 @@ impl Par<'_> {
         let (pt, ps) = (&mut proj.0[..nt * h], &mut proj.1[..ns * h]);
         self.linear(net, x.0, p1[0], pt)?;
         self.linear(net, x.1, p1[1], ps)?;
-        let (pt, ps) = (&*pt, &*ps);
+        let pt: &[f32] = match edges {
+            Edges::PerEdge { target_rows: Some(rows), .. } => {
+                let per_edge = &mut proj.2[..rows.len() * h];
+                gather(pt, rows, h, per_edge);
+                per_edge
+            }
+            _ => pt,
+        };
+        let ps = &*ps;
         let em = EdgeMlp {
             w1_edge: p1[2],
             b1: l[0].bias,
@@ -551,7 +567,7 @@ impl Par<'_> {
                     net.kernels.edge_mlp(&em, &inputs, lat, agg, &mut tb.edge)
                 })
             }
-            Edges::PerEdge { source, iota } => self.run(tasks, &|t, tb| {
+            Edges::PerEdge { source, iota, .. } => self.run(tasks, &|t, tb| {
                 let r = split(n_edges, tasks, t);
                 if r.is_empty() {
                     return Ok(());
