@@ -30,6 +30,8 @@ extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
+#[cfg(feature = "std")]
+pub mod bench;
 pub mod body;
 pub mod error;
 pub mod features;
@@ -43,5 +45,7 @@ pub mod model;
 pub mod normaliser;
 pub mod rng;
 pub mod sim;
+#[cfg(feature = "std")]
+pub mod workloads;
 
 pub use error::{Error, Result};

@@ -143,6 +143,7 @@ pub struct Sim<'m> {
     rest_frames: u32,
     ws: Workspace,
     exec: Box<dyn Executor + 'm>,
+    last_body: (usize, usize),
 }
 
 /// The body of a scene: its mesh (optionally with omitted vertices) and its positions at the
@@ -264,6 +265,7 @@ impl<'m> Sim<'m> {
             rest_frames: 0,
             ws,
             exec: default_executor(cfg.threads),
+            last_body: (0, 0),
         })
         .map(|mut sim: Sim<'m>| {
             sim.ws.set_tasks(sim.exec.parallelism(), &sim.graph);
@@ -277,6 +279,17 @@ impl<'m> Sim<'m> {
     pub fn set_executor(&mut self, exec: Box<dyn Executor + 'm>) {
         self.ws.set_tasks(exec.parallelism(), &self.graph);
         self.exec = exec;
+    }
+
+    /// Useful floating-point operations of the network's matrix products in the last network
+    /// pass (counted from the shapes, with the split first layer; a multiply-add is 2).
+    pub fn last_step_flops(&self) -> u64 {
+        self.ws.flops
+    }
+
+    /// Body edges and active body nodes of the last network pass.
+    pub fn last_body_counts(&self) -> (usize, usize) {
+        self.last_body
     }
 
     /// The kernel path in use.
@@ -508,6 +521,7 @@ impl<'m> Sim<'m> {
                 &mut self.ws.b2g_features[..nb * 9],
             )?;
         }
+        self.ws.flops = 0;
         // Mesh and coarse edges: features, then encode.
         let rest = self.garment.rest();
         if self.ws.uses(EdgeKey::Mesh) {
@@ -531,6 +545,7 @@ impl<'m> Sim<'m> {
             None => BodyEdges { garment: &[], body: &[], n_active: 0, prefix: [0; 4] },
         };
         self.ws.forward(&self.net, &*self.exec, &self.graph, &body_edges, observer)?;
+        self.last_body = (nb, n_active);
         // Integrate: acc = decoded * std + mean; v' = v + acc; x' = x + v + acc.
         let (mean, std) = model.output_stats();
         for i in 0..n {
