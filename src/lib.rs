@@ -31,5 +31,7 @@ extern crate std;
 pub mod error;
 pub mod math;
 pub mod mesh;
+pub mod physics;
+pub mod solve;
 
 pub use error::{Error, Result};

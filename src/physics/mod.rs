@@ -1,0 +1,50 @@
+//! The physics objective (MODEL.md section 6): energy terms with analytic gradients, the
+//! objective that sums them, and the evaluation metrics (EVALUATION.md "Accuracy").
+//!
+//! Every term is generic over [`Real`] so the same code runs in `f32` (runtime, trainer) and
+//! `f64` (gradient checks, reference solves). Terms take plain slices (garment positions, body
+//! face centroids and normals, nearest-face indices), **add** their gradient with respect to the
+//! predicted positions `x` into a caller buffer, and allocate nothing.
+//!
+//! Per-vertex materials: a triangle uses the mean of its three vertices' `mu` and `lambda`, a
+//! bending hinge the mean of its two edge vertices' `k_bend`; masses are per vertex already.
+//!
+//! Units: metres, kilograms, seconds; energies in joules (the collision penalty in its own units,
+//! weight × m³); `dt` in seconds; velocities in metres per frame (as in HOOD).
+
+mod bending;
+mod stretching;
+mod cloth;
+mod collision;
+mod friction;
+mod inertia;
+mod metrics;
+mod objective;
+
+pub use bending::bending;
+pub use stretching::stretching;
+pub use cloth::{BendHinge, Cloth};
+pub use collision::{collision, face_frames, BruteForceCentroids, CentroidQuery, FaceFrame};
+pub use friction::{friction, FrictionFrames, FrictionParams, RadiusMode};
+pub use inertia::{gravity, inertia};
+pub use metrics::{max_edge_strain, score_rollout, FrameScore, RolloutScore, PENETRATION_DEPTH};
+pub use objective::{CollisionInput, CollisionParams, FrictionInput, Objective, StepInputs, Terms};
+
+/// Thickness factor of the stretching energy (the reference's StVK thickness), metres.
+pub const THICKNESS: f64 = 4.7e-4;
+/// Gravitational acceleration, m/s², acting along -y.
+pub const GRAVITY: f64 = 9.81;
+
+use crate::error::{Error, Result};
+
+/// Checks that a per-vertex buffer has `n` entries.
+pub(crate) fn check_len(what: &'static str, got: usize, expected: usize) -> Result<()> {
+    if got == expected {
+        Ok(())
+    } else {
+        Err(Error::SizeMismatch { what, expected, got })
+    }
+}
+
+#[cfg(test)]
+mod tests;
