@@ -274,7 +274,7 @@ pub fn is_degenerate(rest: &[[f32; 3]], f: &[u32; 3]) -> bool {
     let (e0, e1, e2) = (sub(x1, x0), sub(x2, x0), sub(x2, x1));
     let longest2 = dot(e0, e0).max(dot(e1, e1)).max(dot(e2, e2));
     let twice_area = cross_norm(e0, e1);
-    !(twice_area > DEGENERATE_RATIO * longest2) || longest2 == 0.0
+    longest2 == 0.0 || twice_area.is_nan() || twice_area <= DEGENERATE_RATIO * longest2
 }
 
 /// Inverse rest frame `Dm^-1` and rest area of one triangle (MODEL.md section 6), in f64 then

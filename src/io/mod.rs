@@ -1,0 +1,4 @@
+//! File formats (feature `std`).
+
+pub mod json;
+pub mod safetensors;
