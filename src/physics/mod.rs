@@ -48,3 +48,5 @@ pub(crate) fn check_len(what: &'static str, got: usize, expected: usize) -> Resu
 
 #[cfg(test)]
 mod tests;
+#[cfg(all(test, feature = "std"))]
+mod parity_tests;
