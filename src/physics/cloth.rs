@@ -66,7 +66,8 @@ impl<T: Real> Cloth<T> {
             let (a, b, c, d) = (u0[0] - u2[0], u1[0] - u2[0], u0[1] - u2[1], u1[1] - u2[1]);
             let det = a * d - b * c;
             let scale = (a * a + c * c).max(b * b + d * d);
-            if !(det.abs() > crate::mesh::DEGENERATE_RATIO * scale) {
+            let nondegenerate = det.abs() > crate::mesh::DEGENERATE_RATIO * scale;
+            if !nondegenerate {
                 return Err(Error::DegenerateFace { face: fi });
             }
             dm.push([d / det, -b / det, -c / det, a / det].map(T::from_f64));
@@ -97,8 +98,11 @@ impl<T: Real> Cloth<T> {
             .map(|h| BendHinge { edge: h.edge, face_a: faces[h.faces[0] as usize], face_b: faces[h.faces[1] as usize] })
             .collect();
         let rest = garment.rest();
-        let rest_len =
-            garment.edges().iter().map(|e| norm3(sub3(v3_from_f32::<T>(rest[e[1] as usize]), v3_from_f32(rest[e[0] as usize])))).collect();
+        let rest_len = garment
+            .edges()
+            .iter()
+            .map(|e| norm3(sub3(v3_from_f32::<T>(rest[e[1] as usize]), v3_from_f32(rest[e[0] as usize]))))
+            .collect();
         Cloth {
             faces: faces.to_vec(),
             dm_inv,

@@ -125,7 +125,7 @@ pub fn collision<T: Real>(
 
 /// Signed distance (m) of every vertex to the plane of its nearest face at the next frame, as
 /// the collision term measures it, into `out`.
-pub(crate) fn plane_distances<T: Real>(x: &[[T; 3]], nearest: &[u32], next: FaceFrame<'_, T>, out: &mut [T]) {
+pub fn plane_distances<T: Real>(x: &[[T; 3]], nearest: &[u32], next: FaceFrame<'_, T>, out: &mut [T]) {
     for ((p, &k), o) in x.iter().zip(nearest).zip(out.iter_mut()) {
         let k = k as usize;
         *o = dot3(sub3(*p, next.centroids[k]), next.normals[k]);

@@ -13,22 +13,22 @@
 //! weight × m³); `dt` in seconds; velocities in metres per frame (as in HOOD).
 
 mod bending;
-mod stretching;
 mod cloth;
 mod collision;
 mod friction;
 mod inertia;
 mod metrics;
 mod objective;
+mod stretching;
 
 pub use bending::bending;
-pub use stretching::stretching;
 pub use cloth::{BendHinge, Cloth};
-pub use collision::{collision, face_frames, BruteForceCentroids, CentroidQuery, FaceFrame};
+pub use collision::{collision, face_frames, plane_distances, BruteForceCentroids, CentroidQuery, FaceFrame};
 pub use friction::{friction, FrictionFrames, FrictionParams, RadiusMode};
 pub use inertia::{gravity, inertia};
 pub use metrics::{max_edge_strain, score_rollout, FrameScore, RolloutScore, PENETRATION_DEPTH};
 pub use objective::{CollisionInput, CollisionParams, FrictionInput, Objective, StepInputs, Terms};
+pub use stretching::stretching;
 
 /// Thickness factor of the stretching energy (the reference's StVK thickness), metres.
 pub const THICKNESS: f64 = 4.7e-4;
@@ -37,8 +37,11 @@ pub const GRAVITY: f64 = 9.81;
 
 use crate::error::{Error, Result};
 
-/// Checks that a per-vertex buffer has `n` entries.
-pub(crate) fn check_len(what: &'static str, got: usize, expected: usize) -> Result<()> {
+/// Checks that a buffer has `expected` entries.
+///
+/// # Errors
+/// [`Error::SizeMismatch`] naming `what` otherwise.
+pub fn check_len(what: &'static str, got: usize, expected: usize) -> Result<()> {
     if got == expected {
         Ok(())
     } else {
@@ -46,7 +49,7 @@ pub(crate) fn check_len(what: &'static str, got: usize, expected: usize) -> Resu
     }
 }
 
-#[cfg(test)]
-mod tests;
 #[cfg(all(test, feature = "std"))]
 mod parity_tests;
+#[cfg(test)]
+mod tests;

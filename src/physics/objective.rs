@@ -196,8 +196,7 @@ impl Objective {
         }
         if let Some(p) = &self.friction {
             let f = inputs.friction.ok_or(Error::Empty { what: "friction input" })?;
-            t.friction =
-                friction(cloth, inputs.pos, x, f.frame_a, f.frame_b, f.nearest_a, f.nearest_b, p, grad.as_deref_mut())?;
+            t.friction = friction(cloth, inputs.pos, x, f.frame_a, f.frame_b, f.nearest_a, f.nearest_b, p, grad)?;
         }
         Ok(t)
     }

@@ -73,7 +73,9 @@ fn physics_parity_terms_against_reference() {
     let e_dm = max_rel(&as64(&dm_ours), &as64(&dm_ref));
     let e_area = max_rel(&as64(garment.face_area()), &as64(&scene.f32("cloth_f_area").unwrap().data));
     let e_mass = max_rel(&as64(garment.vertex_mass()), &as64(&scene.f32("cloth_v_mass").unwrap().data));
-    println!("rest quantities, max |err| / max |ref|: Dm_inv {e_dm:.2e}, face area {e_area:.2e}, vertex mass {e_mass:.2e}");
+    println!(
+        "rest quantities, max |err| / max |ref|: Dm_inv {e_dm:.2e}, face area {e_area:.2e}, vertex mass {e_mass:.2e}"
+    );
     assert!(e_dm < 1e-5 && e_area < 1e-6 && e_mass < 1e-6);
     assert_eq!(garment.hinges().len(), scene.i64("cloth_f_connectivity").unwrap().shape[0]);
 

@@ -107,7 +107,8 @@ fn test_body(rng: &mut Rng, y: f32) -> TestBody {
     }
     let moved: Vec<[f32; 3]> = pos.iter().map(|p| [p[0] + 0.003, p[1] + 0.002, p[2] - 0.002]).collect();
     let nf = faces.len();
-    let mut out = TestBody { cent: [vec![[0.0; 3]; nf], vec![[0.0; 3]; nf]], norm: [vec![[0.0; 3]; nf], vec![[0.0; 3]; nf]] };
+    let mut out =
+        TestBody { cent: [vec![[0.0; 3]; nf], vec![[0.0; 3]; nf]], norm: [vec![[0.0; 3]; nf], vec![[0.0; 3]; nf]] };
     for (s, p) in [&pos, &moved].into_iter().enumerate() {
         let [c0, c1] = &mut out.cent;
         let [n0, n1] = &mut out.norm;
@@ -179,7 +180,13 @@ fn gradient_check_friction() {
     let near_b = brute_nearest(&x, &body.cent[1]);
     for (mode, radius) in [(RadiusMode::Distance, 0.03), (RadiusMode::SquaredDistance, 4e-4)] {
         for axis in [1, 2] {
-            let params = FrictionParams { mu: 0.5, radius, radius_mode: mode, floor_axis: axis, frames: FrictionFrames::CurrentNext };
+            let params = FrictionParams {
+                mu: 0.5,
+                radius,
+                radius_mode: mode,
+                floor_axis: axis,
+                frames: FrictionFrames::CurrentNext,
+            };
             // Away from the radius kink: no vertex within 1e-4 of it.
             for i in 0..x.len() {
                 let db = crate::math::sub3(x[i], body.cent[1][near_b[i] as usize]);
@@ -222,7 +229,10 @@ fn gradient_check_objective_sums_terms() {
             nearest_b: &near_b,
         }),
     };
-    let obj = Objective { friction: Some(FrictionParams { radius: 0.03, ..FrictionParams::PHYSICAL }), ..Objective::training(5e3) };
+    let obj = Objective {
+        friction: Some(FrictionParams { radius: 0.03, ..FrictionParams::PHYSICAL }),
+        ..Objective::training(5e3)
+    };
     let mut grad = vec![[7.0; 3]; x.len()]; // overwritten, not accumulated
     let t = obj.eval(&cloth, &inputs, &x, Some(&mut grad)).unwrap();
     // The parts add up to the total, term by term.

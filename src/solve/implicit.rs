@@ -1,0 +1,149 @@
+//! The implicit step: minimise the objective over the next garment positions.
+
+use super::{Lbfgs, LbfgsParams, LbfgsReport};
+use crate::error::{Error, Result};
+use crate::math::{add3, Real};
+use crate::physics::{check_len, CentroidQuery, Cloth, CollisionInput, FaceFrame, FrictionFrames, FrictionInput};
+use crate::physics::{Objective, StepInputs};
+use alloc::vec;
+use alloc::vec::Vec;
+
+/// The garment state a step starts from.
+#[derive(Clone, Copy, Debug)]
+pub struct StepState<'a, T> {
+    /// Positions at the current frame, m.
+    pub pos: &'a [[T; 3]],
+    /// Velocity, m/frame.
+    pub velocity: &'a [[T; 3]],
+    /// Time step, s.
+    pub dt: T,
+    /// Pinned flag per vertex (empty: none pinned).
+    pub pinned: &'a [bool],
+    /// Positions of the pinned vertices at the next frame (one per vertex, only the pinned ones
+    /// are read; empty when none is pinned), m.
+    pub targets: &'a [[T; 3]],
+}
+
+/// The body around one step: its faces at the previous, current and next frame, and a
+/// nearest-centroid query over each frame's centroids. The previous frame is only read by the
+/// reference form of friction ([`FrictionFrames::PrevCurrent`]).
+#[derive(Clone, Copy)]
+pub struct StepBody<'a, T> {
+    /// Faces at the previous frame.
+    pub prev: FaceFrame<'a, T>,
+    /// Faces at the current frame.
+    pub current: FaceFrame<'a, T>,
+    /// Faces at the next frame.
+    pub next: FaceFrame<'a, T>,
+    /// Nearest centroid at the previous frame.
+    pub query_prev: &'a dyn CentroidQuery,
+    /// Nearest centroid at the current frame.
+    pub query_current: &'a dyn CentroidQuery,
+    /// Nearest centroid at the next frame.
+    pub query_next: &'a dyn CentroidQuery,
+}
+
+/// Reusable workspace of the implicit step (L-BFGS buffers and nearest-face indices).
+#[derive(Clone, Debug)]
+pub struct ImplicitStep<T: Real> {
+    lbfgs: Lbfgs<T>,
+    near_cur: Vec<u32>,
+    near_a: Vec<u32>,
+    near_b: Vec<u32>,
+    x32: Vec<[f32; 3]>,
+}
+
+fn to_f32<T: Real>(x: &[[T; 3]], out: &mut [[f32; 3]]) {
+    for (o, p) in out.iter_mut().zip(x) {
+        *o = p.map(|c| c.to_f64() as f32);
+    }
+}
+
+impl<T: Real> ImplicitStep<T> {
+    /// A workspace for `n` vertices with `memory` L-BFGS correction pairs (10 is a good default).
+    pub fn new(n: usize, memory: usize) -> ImplicitStep<T> {
+        ImplicitStep {
+            lbfgs: Lbfgs::new(n, memory),
+            near_cur: vec![0; n],
+            near_a: vec![0; n],
+            near_b: vec![0; n],
+            x32: vec![[0.0; 3]; n],
+        }
+    }
+
+    /// Minimises `objective` over the next positions `x` (written, m) starting from the coasting
+    /// guess `pos + velocity`, with pinned vertices held at their targets. Collision uses the
+    /// face nearest to `pos` at the current frame; friction's nearest face of `x` is refreshed at
+    /// every evaluation. Allocates nothing.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] for buffers of the wrong length; [`Error::Empty`] when a contact
+    /// term is enabled without a body; errors of the objective.
+    pub fn step(
+        &mut self,
+        cloth: &Cloth<T>,
+        objective: &Objective,
+        state: &StepState<'_, T>,
+        body: Option<&StepBody<'_, T>>,
+        params: &LbfgsParams,
+        x: &mut [[T; 3]],
+    ) -> Result<LbfgsReport> {
+        let n = cloth.n_vertices();
+        check_len("implicit step workspace", self.lbfgs.n_vertices(), n)?;
+        check_len("positions", x.len(), n)?;
+        check_len("current positions", state.pos.len(), n)?;
+        check_len("velocities", state.velocity.len(), n)?;
+        let pinned = state.pinned;
+        if !pinned.is_empty() {
+            check_len("pinned flags", pinned.len(), n)?;
+            if pinned.iter().any(|&p| p) {
+                check_len("pinned targets", state.targets.len(), n)?;
+            }
+        }
+        if body.is_none() && (objective.collision.is_some() || objective.friction.is_some()) {
+            return Err(Error::Empty { what: "body (collision or friction enabled)" });
+        }
+        for i in 0..n {
+            x[i] = if pinned.get(i).copied().unwrap_or(false) {
+                state.targets[i]
+            } else {
+                add3(state.pos[i], state.velocity[i])
+            };
+        }
+        let Self { lbfgs, near_cur, near_a, near_b, x32 } = self;
+        let mut friction_b: Option<(&dyn CentroidQuery, FaceFrame<'_, T>, FaceFrame<'_, T>)> = None;
+        if let Some(b) = body {
+            to_f32(state.pos, x32);
+            b.query_current.nearest_into(x32, near_cur);
+            if let Some(fp) = &objective.friction {
+                let (qa, fa, qb, fb) = match fp.frames {
+                    FrictionFrames::CurrentNext => (b.query_current, b.current, b.query_next, b.next),
+                    FrictionFrames::PrevCurrent => (b.query_prev, b.prev, b.query_current, b.current),
+                };
+                qa.nearest_into(x32, near_a);
+                friction_b = Some((qb, fa, fb));
+            }
+        }
+        let next = body.map(|b| b.next);
+        lbfgs.minimize(x, params, |y, grad| {
+            let mut inputs =
+                StepInputs { pos: state.pos, velocity: state.velocity, dt: state.dt, collision: None, friction: None };
+            if let Some(next) = next {
+                inputs.collision = Some(CollisionInput { nearest: near_cur, next });
+            }
+            if let Some((qb, fa, fb)) = friction_b {
+                to_f32(y, x32);
+                qb.nearest_into(x32, near_b);
+                inputs.friction =
+                    Some(FrictionInput { frame_a: fa, frame_b: fb, nearest_a: near_a, nearest_b: near_b });
+            }
+            let t = objective.eval(cloth, &inputs, y, Some(grad))?;
+            for (g, &p) in grad.iter_mut().zip(pinned) {
+                if p {
+                    *g = [T::ZERO; 3];
+                }
+            }
+            Ok(t.total())
+        })
+    }
+}
