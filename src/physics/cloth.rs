@@ -6,16 +6,21 @@ use crate::math::{norm3, sub3, v3_from_f32, Real};
 use crate::mesh::{Garment, Material};
 use alloc::vec::Vec;
 
-/// One bending hinge: the shared edge and the two triangles with their own vertex order (the
-/// order fixes the normals' orientation).
+/// One bending hinge: the shared edge, the two opposite vertices, and how the two triangles
+/// traverse the edge (which fixes the sign convention of their normals).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct BendHinge {
     /// The shared edge `(v0, v1)`; `e = x[v1] - x[v0]`.
     pub edge: [u32; 2],
-    /// Vertices of triangle A, as in the garment.
-    pub face_a: [u32; 3],
-    /// Vertices of triangle B, as in the garment.
-    pub face_b: [u32; 3],
+    /// The vertex of triangle A and of triangle B opposite the edge.
+    pub opposite: [u32; 2],
+    /// True when A and B traverse the edge in opposite directions (consistently oriented).
+    pub consistent: bool,
+}
+
+/// True when triangle `f` runs from `a` to `b` along its edge `(a, b)`.
+fn traverses(f: [u32; 3], a: u32, b: u32) -> bool {
+    (0..3).any(|k| f[k] == a && f[(k + 1) % 3] == b)
 }
 
 /// Everything the terms need from the garment, in precision `T`: faces with their rest frames
@@ -95,7 +100,15 @@ impl<T: Real> Cloth<T> {
         let hinges = garment
             .hinges()
             .iter()
-            .map(|h| BendHinge { edge: h.edge, face_a: faces[h.faces[0] as usize], face_b: faces[h.faces[1] as usize] })
+            .map(|h| {
+                let [fa, fb] = h.faces.map(|f| faces[f as usize]);
+                let [v0, v1] = h.edge;
+                BendHinge {
+                    edge: h.edge,
+                    opposite: h.opposite,
+                    consistent: traverses(fa, v0, v1) != traverses(fb, v0, v1),
+                }
+            })
             .collect();
         let rest = garment.rest();
         let rest_len = garment
