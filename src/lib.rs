@@ -30,14 +30,20 @@ extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod body;
 pub mod error;
 pub mod features;
+pub mod hierarchy;
 #[cfg(feature = "std")]
 pub mod io;
+pub mod kernels;
 pub mod math;
 pub mod mesh;
+pub mod model;
 pub mod normaliser;
 pub mod physics;
+pub mod rng;
+pub mod sim;
 pub mod solve;
 
 pub use error::{Error, Result};

@@ -154,3 +154,14 @@ fn features_refuse_bad_lengths() {
     let short = Embeddings { node_type: &t9[..80], level: &t4 };
     assert!(garment_node_features(&gn, &short, &mut out).is_err());
 }
+
+#[test]
+fn features_reference_state_dict_loads() {
+    let Some(f) = fixture("features_reference_state_dict_loads") else { return };
+    let h = hood::model::reference::latent_width(&f.weights).unwrap();
+    let spec = hood::model::ModelSpec::hood(h);
+    let p = hood::model::reference::params_from_state_dict(&f.weights, &spec).unwrap();
+    assert_eq!(p.count(), 5_146_852);
+    let s = p.normalisers.output.stats();
+    check("output normaliser mean", &s.mean, &f.io.f32("_output_normalizer.mean").unwrap().data, 1e-5);
+}

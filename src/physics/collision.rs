@@ -59,6 +59,21 @@ pub trait CentroidQuery {
     }
 }
 
+/// The body module's grid over face centroids (rebuilt by the caller for the frame).
+impl CentroidQuery for crate::body::PointGrid {
+    fn nearest(&self, p: [f32; 3]) -> u32 {
+        // Only an empty grid has no answer; 0 is then as good as any (the terms check indices).
+        self.nearest_one(p).map_or(0, |n| n.index)
+    }
+}
+
+/// A body frame answers through its centroid grid.
+impl CentroidQuery for crate::body::BodyFrame {
+    fn nearest(&self, p: [f32; 3]) -> u32 {
+        CentroidQuery::nearest(self.centroid_grid(), p)
+    }
+}
+
 /// Exact nearest centroid by scanning them all (O(faces) per query): for tests and small bodies.
 #[derive(Clone, Debug, Default)]
 pub struct BruteForceCentroids {

@@ -3,6 +3,7 @@
 use super::collision::plane_distances;
 use super::{face_frames, CentroidQuery, Cloth, CollisionInput, FaceFrame, FrictionFrames, FrictionInput, Objective};
 use super::{StepInputs, Terms};
+use crate::body::{Nearest, PointGrid};
 use crate::error::{Error, Result};
 use crate::math::{norm3, sub3, Real};
 use crate::mesh::Garment;
@@ -48,7 +49,7 @@ pub fn max_edge_strain<T: Real>(cloth: &Cloth<T>, x: &[[T; 3]]) -> f64 {
     worst
 }
 
-/// Scores a rollout: `garment[t]` and `body[t]` are the garment and body vertex positions (m) at
+/// Scores a rollout with a caller-chosen nearest-centroid query: `garment[t]` and `body[t]` are the garment and body vertex positions (m) at
 /// frame `t` (same count N ≥ 2, body optional: pass `body` empty for a scene without one), `dt`
 /// in s. Frame `t ≥ 1` is scored as the step from `garment[t-1]` (velocity
 /// `garment[t-1] - garment[t-2]`, zero at `t = 1`) to `garment[t]`, with the body at `t-1`
@@ -60,7 +61,7 @@ pub fn max_edge_strain<T: Real>(cloth: &Cloth<T>, x: &[[T; 3]]) -> f64 {
 /// # Errors
 /// [`Error::Empty`] with fewer than two frames; [`Error::SizeMismatch`] when frame counts or
 /// vertex counts disagree; errors of the terms.
-pub fn score_rollout<Q: CentroidQuery>(
+pub fn score_rollout_with<Q: CentroidQuery>(
     garment: &Garment,
     objective: &Objective,
     garment_frames: &[Vec<[f32; 3]>],
@@ -68,6 +69,51 @@ pub fn score_rollout<Q: CentroidQuery>(
     body_faces: &[[u32; 3]],
     dt: f64,
     mut make_query: impl FnMut(&[[f32; 3]]) -> Q,
+) -> Result<RolloutScore> {
+    let mut nearest = |centroids: &[[f32; 3]], points: &[[f32; 3]], out: &mut [u32]| -> Result<()> {
+        make_query(centroids).nearest_into(points, out);
+        Ok(())
+    };
+    score(garment, objective, garment_frames, body_frames, body_faces, dt, &mut nearest)
+}
+
+/// [`score_rollout_with`] using the body module's centroid grid ([`PointGrid`]) for the
+/// nearest-face queries: the usual entry point.
+///
+/// # Errors
+/// As [`score_rollout_with`]; [`Error::NonFinite`] for a NaN/Inf body or garment position.
+pub fn score_rollout(
+    garment: &Garment,
+    objective: &Objective,
+    garment_frames: &[Vec<[f32; 3]>],
+    body_frames: &[Vec<[f32; 3]>],
+    body_faces: &[[u32; 3]],
+    dt: f64,
+) -> Result<RolloutScore> {
+    let nf = body_faces.len();
+    let mut grid = PointGrid::new(nf.max(1), (8 * nf).max(64))?;
+    let mut found = vec![Nearest { index: 0, distance: 0.0 }; garment.n_vertices()];
+    let mut nearest = |centroids: &[[f32; 3]], points: &[[f32; 3]], out: &mut [u32]| -> Result<()> {
+        grid.rebuild(centroids)?;
+        grid.nearest(points, &mut found)?;
+        for (o, f) in out.iter_mut().zip(&found) {
+            *o = f.index;
+        }
+        Ok(())
+    };
+    score(garment, objective, garment_frames, body_frames, body_faces, dt, &mut nearest)
+}
+
+type NearestFn<'a> = dyn FnMut(&[[f32; 3]], &[[f32; 3]], &mut [u32]) -> Result<()> + 'a;
+
+fn score(
+    garment: &Garment,
+    objective: &Objective,
+    garment_frames: &[Vec<[f32; 3]>],
+    body_frames: &[Vec<[f32; 3]>],
+    body_faces: &[[u32; 3]],
+    dt: f64,
+    nearest: &mut NearestFn<'_>,
 ) -> Result<RolloutScore> {
     let nt = garment_frames.len();
     if nt < 2 {
@@ -122,8 +168,7 @@ pub fn score_rollout<Q: CentroidQuery>(
             for (c32, c) in cent32.iter_mut().zip(&cent[1]) {
                 *c32 = c.map(|v| v as f32);
             }
-            let q_cur = make_query(&cent32);
-            q_cur.nearest_into(&garment_frames[t - 1], &mut near_cur);
+            nearest(&cent32, &garment_frames[t - 1], &mut near_cur)?;
             let next = FaceFrame { centroids: &cent[2], normals: &norms[2] };
             plane_distances(&x, &near_cur, next, &mut dist);
             let count = dist.iter().filter(|&&d| d < PENETRATION_DEPTH).count();
@@ -134,10 +179,8 @@ pub fn score_rollout<Q: CentroidQuery>(
                     FrictionFrames::CurrentNext => (1, 2),
                     FrictionFrames::PrevCurrent => (0, 1),
                 };
-                let qa = make_query(&f32s(&cent[a]));
-                qa.nearest_into(&garment_frames[t - 1], &mut near_a);
-                let qb = make_query(&f32s(&cent[b]));
-                qb.nearest_into(&garment_frames[t], &mut near_b);
+                nearest(&f32s(&cent[a]), &garment_frames[t - 1], &mut near_a)?;
+                nearest(&f32s(&cent[b]), &garment_frames[t], &mut near_b)?;
                 inputs.friction = Some(FrictionInput {
                     frame_a: FaceFrame { centroids: &cent[a], normals: &norms[a] },
                     frame_b: FaceFrame { centroids: &cent[b], normals: &norms[b] },
