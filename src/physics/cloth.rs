@@ -129,6 +129,28 @@ impl<T: Real> Cloth<T> {
         }
     }
 
+    /// Adds to `out` (one entry per vertex, N/m) an estimate of the diagonal of the stretching
+    /// energy's Hessian near rest: over the incident triangles, `area × thickness × (2 mu + lambda)
+    /// × |∇φ_i|²`, with `∇φ_i` the rest-frame gradient of the vertex's linear basis function (a row
+    /// of `Dm⁻¹`, or minus their sum for the third corner). Used to precondition solvers.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] when `out` does not have one entry per vertex.
+    pub fn stretch_stiffness_into(&self, out: &mut [T]) -> Result<()> {
+        super::check_len("stiffness diagonal", out.len(), self.n_vertices())?;
+        let two = T::from_f64(2.0);
+        for (fi, f) in self.faces.iter().enumerate() {
+            let [a, b, c, d] = self.dm_inv[fi];
+            let k = two * (self.stretch_mu[fi] + self.stretch_lambda[fi]);
+            let (s0, s1) = (a + c, b + d);
+            let w = [a * a + b * b, c * c + d * d, s0 * s0 + s1 * s1];
+            for (corner, &v) in f.iter().enumerate() {
+                out[v as usize] += k * w[corner];
+            }
+        }
+        Ok(())
+    }
+
     /// Number of vertices.
     pub fn n_vertices(&self) -> usize {
         self.mass.len()

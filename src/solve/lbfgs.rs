@@ -14,14 +14,17 @@ pub struct LbfgsParams {
     pub max_iterations: usize,
     /// Stop when the largest gradient component is at most this (objective units per metre).
     pub grad_tol: f64,
-    /// Stop when `(f_k - f_{k+1}) / max(|f_k|, |f_{k+1}|, 1e-30)` is at most this.
+    /// Stop when the last step's decrease `f_k - f_{k+1}` is at most this fraction of the total
+    /// decrease so far `f_0 - f_{k+1}` (invariant to constant offsets of the objective, such as
+    /// the gravitational energy of the garment's height).
     pub rel_decrease_tol: f64,
     /// Armijo sufficient-decrease constant `c1`.
     pub armijo: f64,
     /// Most objective evaluations in one line search before giving up.
     pub max_line_search: usize,
     /// Longest first step along the steepest-descent direction, in metres of the largest
-    /// vertex move (the first iteration has no curvature information to scale it).
+    /// vertex move (the first iteration has no curvature information to scale it). Not used
+    /// with a preconditioner, whose first step `-P g` is already scaled.
     pub first_step: f64,
 }
 
@@ -43,7 +46,7 @@ impl Default for LbfgsParams {
 pub enum Termination {
     /// The gradient fell below `grad_tol`.
     Gradient,
-    /// The relative decrease fell below `rel_decrease_tol`.
+    /// The last step's decrease fell below `rel_decrease_tol` of the total decrease.
     RelativeDecrease,
     /// `max_iterations` reached.
     MaxIterations,
@@ -89,6 +92,8 @@ pub struct Lbfgs<T: Real> {
     g_new: Vec<[T; 3]>,
     d: Vec<[T; 3]>,
     x_new: Vec<[T; 3]>,
+    /// Inverse diagonal preconditioner per vertex (same for x, y, z); empty: identity.
+    precond: Vec<T>,
 }
 
 fn dot<T: Real>(a: &[[T; 3]], b: &[[T; 3]]) -> T {
@@ -134,7 +139,33 @@ impl<T: Real> Lbfgs<T> {
             g_new: vec![z; n],
             d: vec![z; n],
             x_new: vec![z; n],
+            precond: Vec::new(),
         }
+    }
+
+    /// Sets (or, with `None`, clears) a diagonal preconditioner: the inverse of an estimate of
+    /// the Hessian's diagonal, one positive value per vertex (same for its three coordinates).
+    /// The initial inverse Hessian becomes `γ P` instead of `γ I`, and the first step is `-P g`.
+    /// Allocates on the first call only.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] for a slice of the wrong length; [`Error::OutOfRange`] for a
+    /// non-positive or non-finite value (naming the vertex).
+    pub fn set_preconditioner(&mut self, inverse_diagonal: Option<&[T]>) -> Result<()> {
+        match inverse_diagonal {
+            None => self.precond.clear(),
+            Some(p) => {
+                if p.len() != self.n {
+                    return Err(Error::SizeMismatch { what: "preconditioner", expected: self.n, got: p.len() });
+                }
+                if let Some(i) = p.iter().position(|v| !(v.is_finite() && *v > T::ZERO)) {
+                    return Err(Error::OutOfRange { what: "preconditioner entry", index: i });
+                }
+                self.precond.clear();
+                self.precond.extend_from_slice(p);
+            }
+        }
+        Ok(())
     }
 
     /// Number of vertices this workspace is sized for.
@@ -186,10 +217,23 @@ impl<T: Real> Lbfgs<T> {
                 axpy(&mut self.d, -a, y);
             }
             let mut step = T::ONE;
+            let preconditioned = !self.precond.is_empty();
+            if preconditioned {
+                self.d.iter_mut().zip(&self.precond).for_each(|(p, &w)| *p = p.map(|c| c * w));
+            }
             if stored > 0 {
                 let k = (head + self.memory - 1) % self.memory;
                 let (s, y) = (&self.s[k * n..(k + 1) * n], &self.y[k * n..(k + 1) * n]);
-                let gamma = dot(s, y) / dot(y, y);
+                let ypy = if preconditioned {
+                    let mut acc = T::ZERO;
+                    for (q, &w) in y.iter().zip(&self.precond) {
+                        acc += (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]) * w;
+                    }
+                    acc
+                } else {
+                    dot(y, y)
+                };
+                let gamma = dot(s, y) / ypy;
                 self.d.iter_mut().for_each(|p| *p = p.map(|c| c * gamma));
                 for j in (0..stored).rev() {
                     let k = (head + self.memory - 1 - j) % self.memory;
@@ -197,7 +241,7 @@ impl<T: Real> Lbfgs<T> {
                     let b = self.rho[k] * dot(y, &self.d);
                     axpy(&mut self.d, self.alpha[k] - b, s);
                 }
-            } else {
+            } else if !preconditioned {
                 step = (T::from_f64(params.first_step) / gmax).min(T::ONE);
             }
             self.d.iter_mut().for_each(|p| *p = p.map(|c| -c));
@@ -250,10 +294,10 @@ impl<T: Real> Lbfgs<T> {
             x.copy_from_slice(&self.x_new);
             core::mem::swap(&mut self.g, &mut self.g_new);
             let decrease = (fx - f_new).to_f64();
-            let scale = fx.abs().max(f_new.abs()).to_f64().max(1e-30);
+            let total = f_start - f_new.to_f64();
             fx = f_new;
             iterations += 1;
-            if decrease / scale <= params.rel_decrease_tol {
+            if decrease <= params.rel_decrease_tol * total {
                 break Termination::RelativeDecrease;
             }
         };

@@ -45,6 +45,10 @@ pub fn relax_rest_shape<T: Real>(
     }
     let pinned = garment.pinned();
     let mut lbfgs = Lbfgs::<T>::new(n, 10);
+    let mut diag = vec![T::ZERO; n];
+    cloth.stretch_stiffness_into(&mut diag)?;
+    diag.iter_mut().for_each(|d| *d = T::ONE / *d);
+    lbfgs.set_preconditioner(Some(&diag))?;
     let mut nearest = vec![0u32; n];
     let mut x32 = vec![[0.0f32; 3]; n];
     let mut round = |x: &mut [[T; 3]]| -> Result<LbfgsReport> {

@@ -59,6 +59,12 @@ fn solve_lbfgs_rejects_wrong_size() {
     let mut x = vec![[0.0f32; 3]; 2];
     let r = solver.minimize(&mut x, &LbfgsParams::default(), |_, _| Ok(0.0));
     assert!(matches!(r, Err(crate::Error::SizeMismatch { .. })));
+    assert!(matches!(
+        solver.set_preconditioner(Some(&[1.0, 0.0, 1.0])),
+        Err(crate::Error::OutOfRange { index: 1, .. })
+    ));
+    assert!(matches!(solver.set_preconditioner(Some(&[1.0])), Err(crate::Error::SizeMismatch { .. })));
+    assert!(solver.set_preconditioner(Some(&[1.0, 2.0, 1.0])).is_ok());
 }
 
 /// A square of cloth, `nx` x `nx` vertices over `size` metres at height `y`, pinned at the two
