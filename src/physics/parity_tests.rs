@@ -4,6 +4,7 @@
 use super::tests::rel_err;
 use super::*;
 use crate::io::safetensors::SafeTensors;
+use crate::math::Real;
 use crate::mesh::{Garment, GarmentDesc};
 use alloc::vec::Vec;
 use std::println;
@@ -23,8 +24,12 @@ fn rows3(st: &SafeTensors, name: &str) -> Vec<[f32; 3]> {
     st.f32(name).unwrap().rows::<3>().unwrap()
 }
 
-fn to64(v: &[[f32; 3]]) -> Vec<[f64; 3]> {
-    v.iter().map(|p| p.map(|c| c as f64)).collect()
+fn conv<T: Real>(v: &[[f32; 3]]) -> Vec<[T; 3]> {
+    v.iter().map(|p| p.map(T::from_f32)).collect()
+}
+
+fn to64<T: Real>(v: &[[T; 3]]) -> Vec<[f64; 3]> {
+    v.iter().map(|p| p.map(|c| c.to_f64())).collect()
 }
 
 /// Centroids computed in f32 as the reference does, for its nearest-centroid search.
@@ -43,15 +48,15 @@ fn max_rel(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((x - y).abs())) / scale
 }
 
-struct Frame {
-    cent: Vec<[f64; 3]>,
-    norm: Vec<[f64; 3]>,
+struct Frame<T> {
+    cent: Vec<[T; 3]>,
+    norm: Vec<[T; 3]>,
     query: BruteForceCentroids,
 }
 
-fn frame(pos: &[[f32; 3]], faces: &[[u32; 3]]) -> Frame {
-    let mut cent = alloc::vec![[0.0; 3]; faces.len()];
-    let mut norm = alloc::vec![[0.0; 3]; faces.len()];
+fn frame<T: Real>(pos: &[[f32; 3]], faces: &[[u32; 3]]) -> Frame<T> {
+    let mut cent = alloc::vec![[T::ZERO; 3]; faces.len()];
+    let mut norm = alloc::vec![[T::ZERO; 3]; faces.len()];
     face_frames(pos, faces, &mut cent, &mut norm).unwrap();
     Frame { cent, norm, query: BruteForceCentroids { centroids: centroids32(pos, faces) } }
 }
@@ -79,16 +84,33 @@ fn physics_parity_terms_against_reference() {
     assert!(e_dm < 1e-5 && e_area < 1e-6 && e_mass < 1e-6);
     assert_eq!(garment.hinges().len(), scene.i64("cloth_f_connectivity").unwrap().shape[0]);
 
-    let cloth = Cloth::<f64>::new(&garment);
-    let pos32 = rows3(&scene, "cloth_pos");
-    let pos = to64(&pos32);
-    let vel = to64(&rows3(&scene, "cloth_velocity"));
-    let dt = scene.f32("timestep").unwrap().data[0] as f64;
+    check_terms::<f64>(&scene, &losses, &garment, 1e-5, 1e-4);
+}
+
+#[test]
+fn physics_parity_terms_against_reference_f32() {
+    // The same code in f32 meets the same bounds.
+    let (Some(scene), Some(losses)) = (open("fixture_scene.safetensors"), open("fixture_losses.safetensors")) else {
+        return;
+    };
+    let rest = rows3(&scene, "cloth_rest_pos");
+    let faces: Vec<[u32; 3]> =
+        scene.i64("cloth_faces").unwrap().rows::<3>().unwrap().iter().map(|f| f.map(|i| i as u32)).collect();
+    let garment = Garment::new(GarmentDesc::new(&rest, &faces)).unwrap();
+    check_terms::<f32>(&scene, &losses, &garment, 1e-5, 1e-4);
+}
+
+fn check_terms<T: Real>(scene: &SafeTensors, losses: &SafeTensors, garment: &Garment, tol_value: f64, tol_grad: f64) {
+    let cloth = Cloth::<T>::new(garment);
+    let pos32 = rows3(scene, "cloth_pos");
+    let pos = conv::<T>(&pos32);
+    let vel = conv::<T>(&rows3(scene, "cloth_velocity"));
+    let dt = T::from_f32(scene.f32("timestep").unwrap().data[0]);
     let body_faces: Vec<[u32; 3]> =
         scene.i64("body_faces").unwrap().rows::<3>().unwrap().iter().map(|f| f.map(|i| i as u32)).collect();
-    let prev = frame(&rows3(&scene, "body_prev_pos"), &body_faces);
-    let cur = frame(&rows3(&scene, "body_pos"), &body_faces);
-    let next = frame(&rows3(&scene, "body_target_pos"), &body_faces);
+    let prev = frame::<T>(&rows3(scene, "body_prev_pos"), &body_faces);
+    let cur = frame::<T>(&rows3(scene, "body_pos"), &body_faces);
+    let next = frame::<T>(&rows3(scene, "body_target_pos"), &body_faces);
     let n = pos.len();
     let mut near_cur = alloc::vec![0u32; n];
     cur.query.nearest_into(&pos32, &mut near_cur);
@@ -97,19 +119,19 @@ fn physics_parity_terms_against_reference() {
 
     let reference = FrictionParams::REFERENCE;
     for set in ["pred", "noise5mm", "vel_noise5mm"] {
-        let x32 = rows3(&losses, &std::format!("{set}.positions"));
-        let x = to64(&x32);
+        let x32 = rows3(losses, &std::format!("{set}.positions"));
+        let x = conv::<T>(&x32);
         let mut near_x = alloc::vec![0u32; n];
         cur.query.nearest_into(&x32, &mut near_x);
-        type TermFn<'a> = &'a dyn Fn(Option<&mut [[f64; 3]]>) -> f64;
-        let terms: [(&str, TermFn); 6] = [
+        type TermFn<'a, T> = &'a dyn Fn(Option<&mut [[T; 3]]>) -> T;
+        let terms: [(&str, TermFn<T>); 6] = [
             ("stretching_energy", &|g| stretching(&cloth, &x, g).unwrap()),
             ("bending_energy", &|g| bending(&cloth, &x, g).unwrap()),
             ("inertia", &|g| inertia(&cloth, &pos, &vel, dt, &x, g).unwrap()),
             ("gravitational_energy", &|g| gravity(&cloth, &x, g).unwrap()),
             ("collision_penalty", &|g| {
                 let nf = FaceFrame { centroids: &next.cent, normals: &next.norm };
-                collision(&x, &near_cur, nf, 2e-3, 5e3, g).unwrap()
+                collision(&x, &near_cur, nf, T::from_f64(2e-3), T::from_f64(5e3), g).unwrap()
             }),
             ("friction_energy", &|g| {
                 // The reference's frames: B_a = body prev, B_b = body current.
@@ -120,14 +142,18 @@ fn physics_parity_terms_against_reference() {
         ];
         for (name, term) in terms {
             let want = losses.f32(&std::format!("{set}.{name}.loss")).unwrap().data[0] as f64;
-            let want_g = to64(&rows3(&losses, &std::format!("{set}.{name}.grad")));
-            let mut g = alloc::vec![[0.0f64; 3]; n];
-            let got = term(Some(&mut g));
+            let want_g = to64(&conv::<f64>(&rows3(losses, &std::format!("{set}.{name}.grad"))));
+            let mut g = alloc::vec![[T::ZERO; 3]; n];
+            let got = term(Some(&mut g)).to_f64();
+            let g = to64(&g);
             let ev = (got - want).abs() / want.abs();
             let eg = rel_err(&g, &want_g);
-            println!("{set:>12} {name:<21} ours {got:.7e} ref {want:.7e} value rel err {ev:.2e} grad rel err {eg:.2e}");
-            assert!(ev < 1e-5, "{set} {name}: value rel err {ev:e}");
-            assert!(eg < 1e-4, "{set} {name}: gradient rel err {eg:e}");
+            println!(
+                "{} {set:>12} {name:<21} ours {got:.7e} ref {want:.7e} value rel err {ev:.2e} grad rel err {eg:.2e}",
+                core::any::type_name::<T>()
+            );
+            assert!(ev < tol_value, "{set} {name}: value rel err {ev:e}");
+            assert!(eg < tol_grad, "{set} {name}: gradient rel err {eg:e}");
         }
     }
 }
