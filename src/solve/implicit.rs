@@ -4,7 +4,7 @@ use super::{Lbfgs, LbfgsParams, LbfgsReport};
 use crate::error::{Error, Result};
 use crate::math::{add3, Real};
 use crate::physics::{check_len, CentroidQuery, Cloth, CollisionInput, FaceFrame, FrictionFrames, FrictionInput};
-use crate::physics::{Objective, StepInputs};
+use crate::physics::{Objective, StepInputs, Terms};
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -133,33 +133,11 @@ impl<T: Real> ImplicitStep<T> {
         } else {
             lbfgs.set_preconditioner(None)?;
         }
-        let mut friction_b: Option<(&dyn CentroidQuery, FaceFrame<'_, T>, FaceFrame<'_, T>)> = None;
-        if let Some(b) = body {
-            to_f32(state.pos, x32);
-            b.query_current.nearest_into(x32, near_cur);
-            if let Some(fp) = &objective.friction {
-                let (qa, fa, qb, fb) = match fp.frames {
-                    FrictionFrames::CurrentNext => (b.query_current, b.current, b.query_next, b.next),
-                    FrictionFrames::PrevCurrent => (b.query_prev, b.prev, b.query_current, b.current),
-                };
-                qa.nearest_into(x32, near_a);
-                friction_b = Some((qb, fa, fb));
-            }
-        }
+        let friction_b = prepare_contacts(objective, state, body, near_cur, near_a, x32);
         let next = body.map(|b| b.next);
+        let mut scratch = Contacts { near_cur, near_a, near_b, x32 };
         lbfgs.minimize(x, params, |y, grad| {
-            let mut inputs =
-                StepInputs { pos: state.pos, velocity: state.velocity, dt: state.dt, collision: None, friction: None };
-            if let Some(next) = next {
-                inputs.collision = Some(CollisionInput { nearest: near_cur, next });
-            }
-            if let Some((qb, fa, fb)) = friction_b {
-                to_f32(y, x32);
-                qb.nearest_into(x32, near_b);
-                inputs.friction =
-                    Some(FrictionInput { frame_a: fa, frame_b: fb, nearest_a: near_a, nearest_b: near_b });
-            }
-            let t = objective.eval(cloth, &inputs, y, Some(grad))?;
+            let t = eval_terms(cloth, objective, state, next, friction_b, &mut scratch, y, Some(&mut *grad))?;
             for (g, &p) in grad.iter_mut().zip(pinned) {
                 if p {
                     *g = [T::ZERO; 3];
@@ -168,4 +146,89 @@ impl<T: Real> ImplicitStep<T> {
             Ok(t.total())
         })
     }
+
+    /// The objective's terms at `x` under the same rules as [`ImplicitStep::step`] (collision
+    /// faces nearest to `pos`, friction faces nearest to `x`): the figure to compare a model's
+    /// prediction, the coasting guess `pos + velocity` and the step's optimum with (EVALUATION.md
+    /// "objective gap"). Allocates nothing.
+    ///
+    /// # Errors
+    /// As [`ImplicitStep::step`].
+    pub fn evaluate(
+        &mut self,
+        cloth: &Cloth<T>,
+        objective: &Objective,
+        state: &StepState<'_, T>,
+        body: Option<&StepBody<'_, T>>,
+        x: &[[T; 3]],
+    ) -> Result<Terms<T>> {
+        let n = cloth.n_vertices();
+        check_len("implicit step workspace", self.near_cur.len(), n)?;
+        check_len("positions", x.len(), n)?;
+        check_len("current positions", state.pos.len(), n)?;
+        if body.is_none() && (objective.collision.is_some() || objective.friction.is_some()) {
+            return Err(Error::Empty { what: "body (collision or friction enabled)" });
+        }
+        let Self { near_cur, near_a, near_b, x32, .. } = self;
+        let friction_b = prepare_contacts(objective, state, body, near_cur, near_a, x32);
+        let mut scratch = Contacts { near_cur, near_a, near_b, x32 };
+        eval_terms(cloth, objective, state, body.map(|b| b.next), friction_b, &mut scratch, x, None)
+    }
+}
+
+/// The nearest-face buffers the contact terms read.
+struct Contacts<'a> {
+    near_cur: &'a mut [u32],
+    near_a: &'a mut [u32],
+    near_b: &'a mut [u32],
+    x32: &'a mut [[f32; 3]],
+}
+
+/// What friction needs per evaluation: the query at `B_b` and the two frames.
+type FrictionFramesOf<'a, T> = (&'a dyn CentroidQuery, FaceFrame<'a, T>, FaceFrame<'a, T>);
+
+/// Nearest faces of `pos` (collision at the current frame, friction at `B_a`).
+fn prepare_contacts<'a, T: Real>(
+    objective: &Objective,
+    state: &StepState<'_, T>,
+    body: Option<&StepBody<'a, T>>,
+    near_cur: &mut [u32],
+    near_a: &mut [u32],
+    x32: &mut [[f32; 3]],
+) -> Option<FrictionFramesOf<'a, T>> {
+    let b = body?;
+    to_f32(state.pos, x32);
+    b.query_current.nearest_into(x32, near_cur);
+    let fp = objective.friction.as_ref()?;
+    let (qa, fa, qb, fb) = match fp.frames {
+        FrictionFrames::CurrentNext => (b.query_current, b.current, b.query_next, b.next),
+        FrictionFrames::PrevCurrent => (b.query_prev, b.prev, b.query_current, b.current),
+    };
+    qa.nearest_into(x32, near_a);
+    Some((qb, fa, fb))
+}
+
+/// The objective at `y`, refreshing friction's nearest faces of `y` first.
+#[allow(clippy::too_many_arguments)]
+fn eval_terms<T: Real>(
+    cloth: &Cloth<T>,
+    objective: &Objective,
+    state: &StepState<'_, T>,
+    next: Option<FaceFrame<'_, T>>,
+    friction_b: Option<FrictionFramesOf<'_, T>>,
+    c: &mut Contacts<'_>,
+    y: &[[T; 3]],
+    grad: Option<&mut [[T; 3]]>,
+) -> Result<Terms<T>> {
+    let mut inputs =
+        StepInputs { pos: state.pos, velocity: state.velocity, dt: state.dt, collision: None, friction: None };
+    if let Some(next) = next {
+        inputs.collision = Some(CollisionInput { nearest: c.near_cur, next });
+    }
+    if let Some((qb, fa, fb)) = friction_b {
+        to_f32(y, c.x32);
+        qb.nearest_into(c.x32, c.near_b);
+        inputs.friction = Some(FrictionInput { frame_a: fa, frame_b: fb, nearest_a: c.near_a, nearest_b: c.near_b });
+    }
+    objective.eval(cloth, &inputs, y, grad)
 }

@@ -151,6 +151,13 @@ fn solve_implicit_step_settles_on_static_body() {
         let state = StepState { pos: &pos, velocity: &vel, dt: 1.0 / 30.0, pinned: &[], targets: &[] };
         let r = step.step(&cloth, &objective, &state, Some(&sb), &params, &mut x).unwrap();
         assert!(r.f <= r.f_start);
+        // The step's optimum is scored by the same function as any other candidate, and beats
+        // coasting.
+        let at_opt = step.evaluate(&cloth, &objective, &state, Some(&sb), &x).unwrap().total();
+        assert!((at_opt - r.f).abs() <= 1e-12 * r.f.abs(), "{at_opt} vs {}", r.f);
+        let coast: Vec<[f64; 3]> = (0..n).map(|i| crate::math::add3(pos[i], vel[i])).collect();
+        let at_coast = step.evaluate(&cloth, &objective, &state, Some(&sb), &coast).unwrap().total();
+        assert!(at_coast >= at_opt && (at_coast - r.f_start).abs() <= 1e-12 * at_coast.abs());
         for i in 0..n {
             vel[i] = crate::math::sub3(x[i], pos[i]);
         }
