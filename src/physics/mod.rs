@@ -1,7 +1,7 @@
 //! The physics objective (MODEL.md section 6): energy terms with analytic gradients, the
 //! objective that sums them, and the evaluation metrics (EVALUATION.md "Accuracy").
 //!
-//! Every term is generic over [`Real`] so the same code runs in `f32` (runtime, trainer) and
+//! Every term is generic over [`Real`](crate::math::Real) so the same code runs in `f32` (runtime, trainer) and
 //! `f64` (gradient checks, reference solves). Terms take plain slices (garment positions, body
 //! face centroids and normals, nearest-face indices), **add** their gradient with respect to the
 //! predicted positions `x` into a caller buffer, and allocate nothing.
@@ -11,6 +11,22 @@
 //!
 //! Units: metres, kilograms, seconds; energies in joules (the collision penalty in its own units,
 //! weight × m³); `dt` in seconds; velocities in metres per frame (as in HOOD).
+//!
+//! * Terms: [`stretching()`], [`bending()`], [`inertia()`], [`gravity()`], [`collision()`],
+//!   [`friction()`]; garment constants precomputed once in [`Cloth`] (rest frames, or separate
+//!   2D rest triangles with [`Cloth::with_rest_2d`]).
+//! * [`Objective`]: which terms a scene enables ([`Objective::training`],
+//!   [`Objective::evaluation`], [`Objective::relaxation`], [`Objective::cloth_only`]), evaluated
+//!   with [`Objective::eval`] into [`Terms`].
+//! * Body data: [`face_frames`] (centroids and unit normals per face); nearest face centroids
+//!   through [`CentroidQuery`], implemented by the body module's
+//!   [`PointGrid`](crate::body::PointGrid) and [`BodyFrame`](crate::body::BodyFrame), and by
+//!   [`BruteForceCentroids`].
+//! * Friction's three reference quirks are [`FrictionParams`] fields:
+//!   [`FrictionParams::PHYSICAL`] (hood) and [`FrictionParams::REFERENCE`] (postcvpr).
+//! * Metrics: [`score_rollout`] (per-frame and mean terms, % penetrating vertices, largest edge
+//!   strain, largest speed).
+//! * Solvers on this objective (L-BFGS, implicit step, relaxation, push-out): [`crate::solve`].
 
 mod bending;
 mod cloth;
@@ -41,7 +57,7 @@ use crate::error::{Error, Result};
 ///
 /// # Errors
 /// [`Error::SizeMismatch`] naming `what` otherwise.
-pub fn check_len(what: &'static str, got: usize, expected: usize) -> Result<()> {
+pub(crate) fn check_len(what: &'static str, got: usize, expected: usize) -> Result<()> {
     if got == expected {
         Ok(())
     } else {
