@@ -244,6 +244,15 @@ impl ModelSpec {
         k
     }
 
+    /// Position of `key`'s encoder in [`ModelSpec::encoded_keys`] order, without allocating.
+    pub fn encoder_index(&self, key: EdgeKey) -> Option<usize> {
+        match key.coarse_level() {
+            Some(l) if l < self.levels => Some(l),
+            Some(_) => None,
+            None => Some(self.levels),
+        }
+    }
+
     /// Number of aggregated message slots of block `b` for garment nodes: its keys, plus body.
     pub fn node_inputs(&self, b: &BlockSpec) -> usize {
         1 + b.keys.len() + usize::from(self.effects.body)

@@ -7,8 +7,10 @@
 //!
 //! Units: metres; one step is one frame at the model's 30 Hz (velocities are m/frame).
 
+pub mod exec;
 pub mod graph;
 pub mod network;
+mod par;
 
 use crate::body::{BodyMesh, Nearest, PointGrid};
 use crate::error::{Error, Result};
@@ -19,8 +21,12 @@ use crate::math::finite3;
 use crate::mesh::{vertex_normals, Garment};
 use crate::model::file::Model;
 use crate::model::spec::EdgeKey;
+use alloc::boxed::Box;
 use alloc::vec;
 use alloc::vec::Vec;
+#[cfg(feature = "std")]
+pub use exec::ThreadPool;
+pub use exec::{Executor, Serial};
 pub use graph::Graph;
 use network::{BodyEdges, Net, Workspace};
 pub use network::{Probe, Stage};
@@ -72,6 +78,9 @@ pub struct SimConfig {
     pub startup: bool,
     /// Kernel path cap (`None`: the best this CPU has).
     pub tier: Option<Tier>,
+    /// Threads for the step's parallel parts when no executor is plugged in with
+    /// [`Sim::set_executor`]: 1 runs serially; more starts a [`ThreadPool`] (feature `std`).
+    pub threads: usize,
 }
 
 impl Default for SimConfig {
@@ -84,6 +93,7 @@ impl Default for SimConfig {
             precision: Precision::F32,
             startup: true,
             tier: None,
+            threads: 1,
         }
     }
 }
@@ -132,6 +142,7 @@ pub struct Sim<'m> {
     output_normals: Vec<[f32; 3]>,
     rest_frames: u32,
     ws: Workspace,
+    exec: Box<dyn Executor + 'm>,
 }
 
 /// The body of a scene: its mesh (optionally with omitted vertices) and its positions at the
@@ -252,7 +263,20 @@ impl<'m> Sim<'m> {
             output_normals: if cfg.normals { vec![[0.0; 3]; n] } else { Vec::new() },
             rest_frames: 0,
             ws,
+            exec: default_executor(cfg.threads),
         })
+        .map(|mut sim: Sim<'m>| {
+            sim.ws.set_tasks(sim.exec.parallelism(), &sim.graph);
+            sim
+        })
+    }
+
+    /// Plugs in the executor that runs the step's parallel parts (an engine's job system).
+    /// Sizes per-task scratch for its [`Executor::parallelism`] (this allocates; the steps
+    /// that follow do not).
+    pub fn set_executor(&mut self, exec: Box<dyn Executor + 'm>) {
+        self.ws.set_tasks(exec.parallelism(), &self.graph);
+        self.exec = exec;
     }
 
     /// The kernel path in use.
@@ -489,7 +513,7 @@ impl<'m> Sim<'m> {
         if self.ws.uses(EdgeKey::Mesh) {
             let e = &self.graph.mesh.global;
             features::edge_features(e, pos, rest, &self.material_in, dt, self.ws.edge_feature_rows(e.len()))?;
-            self.ws.encode_edges(&self.net, EdgeKey::Mesh, e.len())?;
+            self.ws.encode_edges(&self.net, &*self.exec, EdgeKey::Mesh, e.len())?;
         }
         for l in 0..self.graph.coarse.len().min(3) {
             let key = EdgeKey::coarse(l).unwrap_or(EdgeKey::Mesh);
@@ -500,13 +524,13 @@ impl<'m> Sim<'m> {
             let rows = self.ws.edge_feature_rows(e.len());
             debug_assert_eq!(rows.len(), e.len() * EDGE_WIDTH);
             features::edge_features(e, pos, rest, &self.material_in, dt, rows)?;
-            self.ws.encode_edges(&self.net, key, e.len())?;
+            self.ws.encode_edges(&self.net, &*self.exec, key, e.len())?;
         }
         let body_edges = match &self.body {
             Some(b) => BodyEdges { garment: &b.edge_garment[..nb], body: &b.edge_body[..nb], n_active, prefix },
             None => BodyEdges { garment: &[], body: &[], n_active: 0, prefix: [0; 4] },
         };
-        self.ws.forward(&self.net, &self.graph, &body_edges, observer)?;
+        self.ws.forward(&self.net, &*self.exec, &self.graph, &body_edges, observer)?;
         // Integrate: acc = decoded * std + mean; v' = v + acc; x' = x + v + acc.
         let (mean, std) = model.output_stats();
         for i in 0..n {
@@ -544,4 +568,13 @@ impl<'m> Sim<'m> {
         }
         Ok(())
     }
+}
+
+fn default_executor<'m>(threads: usize) -> Box<dyn Executor + 'm> {
+    #[cfg(feature = "std")]
+    if threads > 1 {
+        return Box::new(ThreadPool::new(threads));
+    }
+    let _ = threads;
+    Box::new(Serial)
 }

@@ -1,7 +1,9 @@
 //! The network's forward pass over a step's buffers: encode, process (blocks), decode. Every
 //! buffer is sized once by [`Workspace::new`]; [`Workspace::forward`] allocates nothing.
 
-use super::graph::Graph;
+use super::exec::Executor;
+use super::graph::{EdgeList, Graph};
+use super::par::{first_error, split, target_bounds, Disjoint};
 use crate::error::{Error, Result};
 use crate::features::{BODY_EDGE_WIDTH, EDGE_WIDTH, NODE_NORMALISED, NODE_WIDTH};
 use crate::kernels::{self, EdgeInputs, EdgeMlp, Epilogue, Kernels, Operand, MAX_OPERANDS};
@@ -10,6 +12,7 @@ use crate::model::spec::EdgeKey;
 use crate::normaliser::normalise_rows;
 use alloc::vec;
 use alloc::vec::Vec;
+use core::ops::Range;
 
 /// Rows per chunk when an MLP runs over many rows (bounds the hidden-layer temporaries).
 const CHUNK: usize = 256;
@@ -49,20 +52,56 @@ pub struct Probe<'a> {
     pub body: &'a [f32],
 }
 
+/// Scratch owned by one task.
+#[derive(Clone, Debug)]
+pub struct TaskBufs {
+    t1: Vec<f32>,
+    t2: Vec<f32>,
+    lin: Vec<f32>,
+    edge: Vec<f32>,
+}
+
+/// How a static edge list is split between tasks: edge boundaries at target changes, and the
+/// targets rebased to each task's first target.
+#[derive(Clone, Debug, Default)]
+struct EdgeSplit {
+    bounds: Vec<usize>,
+    rebased: Vec<u32>,
+}
+
+impl EdgeSplit {
+    fn new(e: &EdgeList, tasks: usize) -> EdgeSplit {
+        let mut bounds = vec![0; tasks + 1];
+        target_bounds(&e.target, tasks, &mut bounds);
+        let mut rebased = vec![0; e.target.len()];
+        for t in 0..tasks {
+            let (a, b) = (bounds[t], bounds[t + 1]);
+            if a < b {
+                let lo = e.target[a];
+                for k in a..b {
+                    rebased[k] = e.target[k] - lo;
+                }
+            }
+        }
+        EdgeSplit { bounds, rebased }
+    }
+}
+
 /// Every buffer of the forward pass.
 #[derive(Clone, Debug)]
 pub struct Workspace {
     h: usize,
     v: usize,
     max_active: usize,
+    lin_len: usize,
     /// Node features, garment rows then active body rows (24 wide).
     pub node_features: Vec<f32>,
     latents: Vec<f32>,
     next_latents: Vec<f32>,
     edge_features: Vec<f32>,
-    /// Body edge features, garment->body then body->garment (9 wide each).
+    /// Body edge features, garment->body (9 wide).
     pub g2b_features: Vec<f32>,
-    /// See `g2b_features`.
+    /// Body edge features, body->garment (9 wide).
     pub b2g_features: Vec<f32>,
     mesh_latents: Vec<f32>,
     coarse_latents: Vec<Vec<f32>>,
@@ -71,12 +110,15 @@ pub struct Workspace {
     slots: Vec<Vec<f32>>,
     proj_t: Vec<f32>,
     proj_s: Vec<f32>,
+    proj_edge: Vec<f32>,
     gathered: Vec<f32>,
     local_agg: Vec<f32>,
-    t1: Vec<f32>,
-    t2: Vec<f32>,
-    lin_scratch: Vec<f32>,
-    edge_scratch: Vec<f32>,
+    g2b_offsets: Vec<u32>,
+    g2b_perm: Vec<u32>,
+    tasks: Vec<TaskBufs>,
+    errors: Vec<Option<Error>>,
+    mesh_split: EdgeSplit,
+    coarse_split: Vec<EdgeSplit>,
     /// Decoder output (normalised accelerations), `v × 3`.
     pub decoded: Vec<f32>,
     uses_key: [bool; 4],
@@ -88,7 +130,7 @@ fn key_index(k: EdgeKey) -> usize {
 
 impl Workspace {
     /// Sizes every buffer for `model` on `graph` with at most `max_active` active body nodes
-    /// (0 without a body).
+    /// (0 without a body), for one task; see [`Workspace::set_tasks`].
     pub fn new(model: &Model<'_>, graph: &Graph, max_active: usize) -> Result<Workspace> {
         let spec = model.spec();
         let h = spec.latent;
@@ -121,11 +163,12 @@ impl Workspace {
         let max_e = coarse_e.iter().copied().max().unwrap_or(0).max(e_mesh);
         let b = if has_body { v } else { 0 };
         let max_in = spec.blocks.iter().map(|b| spec.node_inputs(b) * h).max().unwrap_or(0).max(3 * h).max(NODE_WIDTH);
-        let lin_scratch = kernels::LINEAR_BLOCK_ROWS * (max_in + 2 * MAX_OPERANDS + kernels::padded_cols(h.max(3)));
-        Ok(Workspace {
+        let lin_len = kernels::LINEAR_BLOCK_ROWS * (max_in + 2 * MAX_OPERANDS + kernels::padded_cols(h.max(3)));
+        let mut ws = Workspace {
             h,
             v,
             max_active,
+            lin_len,
             node_features: vec![0.0; rows * NODE_WIDTH],
             latents: vec![0.0; rows * h],
             next_latents: vec![0.0; rows * h],
@@ -139,15 +182,37 @@ impl Workspace {
             slots: (0..max_slots).map(|_| vec![0.0; rows * h]).collect(),
             proj_t: vec![0.0; v.max(max_active) * h],
             proj_s: vec![0.0; v.max(max_active) * h],
+            proj_edge: vec![0.0; b * h],
             gathered: vec![0.0; v * h],
             local_agg: vec![0.0; v * h],
-            t1: vec![0.0; CHUNK * h],
-            t2: vec![0.0; CHUNK * h],
-            lin_scratch: vec![0.0; lin_scratch],
-            edge_scratch: vec![0.0; kernels::edge_mlp_scratch_len(h, h)],
+            g2b_offsets: vec![0; max_active + 1],
+            g2b_perm: vec![0; b],
+            tasks: Vec::new(),
+            errors: Vec::new(),
+            mesh_split: EdgeSplit::default(),
+            coarse_split: Vec::new(),
             decoded: vec![0.0; v * 3],
             uses_key,
-        })
+        };
+        ws.set_tasks(1, graph);
+        Ok(ws)
+    }
+
+    /// Sizes per-task scratch and edge splits for `tasks` parallel tasks (allocates).
+    pub fn set_tasks(&mut self, tasks: usize, graph: &Graph) {
+        let tasks = tasks.clamp(1, 256);
+        let h = self.h;
+        self.tasks = (0..tasks)
+            .map(|_| TaskBufs {
+                t1: vec![0.0; CHUNK * h],
+                t2: vec![0.0; CHUNK * h],
+                lin: vec![0.0; self.lin_len],
+                edge: vec![0.0; kernels::edge_mlp_scratch_len(h, h)],
+            })
+            .collect();
+        self.errors = vec![None; tasks];
+        self.mesh_split = EdgeSplit::new(&graph.mesh, tasks);
+        self.coarse_split = graph.coarse.iter().map(|c| EdgeSplit::new(&c.edges, tasks)).collect();
     }
 
     /// The mesh/coarse edge feature buffer for `n` edges (features are written by the caller,
@@ -162,30 +227,21 @@ impl Workspace {
     }
 
     /// Normalises the first `n` edge feature rows and encodes them into the latents of `key`.
-    pub fn encode_edges(&mut self, net: &Net<'_>, key: EdgeKey, n: usize) -> Result<()> {
+    pub fn encode_edges(&mut self, net: &Net<'_>, exec: &dyn Executor, key: EdgeKey, n: usize) -> Result<()> {
         let (mean, std) = net.model.edge_stats();
         let rows = &mut self.edge_features[..n * EDGE_WIDTH];
         normalise_rows(rows, EDGE_WIDTH, mean, std);
         let enc_i = net
             .model
             .spec()
-            .encoded_keys()
-            .iter()
-            .position(|&k| k == key)
+            .encoder_index(key)
             .ok_or(Error::IncompatibleModel { reason: "the model has no encoder for an edge set it uses" })?;
         let out = match key.coarse_level() {
             Some(l) => &mut self.coarse_latents[l][..n * self.h],
             None => &mut self.mesh_latents[..n * self.h],
         };
-        net.mlp(
-            &net.model.edge_encoders[enc_i],
-            &[Some(&self.edge_features[..n * EDGE_WIDTH])],
-            n,
-            out,
-            false,
-            (&mut self.t1, &mut self.t2),
-            &mut self.lin_scratch,
-        )
+        let mut p = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors };
+        p.mlp(net, &net.model.edge_encoders[enc_i], &[Some(&self.edge_features[..n * EDGE_WIDTH])], n, out, false)
     }
 
     /// The forward pass after the edge latents are encoded: nodes (features already in
@@ -194,6 +250,7 @@ impl Workspace {
     pub fn forward(
         &mut self,
         net: &Net<'_>,
+        exec: &dyn Executor,
         graph: &Graph,
         body: &BodyEdges<'_>,
         observer: &mut dyn FnMut(Probe<'_>),
@@ -206,18 +263,18 @@ impl Workspace {
         let rows = v + a;
         let nb = body.prefix[0];
         let model = net.model;
+        let mut par = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors };
         // Nodes: normalise the first 21 columns, encode.
         let (mean, std) = model.node_stats();
         let feats = &mut self.node_features[..rows * NODE_WIDTH];
         normalise_rows(feats, NODE_WIDTH, &mean[..NODE_NORMALISED], &std[..NODE_NORMALISED]);
-        net.mlp(
+        par.mlp(
+            net,
             &model.node_encoder,
             &[Some(&self.node_features[..rows * NODE_WIDTH])],
             rows,
             &mut self.latents[..rows * h],
             false,
-            (&mut self.t1, &mut self.t2),
-            &mut self.lin_scratch,
         )?;
         // Body edges: both directions, one normaliser, one encoder.
         if nb > 0 {
@@ -227,15 +284,7 @@ impl Workspace {
                 [(&mut self.g2b_features, &mut self.g2b_latents), (&mut self.b2g_features, &mut self.b2g_latents)]
             {
                 normalise_rows(&mut f[..nb * BODY_EDGE_WIDTH], BODY_EDGE_WIDTH, mean, std);
-                net.mlp(
-                    enc,
-                    &[Some(&f[..nb * BODY_EDGE_WIDTH])],
-                    nb,
-                    &mut lat[..nb * h],
-                    false,
-                    (&mut self.t1, &mut self.t2),
-                    &mut self.lin_scratch,
-                )?;
+                par.mlp(net, enc, &[Some(&f[..nb * BODY_EDGE_WIDTH])], nb, &mut lat[..nb * h], false)?;
             }
         }
         observer(Probe {
@@ -255,39 +304,33 @@ impl Workspace {
                     None => {
                         let e = &graph.mesh;
                         let x = &self.latents[..v * h];
-                        net.edge_mlp(
+                        par.edge_mlp(
+                            net,
                             mlp,
                             (x, x),
-                            (&e.target, &e.source),
+                            Edges::Split { list: e, split: &self.mesh_split },
                             &mut self.mesh_latents[..e.target.len() * h],
                             &mut slot[..v * h],
-                            (&mut self.proj_t, &mut self.proj_s),
-                            (&mut self.lin_scratch, &mut self.edge_scratch),
+                            (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
                         )?;
                     }
                     Some(l) => {
                         let level = &graph.coarse[l];
                         let nl = level.nodes.len();
-                        for (r, &g) in level.nodes.iter().enumerate() {
-                            let g = g as usize;
-                            self.gathered[r * h..(r + 1) * h].copy_from_slice(&self.latents[g * h..(g + 1) * h]);
-                        }
+                        gather(&self.latents, &level.nodes, h, &mut self.gathered[..nl * h]);
                         let local = &mut self.local_agg[..nl * h];
                         local.fill(0.0);
                         let x = &self.gathered[..nl * h];
-                        net.edge_mlp(
+                        par.edge_mlp(
+                            net,
                             mlp,
                             (x, x),
-                            (&level.edges.target, &level.edges.source),
+                            Edges::Split { list: &level.edges, split: &self.coarse_split[l] },
                             &mut self.coarse_latents[l][..level.edges.target.len() * h],
                             local,
-                            (&mut self.proj_t, &mut self.proj_s),
-                            (&mut self.lin_scratch, &mut self.edge_scratch),
+                            (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
                         )?;
-                        for (r, &g) in level.nodes.iter().enumerate() {
-                            let g = g as usize;
-                            slot[g * h..(g + 1) * h].copy_from_slice(&self.local_agg[r * h..(r + 1) * h]);
-                        }
+                        scatter(&self.local_agg[..nl * h], &level.nodes, h, slot);
                     }
                 }
             }
@@ -297,38 +340,44 @@ impl Workspace {
                 let n = body.prefix[depth];
                 let slot = &mut self.slots[bspec.keys.len()][..rows * h];
                 if n > 0 {
-                    for (r, &g) in body.garment[..n].iter().enumerate() {
-                        let g = g as usize;
-                        self.gathered[r * h..(r + 1) * h].copy_from_slice(&self.latents[g * h..(g + 1) * h]);
-                    }
+                    gather(&self.latents, &body.garment[..n], h, &mut self.gathered[..n * h]);
                     let xg = &self.gathered[..n * h];
                     let xb = &self.latents[v * h..rows * h];
-                    // body -> garment: targets are the gathered garment rows 0..n.
-                    let local = &mut self.local_agg[..n * h];
-                    local.fill(0.0);
-                    net.edge_mlp(
+                    // body -> garment: each garment end has one body edge, so the per-edge
+                    // messages are its aggregate: compute them in edge order, then scatter.
+                    let msgs = &mut self.local_agg[..n * h];
+                    msgs.fill(0.0);
+                    par.edge_mlp(
+                        net,
                         mlp,
                         (xg, xb),
-                        (&graph.iota()[..n], &body.body[..n]),
+                        Edges::PerEdge { source: &body.body[..n], iota: graph.iota(), target_rows: None },
                         &mut self.b2g_latents[..n * h],
-                        local,
-                        (&mut self.proj_t, &mut self.proj_s),
-                        (&mut self.lin_scratch, &mut self.edge_scratch),
+                        msgs,
+                        (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
                     )?;
-                    for (r, &g) in body.garment[..n].iter().enumerate() {
-                        let g = g as usize;
-                        slot[g * h..(g + 1) * h].copy_from_slice(&self.local_agg[r * h..(r + 1) * h]);
-                    }
-                    // garment -> body: targets are the active body rows.
-                    net.edge_mlp(
+                    scatter(&self.local_agg[..n * h], &body.garment[..n], h, slot);
+                    // garment -> body: per-edge messages, then a sum per active body node in
+                    // edge order (independent of the task split).
+                    let msgs = &mut self.local_agg[..n * h];
+                    msgs.fill(0.0);
+                    par.edge_mlp(
+                        net,
                         mlp,
                         (xb, xg),
-                        (&body.body[..n], &graph.iota()[..n]),
+                        Edges::PerEdge {
+                            source: &graph.iota()[..n],
+                            iota: graph.iota(),
+                            target_rows: Some(&body.body[..n]),
+                        },
                         &mut self.g2b_latents[..n * h],
-                        &mut slot[v * h..rows * h],
-                        (&mut self.proj_t, &mut self.proj_s),
-                        (&mut self.lin_scratch, &mut self.edge_scratch),
+                        msgs,
+                        (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
                     )?;
+                    let offsets = &mut self.g2b_offsets[..a + 1];
+                    let perm = &mut self.g2b_perm[..n];
+                    counting_sort(&body.body[..n], offsets, perm);
+                    par.reduce_rows(&self.local_agg[..n * h], offsets, perm, h, &mut slot[v * h..rows * h]);
                 }
             }
             // Node update from the latents at the start of the block.
@@ -340,15 +389,7 @@ impl Workspace {
             }
             // A model trained with a body but run without one: the body slot is zero and skipped.
             let n_inputs = model.spec().node_inputs(bspec);
-            net.mlp(
-                &bview.node,
-                &inputs[..n_inputs],
-                rows,
-                &mut self.next_latents[..rows * h],
-                true,
-                (&mut self.t1, &mut self.t2),
-                &mut self.lin_scratch,
-            )?;
+            par.mlp(net, &bview.node, &inputs[..n_inputs], rows, &mut self.next_latents[..rows * h], true)?;
             core::mem::swap(&mut self.latents, &mut self.next_latents);
             observer(Probe {
                 stage: Stage::Block(bi),
@@ -356,17 +397,228 @@ impl Workspace {
                 body: &self.latents[v * h..rows * h],
             });
         }
-        net.mlp(
-            &model.decoder,
-            &[Some(&self.latents[..v * h])],
-            v,
-            &mut self.decoded,
-            false,
-            (&mut self.t1, &mut self.t2),
-            &mut self.lin_scratch,
-        )?;
+        par.mlp(net, &model.decoder, &[Some(&self.latents[..v * h])], v, &mut self.decoded, false)?;
         observer(Probe { stage: Stage::Decoded, garment: &self.decoded, body: &[] });
         Ok(())
+    }
+}
+
+/// Copies rows `idx` of `src` (`h` wide) into consecutive rows of `dst`.
+fn gather(src: &[f32], idx: &[u32], h: usize, dst: &mut [f32]) {
+    for (d, &g) in dst.chunks_exact_mut(h).zip(idx) {
+        let g = g as usize;
+        d.copy_from_slice(&src[g * h..(g + 1) * h]);
+    }
+}
+
+/// Copies consecutive rows of `src` into rows `idx` of `dst`.
+fn scatter(src: &[f32], idx: &[u32], h: usize, dst: &mut [f32]) {
+    for (s, &g) in src.chunks_exact(h).zip(idx) {
+        let g = g as usize;
+        dst[g * h..(g + 1) * h].copy_from_slice(s);
+    }
+}
+
+/// CSR of `keys` (values below `offsets.len() - 1`): `perm[offsets[k]..offsets[k+1]]` are the
+/// positions holding `k`, ascending.
+fn counting_sort(keys: &[u32], offsets: &mut [u32], perm: &mut [u32]) {
+    offsets.fill(0);
+    for &k in keys {
+        offsets[k as usize + 1] += 1;
+    }
+    for i in 1..offsets.len() {
+        offsets[i] += offsets[i - 1];
+    }
+    // Fill using the starts, then shift back.
+    for (e, &k) in keys.iter().enumerate() {
+        let slot = &mut offsets[k as usize];
+        perm[*slot as usize] = e as u32;
+        *slot += 1;
+    }
+    for i in (1..offsets.len()).rev() {
+        offsets[i] = offsets[i - 1];
+    }
+    offsets[0] = 0;
+}
+
+/// The edges of one edge-MLP call.
+#[derive(Clone, Copy)]
+enum Edges<'a> {
+    /// A static list sorted by target, split at target changes.
+    Split { list: &'a EdgeList, split: &'a EdgeSplit },
+    /// One message row per edge (target `e` is edge `e`), any split; `iota` is `0, 1, 2, ...`.
+    /// With `target_rows`, the target-side rows `x.0` are per node and edge `e` reads row
+    /// `target_rows[e]` (its projection is gathered per edge first).
+    PerEdge { source: &'a [u32], iota: &'a [u32], target_rows: Option<&'a [u32]> },
+}
+
+/// The executor with per-task scratch.
+struct Par<'w> {
+    exec: &'w dyn Executor,
+    tasks: &'w mut [TaskBufs],
+    errors: &'w mut [Option<Error>],
+}
+
+impl Par<'_> {
+    /// Runs `f(task, scratch)` for `n` tasks and returns the first error.
+    fn run(&mut self, n: usize, f: &(dyn Fn(usize, &mut TaskBufs) -> Result<()> + Sync)) -> Result<()> {
+        let n = n.clamp(1, self.tasks.len());
+        let tasks = Disjoint::new(&mut self.tasks[..n]);
+        let errors = Disjoint::new(&mut self.errors[..n]);
+        self.exec.run(n, &|t| {
+            // SAFETY: the executor calls each task index once; index t owns element t.
+            let (tb, err) = unsafe { (tasks.range(t..t + 1), errors.range(t..t + 1)) };
+            if let (Some(tb), Some(err)) = (tb.first_mut(), err.first_mut()) {
+                if let Err(e) = f(t, tb) {
+                    *err = Some(e);
+                }
+            }
+        });
+        first_error(&mut self.errors[..n])
+    }
+
+    /// `mlp` over `rows` rows, split into row ranges per task (see [`Net::mlp_rows`]).
+    fn mlp(
+        &mut self,
+        net: &Net<'_>,
+        mlp: &MlpView<'_>,
+        inputs: &[Option<&[f32]>],
+        rows: usize,
+        out: &mut [f32],
+        residual: bool,
+    ) -> Result<()> {
+        if rows == 0 {
+            return Ok(());
+        }
+        let w = out.len() / rows;
+        let chunks = rows.div_ceil(CHUNK);
+        let n = self.tasks.len().min(chunks);
+        let out = Disjoint::new(out);
+        self.run(n, &|t, tb| {
+            let c = split(chunks, n, t);
+            let r = (c.start * CHUNK)..(c.end * CHUNK).min(rows);
+            // SAFETY: row ranges of different tasks are disjoint.
+            let o = unsafe { out.range(r.start * w..r.end * w) };
+            net.mlp_rows(mlp, inputs, r, o, residual, tb)
+        })
+    }
+
+    /// One edge set through an edge MLP: both node projections (row-split), then the fused
+    /// kernel (edge-split so that no target's sum spans two tasks).
+    #[allow(clippy::too_many_arguments)]
+    fn edge_mlp(
+        &mut self,
+        net: &Net<'_>,
+        mlp: &MlpView<'_>,
+        x: (&[f32], &[f32]),
+        edges: Edges<'_>,
+        latent: &mut [f32],
+        aggregate: &mut [f32],
+        proj: (&mut [f32], &mut [f32], &mut [f32]),
+    ) -> Result<()> {
+        let l = &mlp.layers;
+        let p1 = l[0].parts(net.bf16);
+        let h = l[0].out;
+        let (nt, ns) = (x.0.len() / h, x.1.len() / h);
+        let (pt, ps) = (&mut proj.0[..nt * h], &mut proj.1[..ns * h]);
+        self.linear(net, x.0, p1[0], pt)?;
+        self.linear(net, x.1, p1[1], ps)?;
+        let pt: &[f32] = match edges {
+            Edges::PerEdge { target_rows: Some(rows), .. } => {
+                let per_edge = &mut proj.2[..rows.len() * h];
+                gather(pt, rows, h, per_edge);
+                per_edge
+            }
+            _ => pt,
+        };
+        let ps = &*ps;
+        let em = EdgeMlp {
+            w1_edge: p1[2],
+            b1: l[0].bias,
+            w2: l[1].parts(net.bf16)[0],
+            b2: l[1].bias,
+            w3: l[2].parts(net.bf16)[0],
+            b3: l[2].bias,
+            layer_norm: mlp.layer_norm,
+        };
+        let k_e = em.w3.n();
+        let n_edges = latent.len() / k_e;
+        let latent = Disjoint::new(latent);
+        let aggregate = Disjoint::new(aggregate);
+        let tasks = self.tasks.len().min(n_edges.div_ceil(64)).max(1);
+        match edges {
+            Edges::Split { list, split } => {
+                let n = split.bounds.len() - 1;
+                self.run(n, &|t, tb| {
+                    let (a, b) = (split.bounds[t], split.bounds[t + 1]);
+                    if a == b {
+                        return Ok(());
+                    }
+                    let (lo, hi) = (list.target[a] as usize, list.target[b - 1] as usize + 1);
+                    let inputs = EdgeInputs {
+                        p_target: &pt[lo * h..hi * h],
+                        p_source: ps,
+                        target: &split.rebased[a..b],
+                        source: &list.source[a..b],
+                    };
+                    // SAFETY: edge ranges are disjoint, and so are their target ranges (the split
+                    // never cuts a target's edges).
+                    let (lat, agg) = unsafe { (latent.range(a * k_e..b * k_e), aggregate.range(lo * k_e..hi * k_e)) };
+                    net.kernels.edge_mlp(&em, &inputs, lat, agg, &mut tb.edge)
+                })
+            }
+            Edges::PerEdge { source, iota, .. } => self.run(tasks, &|t, tb| {
+                let r = split(n_edges, tasks, t);
+                if r.is_empty() {
+                    return Ok(());
+                }
+                let inputs = EdgeInputs {
+                    p_target: &pt[r.start * h..r.end * h],
+                    p_source: ps,
+                    target: &iota[..r.len()],
+                    source: &source[r.clone()],
+                };
+                // SAFETY: edge ranges (and so their message rows) are disjoint between tasks.
+                let (lat, agg) =
+                    unsafe { (latent.range(r.start * k_e..r.end * k_e), aggregate.range(r.start * k_e..r.end * k_e)) };
+                net.kernels.edge_mlp(&em, &inputs, lat, agg, &mut tb.edge)
+            }),
+        }
+    }
+
+    /// `out = x · Wᵀ` (no bias), row-split.
+    fn linear(&mut self, net: &Net<'_>, x: &[f32], w: kernels::Weights<'_>, out: &mut [f32]) -> Result<()> {
+        let (k, n_out) = (w.k(), w.n());
+        let rows = x.len() / k.max(1);
+        let n = self.tasks.len().min(rows.div_ceil(64)).max(1);
+        let out = Disjoint::new(out);
+        self.run(n, &|t, tb| {
+            let r = split(rows, n, t);
+            // SAFETY: row ranges of different tasks are disjoint.
+            let o = unsafe { out.range(r.start * n_out..r.end * n_out) };
+            let op = [Operand { x: &x[r.start * k..r.end * k], w }];
+            net.kernels.linear(&op, None, &Epilogue::default(), o, &mut tb.lin)
+        })
+    }
+
+    /// `out[r] = Σ src[perm[k]]` for `k` in `offsets[r]..offsets[r+1]`, row-split.
+    fn reduce_rows(&mut self, src: &[f32], offsets: &[u32], perm: &[u32], h: usize, out: &mut [f32]) {
+        let rows = offsets.len() - 1;
+        let n = self.tasks.len().min(rows.div_ceil(64)).max(1);
+        let out = Disjoint::new(out);
+        let _ = self.run(n, &|t, _| {
+            let r = split(rows, n, t);
+            // SAFETY: row ranges of different tasks are disjoint.
+            let o = unsafe { out.range(r.start * h..r.end * h) };
+            for (row, node) in o.chunks_exact_mut(h).zip(r) {
+                row.fill(0.0);
+                for &e in &perm[offsets[node] as usize..offsets[node + 1] as usize] {
+                    let m = &src[e as usize * h..(e as usize + 1) * h];
+                    row.iter_mut().zip(m).for_each(|(o, m)| *o += m);
+                }
+            }
+            Ok(())
+        });
     }
 }
 
@@ -382,31 +634,30 @@ pub struct Net<'m> {
 }
 
 impl Net<'_> {
-    /// Runs `mlp` over `rows` rows. `inputs` are the column parts of its input (the parts of the
-    /// first layer, in order; `None` is a part known to be zero and skipped); `out` is
-    /// `rows × out` and is added to when `residual`.
-    #[allow(clippy::too_many_arguments)]
-    fn mlp(
+    /// Runs `mlp` over the rows `rows` (chunk by chunk). `inputs` are the column parts of the
+    /// whole input (the parts of the first layer, in order; `None` is a part known to be zero
+    /// and skipped); `out` holds just these rows and is added to when `residual`.
+    fn mlp_rows(
         &self,
         mlp: &MlpView<'_>,
         inputs: &[Option<&[f32]>],
-        rows: usize,
+        rows: Range<usize>,
         out: &mut [f32],
         residual: bool,
-        tmp: (&mut [f32], &mut [f32]),
-        scratch: &mut [f32],
+        tb: &mut TaskBufs,
     ) -> Result<()> {
         let layers = &mlp.layers;
-        let first = &layers[0];
-        let parts = first.parts(self.bf16);
+        let parts = layers[0].parts(self.bf16);
         if parts.len() != inputs.len() {
             return Err(Error::IncompatibleModel { reason: "MLP input parts disagree with the model" });
         }
         let n_out = layers[layers.len() - 1].out;
-        let (mut a, mut b) = tmp;
-        for start in (0..rows).step_by(CHUNK) {
-            let end = (start + CHUNK).min(rows);
+        let (mut a, mut b) = (&mut tb.t1[..], &mut tb.t2[..]);
+        let mut start = rows.start;
+        while start < rows.end {
+            let end = (start + CHUNK).min(rows.end);
             let r = end - start;
+            let o = (start - rows.start) * n_out..(end - rows.start) * n_out;
             let mut ops = [Operand { x: &[], w: parts[0] }; MAX_OPERANDS];
             let mut n_ops = 0;
             for (x, w) in inputs.iter().zip(parts) {
@@ -423,51 +674,17 @@ impl Net<'_> {
                     Epilogue { relu: true, layer_norm: None, residual: false }
                 };
                 if li == 0 {
-                    let dst: &mut [f32] = if last { &mut out[start * n_out..end * n_out] } else { &mut a[..r * l.out] };
-                    self.kernels.linear(&ops[..n_ops], Some(l.bias), &ep, dst, scratch)?;
+                    let dst: &mut [f32] = if last { &mut out[o.clone()] } else { &mut a[..r * l.out] };
+                    self.kernels.linear(&ops[..n_ops], Some(l.bias), &ep, dst, &mut tb.lin)?;
                 } else {
-                    let x = &a[..r * l.inp];
-                    let op = [Operand { x, w: l.parts(self.bf16)[0] }];
-                    let dst: &mut [f32] = if last { &mut out[start * n_out..end * n_out] } else { &mut b[..r * l.out] };
-                    self.kernels.linear(&op, Some(l.bias), &ep, dst, scratch)?;
+                    let op = [Operand { x: &a[..r * l.inp], w: l.parts(self.bf16)[0] }];
+                    let dst: &mut [f32] = if last { &mut out[o.clone()] } else { &mut b[..r * l.out] };
+                    self.kernels.linear(&op, Some(l.bias), &ep, dst, &mut tb.lin)?;
                     core::mem::swap(&mut a, &mut b);
                 }
             }
+            start = end;
         }
         Ok(())
-    }
-
-    /// One edge set through a block's edge MLP: node projections of the targets' rows `x.0` and
-    /// the sources' rows `x.1`, then the fused kernel (`latent += m`, `aggregate[t] += m`).
-    #[allow(clippy::too_many_arguments)]
-    fn edge_mlp(
-        &self,
-        mlp: &MlpView<'_>,
-        x: (&[f32], &[f32]),
-        idx: (&[u32], &[u32]),
-        latent: &mut [f32],
-        aggregate: &mut [f32],
-        proj: (&mut [f32], &mut [f32]),
-        scratch: (&mut [f32], &mut [f32]),
-    ) -> Result<()> {
-        let l = &mlp.layers;
-        let p1 = l[0].parts(self.bf16);
-        let h = l[0].out;
-        let (pt, ps) = proj;
-        let no = Epilogue::default();
-        let (nt, ns) = (x.0.len() / h, x.1.len() / h);
-        self.kernels.linear(&[Operand { x: x.0, w: p1[0] }], None, &no, &mut pt[..nt * h], scratch.0)?;
-        self.kernels.linear(&[Operand { x: x.1, w: p1[1] }], None, &no, &mut ps[..ns * h], scratch.0)?;
-        let em = EdgeMlp {
-            w1_edge: p1[2],
-            b1: l[0].bias,
-            w2: l[1].parts(self.bf16)[0],
-            b2: l[1].bias,
-            w3: l[2].parts(self.bf16)[0],
-            b3: l[2].bias,
-            layer_norm: mlp.layer_norm,
-        };
-        let inputs = EdgeInputs { p_target: &pt[..nt * h], p_source: &ps[..ns * h], target: idx.0, source: idx.1 };
-        self.kernels.edge_mlp(&em, &inputs, latent, aggregate, scratch.1)
     }
 }

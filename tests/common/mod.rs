@@ -65,3 +65,45 @@ pub fn max_abs(a: &[f32], b: &[f32]) -> f64 {
     assert_eq!(a.len(), b.len(), "length mismatch");
     a.iter().zip(b).map(|(x, y)| (*x as f64 - *y as f64).abs()).fold(0.0, f64::max)
 }
+
+/// A small random model (PyTorch-style initialisation) whose normalisers have seen unit-scale
+/// data, so that features and outputs are in a sensible range.
+pub fn random_model(h: usize, seed: u64, bf16: bool) -> hood::model::ModelBytes {
+    use hood::model::{write_model, ModelBytes, ModelSpec, Params};
+    let spec = ModelSpec::hood(h);
+    let mut p = Params::init(&spec, seed).unwrap();
+    let mut rng = hood::rng::Rng::new(seed ^ 0x5eed);
+    let mut rows = |w: usize, scale: f64| -> Vec<f32> { (0..64 * w).map(|_| (rng.normal() * scale) as f32).collect() };
+    let n = &mut p.normalisers;
+    n.node.accumulate(&rows(21, 1.0), 21);
+    n.edge.accumulate(&rows(9, 0.05), 9);
+    n.body_edge.accumulate(&rows(9, 0.02), 9);
+    n.output.accumulate(&rows(3, 1e-3), 3);
+    ModelBytes::new(&write_model(&p, bf16, &[("kind", "random test model")]).unwrap())
+}
+
+/// A procedural scene: a `nx × nz` cloth hanging just above an ellipsoid body, pinned at two
+/// corners, and the body's vertices at frame `t` (a slow sway).
+pub struct Scene {
+    pub garment: hood::mesh::Garment,
+    pub body: hood::body::BodyMesh,
+    pub body_rest: Vec<[f32; 3]>,
+}
+
+impl Scene {
+    pub fn new(nx: usize, nz: usize) -> Scene {
+        let (rest, faces) = hood::mesh::shapes::grid(nx, nz, 0.6, 0.6, 0.32);
+        let mut pinned = vec![false; rest.len()];
+        pinned[0] = true;
+        pinned[nx - 1] = true;
+        let garment = hood::mesh::Garment::new(hood::mesh::GarmentDesc::new(&rest, &faces).pinned(&pinned)).unwrap();
+        let (bv, bf) = hood::body::shapes::ellipsoid(24, 32, [0.25, 0.3, 0.25], [0.0, 0.0, 0.0]);
+        let body = hood::body::BodyMesh::new(bv.len(), &bf).unwrap();
+        Scene { garment, body, body_rest: bv }
+    }
+
+    pub fn body_at(&self, t: usize) -> Vec<[f32; 3]> {
+        let dx = 0.01 * (t as f32 * 0.3).sin();
+        self.body_rest.iter().map(|p| [p[0] + dx, p[1], p[2]]).collect()
+    }
+}

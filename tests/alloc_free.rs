@@ -1,0 +1,88 @@
+//! `Sim::step` never allocates: a counting global allocator over every combination of effects,
+//! precisions and thread settings. (Its own test binary, so no other test allocates meanwhile.)
+
+mod common;
+use common::*;
+use hood::sim::{BodyDesc, Precision, Sim, SimConfig, Sleeping};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+struct Counting;
+static COUNTING: AtomicBool = AtomicBool::new(false);
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+static TRACE: AtomicBool = AtomicBool::new(false);
+
+// SAFETY: forwards to the system allocator unchanged; only counts calls.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        if COUNTING.load(Ordering::Relaxed) {
+            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+            // Set HOOD_ALLOC_TRACE to see where the first allocation comes from.
+            if TRACE.load(Ordering::Relaxed) && COUNTING.swap(false, Ordering::SeqCst) {
+                eprintln!("allocation of {} bytes at:\n{}", layout.size(), std::backtrace::Backtrace::force_capture());
+            }
+        }
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        if COUNTING.load(Ordering::Relaxed) {
+            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        }
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn alloc_free_step_every_effect_precision_and_thread_count() {
+    TRACE.store(std::env::var_os("HOOD_ALLOC_TRACE").is_some(), Ordering::SeqCst);
+    let scene = Scene::new(12, 10);
+    let bytes = random_model(16, 1, true);
+    let model = bytes.model().unwrap();
+    let mut combos = 0;
+    for body in [true, false] {
+        for pinning in [true, false] {
+            for normals in [true, false] {
+                for sleeping in [None, Some(Sleeping::default())] {
+                    for precision in [Precision::F32, Precision::Bf16] {
+                        for threads in [1, 2] {
+                            let cfg = SimConfig {
+                                body_collision: body,
+                                pinning,
+                                normals,
+                                sleeping,
+                                precision,
+                                threads,
+                                ..SimConfig::default()
+                            };
+                            let b0 = scene.body_at(0);
+                            let desc = BodyDesc { mesh: &scene.body, positions: &b0 };
+                            let mut sim = Sim::new(&model, &scene.garment, body.then_some(desc), cfg).unwrap();
+                            // Buffers the caller owns are made before counting starts.
+                            let frames: Vec<Vec<[f32; 3]>> = (1..6).map(|t| scene.body_at(t)).collect();
+                            sim.step(&frames[0]).unwrap(); // includes the start-up step
+                            COUNTING.store(true, Ordering::SeqCst);
+                            ALLOCATIONS.store(0, Ordering::SeqCst);
+                            for f in &frames[1..] {
+                                sim.step(f).unwrap();
+                            }
+                            COUNTING.store(false, Ordering::SeqCst);
+                            let n = ALLOCATIONS.load(Ordering::SeqCst);
+                            assert_eq!(n, 0, "{n} allocations in 4 steps with {cfg:?}");
+                            combos += 1;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    println!("{combos} configurations stepped without allocating");
+}
