@@ -43,9 +43,11 @@ pub mod math;
 pub mod mesh;
 pub mod model;
 pub mod normaliser;
+pub mod physics;
 pub mod rng;
 pub mod sim;
 #[cfg(feature = "std")]
 pub mod workloads;
+pub mod solve;
 
 pub use error::{Error, Result};
