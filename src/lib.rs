@@ -46,8 +46,8 @@ pub mod normaliser;
 pub mod physics;
 pub mod rng;
 pub mod sim;
+pub mod solve;
 #[cfg(feature = "std")]
 pub mod workloads;
-pub mod solve;
 
 pub use error::{Error, Result};
