@@ -19,6 +19,35 @@ struct Cli {
 enum Command {
     /// Step latency per workload, model size, precision and thread count (EVALUATION.md).
     Bench(BenchArgs),
+    /// Convert a reference HOOD checkpoint's state dict (as safetensors) into a `.hood` file.
+    Convert(ConvertArgs),
+}
+
+#[derive(Args)]
+struct ConvertArgs {
+    /// The state dict as safetensors (keys of `Model.state_dict()`, with or without `model.`).
+    state_dict: PathBuf,
+    /// Output `.hood` file.
+    #[arg(long, short)]
+    out: PathBuf,
+    /// Leave out the bf16 copy of the weights (smaller file; f32 only).
+    #[arg(long)]
+    no_bf16: bool,
+}
+
+fn convert(a: ConvertArgs) -> hood::Result<()> {
+    use hood::model::reference::{latent_width, params_from_state_dict};
+    let st = hood::io::safetensors::SafeTensors::read(&a.state_dict)?;
+    let spec = ModelSpec::hood(latent_width(&st)?);
+    let params = params_from_state_dict(&st, &spec)?;
+    let source = a.state_dict.display().to_string();
+    let bytes =
+        write_model(&params, !a.no_bf16, &[("converted_from", source.as_str()), ("architecture", "HOOD postcvpr")])?;
+    ModelBytes::new(&bytes).model()?; // what we write must load
+    std::fs::write(&a.out, &bytes)
+        .map_err(|e| hood::Error::Io { path: a.out.display().to_string(), message: e.to_string() })?;
+    eprintln!("wrote {} ({} parameters, h = {}, {} bytes)", a.out.display(), params.count(), spec.latent, bytes.len());
+    Ok(())
 }
 
 #[derive(Args)]
@@ -57,6 +86,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Bench(a) => bench(a),
+        Command::Convert(a) => convert(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
