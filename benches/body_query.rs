@@ -82,9 +82,7 @@ fn bench(c: &mut Criterion) {
             frame.nearest_faces(&garment, &mut nearest).unwrap();
         })
     });
-    g.bench_function("normals (face + vertex)", |b| {
-        b.iter(|| frame.update(&mesh, black_box(&body)).unwrap())
-    });
+    g.bench_function("normals (face + vertex)", |b| b.iter(|| frame.update(&mesh, black_box(&body)).unwrap()));
     g.finish();
 }
 

@@ -30,9 +30,9 @@ extern crate std;
 
 pub mod body;
 pub mod error;
-pub mod math;
-pub mod mesh;
 #[cfg(feature = "std")]
 pub mod io;
+pub mod math;
+pub mod mesh;
 
 pub use error::{Error, Result};

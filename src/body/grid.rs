@@ -200,8 +200,8 @@ impl PointGrid {
         for (i, (p, &slot)) in points.iter().zip(self.point_slot.iter()).enumerate().rev() {
             start[slot as usize] -= 1;
             let at = start[slot as usize] as usize;
-            for a in 0..3 {
-                self.sorted[a][at] = p[a];
+            for (axis, &c) in self.sorted.iter_mut().zip(p) {
+                axis[at] = c;
             }
             self.sorted_index[at] = i as u32;
             self.rank[i] = at as u32;
@@ -264,7 +264,7 @@ impl PointGrid {
     /// `hint` (e.g. last frame's answer; any index `>= len()` means no guess). The result is the
     /// same whatever the hint; a good one makes the search faster.
     pub fn nearest_within_one_hinted(&self, q: [f32; 3], radius: f32, hint: u32) -> Option<Nearest> {
-        if self.n_points == 0 || !(radius >= 0.0) {
+        if self.n_points == 0 || radius.is_nan() || radius < 0.0 {
             return None;
         }
         let r2 = radius * radius;
@@ -321,7 +321,7 @@ impl PointGrid {
             if best.0 != NONE {
                 return found(best);
             }
-            if !(step <= 2.0 * diag + self.cell) || !(r * r).is_finite() {
+            if step.is_nan() || step > 2.0 * diag + self.cell || !(r * r).is_finite() {
                 // Every point is within `lower + diag`; only overflow or NaN ends up here.
                 return found(self.search(q, (NONE, f32::INFINITY)));
             }
@@ -818,4 +818,3 @@ fn slot_of(c: [usize; 3], blocks: [usize; 3]) -> usize {
     let b = [c[0] / BLOCK, c[1] / BLOCK, c[2] / BLOCK];
     (b[0] + blocks[0] * (b[1] + blocks[1] * b[2])) * BLOCK_CELLS + local_of(c)
 }
-
