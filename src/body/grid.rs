@@ -630,7 +630,7 @@ impl PointGrid {
                 group(x, y, z, i);
             }
         }
-        if n % 4 != 0 {
+        if !n.is_multiple_of(4) {
             // The last four points, overlapping the group before: points seen twice change
             // nothing (same distance, same index).
             if let (Some(x), Some(y), Some(z), Some(i)) =

@@ -2,4 +2,6 @@
 //! arrays and back. Errors are [`crate::Error::Parse`] (with the 1-based line) and
 //! [`crate::Error::Io`].
 
+pub mod json;
 pub mod obj;
+pub mod safetensors;

@@ -1,0 +1,547 @@
+//! The simulation: one HOOD step per call, in buffers sized at creation.
+//!
+//! [`Sim::new`] derives the graph, sizes every buffer and picks the kernel path; [`Sim::step`]
+//! takes the body's vertices at the next frame and returns the garment's, running the data path
+//! of ARCHITECTURE.md (pinned targets, body edges, features, normalise, encode, blocks, decode,
+//! integrate) without allocating. Non-finite input is refused and leaves the state unchanged.
+//!
+//! Units: metres; one step is one frame at the model's 30 Hz (velocities are m/frame).
+
+pub mod graph;
+pub mod network;
+
+use crate::body::{BodyMesh, Nearest, PointGrid};
+use crate::error::{Error, Result};
+use crate::features::{self, BodyNodes, Embeddings, GarmentNodes, DT, DT_STARTUP, EDGE_WIDTH, NODE_WIDTH};
+use crate::hierarchy::{Hierarchy, HierarchyConfig};
+use crate::kernels::{Kernels, Tier};
+use crate::math::finite3;
+use crate::mesh::{vertex_normals, Garment};
+use crate::model::file::Model;
+use crate::model::spec::EdgeKey;
+use alloc::vec;
+use alloc::vec::Vec;
+pub use graph::Graph;
+use network::{BodyEdges, Net, Workspace};
+pub use network::{Probe, Stage};
+
+/// Body-edge radius (MODEL.md section 1), metres.
+pub const BODY_EDGE_RADIUS: f32 = 0.03;
+
+/// Arithmetic of the network.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Precision {
+    /// f32 weights and activations.
+    #[default]
+    F32,
+    /// bf16 weights and activations, f32 accumulation (needs a model file with bf16 weights).
+    Bf16,
+}
+
+/// When to skip steps because nothing moves.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sleeping {
+    /// Largest body vertex displacement per frame (m) and largest garment speed (m/frame)
+    /// that count as "at rest".
+    pub threshold: f32,
+    /// Consecutive frames at rest before the garment sleeps.
+    pub frames: u32,
+}
+
+impl Default for Sleeping {
+    fn default() -> Self {
+        Sleeping { threshold: 1e-5, frames: 3 }
+    }
+}
+
+/// The effects a scene uses; what is off costs nothing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SimConfig {
+    /// Body nodes and body edges (collision with the body). Off: no grid, no body work.
+    pub body_collision: bool,
+    /// Drive pinned vertices to their targets (see [`Sim::set_pin_targets`]).
+    pub pinning: bool,
+    /// Compute output vertex normals after every step ([`Sim::normals`]).
+    pub normals: bool,
+    /// Skip steps while body and garment are at rest.
+    pub sleeping: Option<Sleeping>,
+    /// Network arithmetic.
+    pub precision: Precision,
+    /// Run the start-up (relaxation) step with a static body and dt = 1/3 s before the first
+    /// regular step (MODEL.md section 5).
+    pub startup: bool,
+    /// Kernel path cap (`None`: the best this CPU has).
+    pub tier: Option<Tier>,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            body_collision: true,
+            pinning: true,
+            normals: false,
+            sleeping: None,
+            precision: Precision::F32,
+            startup: true,
+            tier: None,
+        }
+    }
+}
+
+/// The garment and body state between steps.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimState {
+    /// Garment positions at the current frame, m.
+    pub pos: Vec<[f32; 3]>,
+    /// Garment velocities, m/frame.
+    pub velocity: Vec<[f32; 3]>,
+    /// Body positions at the previous frame, m (empty without a body).
+    pub body_prev: Vec<[f32; 3]>,
+    /// Body positions at the current frame, m (empty without a body).
+    pub body_pos: Vec<[f32; 3]>,
+    /// Whether the start-up step has run.
+    pub started: bool,
+}
+
+struct BodyState {
+    mesh: BodyMesh,
+    grid: PointGrid,
+    normals: Vec<[f32; 3]>,
+    nearest: Vec<Option<Nearest>>,
+    active_of: Vec<u32>,
+    active: Vec<u32>,
+    edge_garment: Vec<u32>,
+    edge_body: Vec<u32>,
+    edge_pairs: Vec<[u32; 2]>,
+}
+
+/// One garment on one body, stepped by one model.
+pub struct Sim<'m> {
+    net: Net<'m>,
+    cfg: SimConfig,
+    garment: Garment,
+    graph: Graph,
+    material_in: Vec<[f32; 3]>,
+    pinned: Vec<bool>,
+    pin_targets: Vec<[f32; 3]>,
+    body: Option<BodyState>,
+    state: SimState,
+    garment_normals: Vec<[f32; 3]>,
+    new_pos: Vec<[f32; 3]>,
+    new_vel: Vec<[f32; 3]>,
+    output_normals: Vec<[f32; 3]>,
+    rest_frames: u32,
+    ws: Workspace,
+}
+
+/// The body of a scene: its mesh (optionally with omitted vertices) and its positions at the
+/// first frame.
+#[derive(Clone, Copy, Debug)]
+pub struct BodyDesc<'a> {
+    /// Topology (and omitted flags).
+    pub mesh: &'a BodyMesh,
+    /// Positions at the first frame, m.
+    pub positions: &'a [[f32; 3]],
+}
+
+fn check_finite(what: &'static str, p: &[[f32; 3]]) -> Result<()> {
+    match p.iter().position(|v| !finite3(*v)) {
+        Some(i) => Err(Error::NonFinite { what, index: i }),
+        None => Ok(()),
+    }
+}
+
+impl<'m> Sim<'m> {
+    /// A simulation of `garment` (starting at its rest positions) on `body` (or none), with the
+    /// garment's hierarchy built by the default [`HierarchyConfig`].
+    ///
+    /// # Errors
+    /// [`Error::UnsupportedEffect`] for an effect the model was not trained with or a bf16 run
+    /// of an f32-only file; [`Error::IncompatibleModel`]; errors of the hierarchy.
+    pub fn new(model: &'m Model<'m>, garment: &Garment, body: Option<BodyDesc<'_>>, cfg: SimConfig) -> Result<Sim<'m>> {
+        let levels = model.spec().levels;
+        let hierarchy = Hierarchy::build(garment, &HierarchyConfig { levels, ..HierarchyConfig::default() })?;
+        let graph = Graph::new(garment, &hierarchy)?;
+        Sim::with_graph(model, garment, graph, body, cfg)
+    }
+
+    /// As [`Sim::new`] with a prepared graph (e.g. coarse edges from elsewhere).
+    ///
+    /// # Errors
+    /// See [`Sim::new`].
+    pub fn with_graph(
+        model: &'m Model<'m>,
+        garment: &Garment,
+        graph: Graph,
+        body: Option<BodyDesc<'_>>,
+        cfg: SimConfig,
+    ) -> Result<Sim<'m>> {
+        let spec = model.spec();
+        if graph.n_vertices() != garment.n_vertices() {
+            return Err(Error::SizeMismatch {
+                what: "graph vertices",
+                expected: garment.n_vertices(),
+                got: graph.n_vertices(),
+            });
+        }
+        if cfg.precision == Precision::Bf16 && !model.has_bf16() {
+            return Err(Error::UnsupportedEffect { effect: "bf16 precision (the model file has no bf16 weights)" });
+        }
+        let use_body = cfg.body_collision && body.is_some();
+        if use_body && !spec.effects.body {
+            return Err(Error::UnsupportedEffect { effect: "body collision (the model was trained without a body)" });
+        }
+        let any_pinned = garment.pinned().iter().any(|&p| p);
+        if cfg.pinning && any_pinned && !spec.effects.pinning {
+            return Err(Error::UnsupportedEffect { effect: "pinning (the model was trained without pinned vertices)" });
+        }
+        let m0 = garment.materials()[0];
+        if !spec.effects.local_materials && garment.materials().iter().any(|m| *m != m0) {
+            return Err(Error::UnsupportedEffect { effect: "per-vertex materials" });
+        }
+        let kernels = match cfg.tier {
+            None => Kernels::best(),
+            Some(t) => Kernels::with_tier(t.min(Kernels::best().tier())).unwrap_or(Kernels::scalar()),
+        };
+        let n = garment.n_vertices();
+        let body_state = match body {
+            Some(b) if use_body => {
+                b.mesh.check_positions(b.positions)?;
+                let nb = b.mesh.n_vertices();
+                Some(BodyState {
+                    mesh: b.mesh.clone(),
+                    grid: PointGrid::new(nb, (8 * nb).max(64))?,
+                    normals: vec![[0.0; 3]; nb],
+                    nearest: vec![None; n],
+                    active_of: vec![u32::MAX; nb],
+                    active: vec![0; nb.min(n)],
+                    edge_garment: vec![0; n],
+                    edge_body: vec![0; n],
+                    edge_pairs: vec![[0; 2]; n],
+                })
+            }
+            _ => None,
+        };
+        let max_active = body_state.as_ref().map_or(0, |b| b.active.len());
+        let net = Net { model, kernels, bf16: cfg.precision == Precision::Bf16 };
+        let ws = Workspace::new(model, &graph, max_active)?;
+        let (body_prev, body_pos) = match (&body_state, body) {
+            (Some(_), Some(b)) => (b.positions.to_vec(), b.positions.to_vec()),
+            _ => (Vec::new(), Vec::new()),
+        };
+        let pinned = if cfg.pinning { garment.pinned().to_vec() } else { vec![false; n] };
+        Ok(Sim {
+            net,
+            cfg,
+            material_in: garment.materials().iter().map(|m| m.network_inputs()).collect(),
+            pinned,
+            pin_targets: garment.rest().to_vec(),
+            garment: garment.clone(),
+            graph,
+            body: body_state,
+            state: SimState {
+                pos: garment.rest().to_vec(),
+                velocity: vec![[0.0; 3]; n],
+                body_prev,
+                body_pos,
+                started: !cfg.startup,
+            },
+            garment_normals: vec![[0.0; 3]; n],
+            new_pos: vec![[0.0; 3]; n],
+            new_vel: vec![[0.0; 3]; n],
+            output_normals: if cfg.normals { vec![[0.0; 3]; n] } else { Vec::new() },
+            rest_frames: 0,
+            ws,
+        })
+    }
+
+    /// The kernel path in use.
+    pub fn tier(&self) -> Tier {
+        self.net.kernels.tier()
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SimConfig {
+        &self.cfg
+    }
+
+    /// The garment.
+    pub fn garment(&self) -> &Garment {
+        &self.garment
+    }
+
+    /// The static graph (mesh edges, coarse levels).
+    pub fn graph(&self) -> &Graph {
+        &self.graph
+    }
+
+    /// Garment positions at the current frame, m.
+    pub fn positions(&self) -> &[[f32; 3]] {
+        &self.state.pos
+    }
+
+    /// Output vertex normals of the current positions (empty unless [`SimConfig::normals`]).
+    pub fn normals(&self) -> &[[f32; 3]] {
+        &self.output_normals
+    }
+
+    /// The full state (for saving, or inspection).
+    pub fn state(&self) -> &SimState {
+        &self.state
+    }
+
+    /// Replaces the state (e.g. a saved one, or a garment placed on a posed body).
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] for wrong lengths; [`Error::NonFinite`]. The state is unchanged
+    /// on error.
+    pub fn set_state(&mut self, s: &SimState) -> Result<()> {
+        let n = self.garment.n_vertices();
+        let nb = self.body.as_ref().map_or(0, |b| b.mesh.n_vertices());
+        for (what, len, want) in [
+            ("state positions", s.pos.len(), n),
+            ("state velocities", s.velocity.len(), n),
+            ("state body previous positions", s.body_prev.len(), nb),
+            ("state body positions", s.body_pos.len(), nb),
+        ] {
+            if len != want {
+                return Err(Error::SizeMismatch { what, expected: want, got: len });
+            }
+        }
+        check_finite("state position", &s.pos)?;
+        check_finite("state velocity", &s.velocity)?;
+        check_finite("state body previous position", &s.body_prev)?;
+        check_finite("state body position", &s.body_pos)?;
+        self.state.clone_from(s);
+        self.rest_frames = 0;
+        Ok(())
+    }
+
+    /// Targets of the pinned vertices at the next frame (one per garment vertex; only the
+    /// pinned entries are read), m. Without a call, pinned vertices keep their last target
+    /// (initially their rest position).
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`], [`Error::NonFinite`]; the targets are unchanged on error.
+    pub fn set_pin_targets(&mut self, targets: &[[f32; 3]]) -> Result<()> {
+        if targets.len() != self.pin_targets.len() {
+            return Err(Error::SizeMismatch {
+                what: "pin targets",
+                expected: self.pin_targets.len(),
+                got: targets.len(),
+            });
+        }
+        for (i, t) in targets.iter().enumerate() {
+            if self.pinned[i] && !finite3(*t) {
+                return Err(Error::NonFinite { what: "pin target", index: i });
+            }
+        }
+        self.pin_targets.copy_from_slice(targets);
+        Ok(())
+    }
+
+    /// Advances one frame: `body_next` holds the body's vertices at the next frame (ignored,
+    /// and may be empty, without a body). Returns the garment's new positions.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] or [`Error::NonFinite`] for bad body input, [`Error::NonFinite`]
+    /// when the network's output is not finite: in every error case the state is unchanged.
+    pub fn step(&mut self, body_next: &[[f32; 3]]) -> Result<&[[f32; 3]]> {
+        self.step_observed(body_next, &mut |_| {})
+    }
+
+    /// [`Sim::step`] with an observer called with the node latents after the encoders and
+    /// after every block (for parity tests and debugging).
+    ///
+    /// # Errors
+    /// See [`Sim::step`].
+    pub fn step_observed(
+        &mut self,
+        body_next: &[[f32; 3]],
+        observer: &mut dyn FnMut(Probe<'_>),
+    ) -> Result<&[[f32; 3]]> {
+        if let Some(b) = &self.body {
+            let nb = b.mesh.n_vertices();
+            if body_next.len() != nb {
+                return Err(Error::SizeMismatch { what: "body vertices", expected: nb, got: body_next.len() });
+            }
+            check_finite("body vertex", body_next)?;
+        }
+        if let Some(sl) = self.cfg.sleeping {
+            if self.at_rest(body_next, sl.threshold) {
+                self.rest_frames = self.rest_frames.saturating_add(1);
+                if self.rest_frames > sl.frames {
+                    return Ok(&self.state.pos);
+                }
+            } else {
+                self.rest_frames = 0;
+            }
+        }
+        if !self.state.started {
+            // Start-up: static body (next = current), dt = 1/3 s, no velocity.
+            self.state.velocity.iter_mut().for_each(|v| *v = [0.0; 3]);
+            self.advance(None, DT_STARTUP, observer)?;
+            self.state.started = true;
+        }
+        let next = if self.body.is_some() { Some(body_next) } else { None };
+        self.advance(next, DT, observer)?;
+        Ok(&self.state.pos)
+    }
+
+    fn at_rest(&self, body_next: &[[f32; 3]], threshold: f32) -> bool {
+        let t2 = threshold * threshold;
+        let d2 = |a: [f32; 3], b: [f32; 3]| (0..3).map(|k| (a[k] - b[k]) * (a[k] - b[k])).sum::<f32>();
+        let body_still = self.body.is_none()
+            || self.state.body_pos.iter().zip(body_next).all(|(a, b)| d2(*a, *b) <= t2)
+                && self.state.body_prev.iter().zip(&self.state.body_pos).all(|(a, b)| d2(*a, *b) <= t2);
+        body_still && self.state.velocity.iter().all(|v| d2(*v, [0.0; 3]) <= t2)
+    }
+
+    /// One network step from the current state to `body_next` (`None`: static body).
+    fn advance(&mut self, body_next: Option<&[[f32; 3]]>, dt: f32, observer: &mut dyn FnMut(Probe<'_>)) -> Result<()> {
+        let n = self.garment.n_vertices();
+        // Pinned vertices sit at their targets before the graph is built; keep the old
+        // positions so that a refused step leaves the state unchanged.
+        self.new_pos.copy_from_slice(&self.state.pos);
+        let first_step = dt == DT_STARTUP;
+        for i in 0..n {
+            if self.pinned[i] {
+                self.new_pos[i] = self.pin_targets[i];
+            }
+        }
+        let pos = &self.new_pos;
+        // Body edges at the current frame.
+        let mut prefix = [0usize; 4];
+        let mut n_active = 0;
+        if let Some(b) = &mut self.body {
+            let bpos = &self.state.body_pos;
+            b.grid.rebuild(bpos)?;
+            b.grid.nearest_within(pos, BODY_EDGE_RADIUS, &mut b.nearest)?;
+            b.mesh.keep_not_omitted(&mut b.nearest);
+            let mut nb = 0;
+            for &g in &self.graph.body_order {
+                if let Some(near) = b.nearest[g as usize] {
+                    b.edge_garment[nb] = g;
+                    b.edge_body[nb] = near.index;
+                    nb += 1;
+                    let lvl = self.graph.vertex_level[g as usize] as usize;
+                    for p in prefix.iter_mut().take(lvl + 1) {
+                        *p += 1;
+                    }
+                }
+            }
+            // Active body nodes, ascending; edge_body becomes the active row.
+            for &o in &b.edge_body[..nb] {
+                b.active_of[o as usize] = 0;
+            }
+            for (o, a) in b.active_of.iter_mut().enumerate() {
+                if *a == 0 {
+                    *a = n_active as u32;
+                    b.active[n_active] = o as u32;
+                    n_active += 1;
+                }
+            }
+            for k in 0..nb {
+                let o = b.edge_body[k];
+                b.edge_pairs[k] = [b.edge_garment[k], o];
+                b.edge_body[k] = b.active_of[o as usize];
+            }
+            for &o in &b.active[..n_active] {
+                b.active_of[o as usize] = u32::MAX;
+            }
+            vertex_normals(b.mesh.faces(), bpos, &mut b.normals);
+        }
+        // Node features.
+        vertex_normals(self.garment.faces(), pos, &mut self.garment_normals);
+        let model = self.net.model;
+        let emb = Embeddings { node_type: model.node_type_embedding, level: model.level_embedding };
+        let vel = &self.state.velocity;
+        let gn = GarmentNodes {
+            velocity: vel,
+            normals: &self.garment_normals,
+            mass: self.garment.vertex_mass(),
+            pinned: &self.pinned,
+            level: &self.graph.vertex_level,
+            material: &self.material_in,
+            dt,
+        };
+        let (gpart, bpart) = self.ws.node_features.split_at_mut(n * NODE_WIDTH);
+        features::garment_node_features(&gn, &emb, gpart)?;
+        let nb = prefix[0];
+        if let Some(b) = &self.body {
+            let bpos = &self.state.body_pos;
+            let bprev = if first_step { bpos } else { &self.state.body_prev };
+            let bn = BodyNodes { pos: bpos, prev: bprev, normals: &b.normals, omitted: b.mesh.omitted(), dt };
+            features::body_node_features(&bn, &b.active[..n_active], &emb, &mut bpart[..n_active * NODE_WIDTH])?;
+            let bnext = body_next.unwrap_or(bpos);
+            features::body_edge_features(
+                &b.edge_pairs[..nb],
+                pos,
+                bpos,
+                bnext,
+                dt,
+                &mut self.ws.g2b_features[..nb * 9],
+                &mut self.ws.b2g_features[..nb * 9],
+            )?;
+        }
+        // Mesh and coarse edges: features, then encode.
+        let rest = self.garment.rest();
+        if self.ws.uses(EdgeKey::Mesh) {
+            let e = &self.graph.mesh.global;
+            features::edge_features(e, pos, rest, &self.material_in, dt, self.ws.edge_feature_rows(e.len()))?;
+            self.ws.encode_edges(&self.net, EdgeKey::Mesh, e.len())?;
+        }
+        for l in 0..self.graph.coarse.len().min(3) {
+            let key = EdgeKey::coarse(l).unwrap_or(EdgeKey::Mesh);
+            if !self.ws.uses(key) {
+                continue;
+            }
+            let e = &self.graph.coarse[l].edges.global;
+            let rows = self.ws.edge_feature_rows(e.len());
+            debug_assert_eq!(rows.len(), e.len() * EDGE_WIDTH);
+            features::edge_features(e, pos, rest, &self.material_in, dt, rows)?;
+            self.ws.encode_edges(&self.net, key, e.len())?;
+        }
+        let body_edges = match &self.body {
+            Some(b) => BodyEdges { garment: &b.edge_garment[..nb], body: &b.edge_body[..nb], n_active, prefix },
+            None => BodyEdges { garment: &[], body: &[], n_active: 0, prefix: [0; 4] },
+        };
+        self.ws.forward(&self.net, &self.graph, &body_edges, observer)?;
+        // Integrate: acc = decoded * std + mean; v' = v + acc; x' = x + v + acc.
+        let (mean, std) = model.output_stats();
+        for i in 0..n {
+            if self.pinned[i] {
+                self.new_vel[i] = [0.0; 3];
+                continue;
+            }
+            let d = &self.ws.decoded[3 * i..3 * i + 3];
+            let v = self.state.velocity[i];
+            let mut nv = [0.0; 3];
+            let mut np = [0.0; 3];
+            for k in 0..3 {
+                let acc = d[k] * std[k] + mean[k];
+                nv[k] = v[k] + acc;
+                np[k] = self.new_pos[i][k] + v[k] + acc;
+            }
+            if !finite3(np) || !finite3(nv) {
+                return Err(Error::NonFinite { what: "network output for garment vertex", index: i });
+            }
+            self.new_vel[i] = nv;
+            self.new_pos[i] = np;
+        }
+        // Commit.
+        core::mem::swap(&mut self.state.pos, &mut self.new_pos);
+        core::mem::swap(&mut self.state.velocity, &mut self.new_vel);
+        if let Some(next) = body_next {
+            core::mem::swap(&mut self.state.body_prev, &mut self.state.body_pos);
+            self.state.body_pos.copy_from_slice(next);
+        } else if !self.state.body_pos.is_empty() {
+            let (prev, cur) = (&mut self.state.body_prev, &self.state.body_pos);
+            prev.copy_from_slice(cur);
+        }
+        if self.cfg.normals {
+            vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
+        }
+        Ok(())
+    }
+}
