@@ -75,6 +75,15 @@ fn bench(c: &mut Criterion) {
     g.bench_function("nearest_face_centroid", |b| {
         b.iter(|| frame.nearest_faces(black_box(&garment), &mut nearest).unwrap())
     });
+    // Last frame's answers as hints: the garment 3 mm away from where it is now.
+    let moved: Vec<[f32; 3]> = garment.iter().map(|p| [p[0] + 0.002, p[1] - 0.002, p[2] + 0.001]).collect();
+    frame.nearest_faces(&moved, &mut nearest).unwrap();
+    let face_hints: Vec<u32> = nearest.iter().map(|n| n.index).collect();
+    frame.body_edges(&mesh, &moved, RADIUS, &mut edges).unwrap();
+    let vertex_hints: Vec<u32> = edges.iter().map(|e| e.map_or(u32::MAX, |e| e.index)).collect();
+    g.bench_function("nearest_face_centroid hinted", |b| {
+        b.iter(|| frame.nearest_faces_hinted(black_box(&garment), &face_hints, &mut nearest).unwrap())
+    });
     g.bench_function("whole body query", |b| {
         b.iter(|| {
             frame.update_grids(&mesh, black_box(&body)).unwrap();
@@ -82,7 +91,16 @@ fn bench(c: &mut Criterion) {
             frame.nearest_faces(&garment, &mut nearest).unwrap();
         })
     });
-    g.bench_function("normals (face + vertex)", |b| b.iter(|| frame.update(&mesh, black_box(&body)).unwrap()));
+    g.bench_function("whole body query hinted", |b| {
+        b.iter(|| {
+            frame.update_grids(&mesh, black_box(&body)).unwrap();
+            frame.body_edges_hinted(&mesh, &garment, RADIUS, &vertex_hints, &mut edges).unwrap();
+            frame.nearest_faces_hinted(&garment, &face_hints, &mut nearest).unwrap();
+        })
+    });
+    g.bench_function("update (centroids, normals, 2 grids)", |b| {
+        b.iter(|| frame.update(&mesh, black_box(&body)).unwrap())
+    });
     g.finish();
 }
 

@@ -27,6 +27,8 @@ const NONE: u32 = u32::MAX;
 /// A radius search whose ball spans at most this many rows of cells scans them directly,
 /// without visiting blocks.
 const DIRECT_ROWS: usize = 36;
+/// Queries farther than this many cells outside the point bounds start from one point per block.
+const FAR_CELLS: f32 = 8.0;
 
 /// Default number of cells per point the grid aims for (see [`PointGrid::set_cells_per_point`]).
 pub const DEFAULT_CELLS_PER_POINT: f32 = 2.0;
@@ -309,9 +311,24 @@ impl PointGrid {
                 return found(self.search(q, (hint, d2)));
             }
         }
-        // Radius searches with a growing radius: the first that finds a point has found the
-        // nearest. Starting at the distance to the bounds keeps far queries cheap.
         let lower = libm::sqrtf(box_dist2(q, self.lo, self.hi));
+        if lower > FAR_CELLS * self.cell {
+            // Far outside: the nearest of one point per block bounds the answer within about a
+            // block; the block boxes then prune most blocks.
+            let mut guess = (NONE, f32::INFINITY);
+            for b in 0..self.n_blocks() {
+                let at = self.cell_start[b * BLOCK_CELLS] as usize;
+                if at < self.cell_start[(b + 1) * BLOCK_CELLS] as usize {
+                    let p = [self.sorted[0][at], self.sorted[1][at], self.sorted[2][at]];
+                    consider(&mut guess, dist2(p, q), self.sorted_index[at]);
+                }
+            }
+            if guess.1.is_finite() {
+                return found(self.search(q, guess));
+            }
+        }
+        // Radius searches with a growing radius: the first that finds a point has found the
+        // nearest.
         let ext = [self.hi[0] - self.lo[0], self.hi[1] - self.lo[1], self.hi[2] - self.lo[2]];
         let diag = libm::sqrtf(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]);
         let mut step = 2.0 * self.cell;
