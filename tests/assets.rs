@@ -25,7 +25,10 @@ fn asset(rel: &str) -> Option<PathBuf> {
 const GARMENTS: &[(&str, &[usize])] =
     &[("female_casualsuit01", &[1311, 886]), ("female_sportsuit01", &[911, 886]), ("male_casualsuit04", &[810, 886])];
 
-fn body() -> Option<(Vec<[f32; 3]>, Vec<[u32; 3]>)> {
+/// Positions (metres) and triangles.
+type Mesh = (Vec<[f32; 3]>, Vec<[u32; 3]>);
+
+fn body() -> Option<Mesh> {
     let path = asset("body/base.obj")?;
     let mut obj = Obj::read(&path).unwrap();
     assert_eq!(obj.positions.len(), 19_158);

@@ -18,11 +18,17 @@ use crate::error::{Error, Result};
 use crate::math::finite3;
 use alloc::vec;
 use alloc::vec::Vec;
+use glam::Vec4;
 
 /// Cells per block edge.
 pub const BLOCK: usize = 4;
 const BLOCK_CELLS: usize = BLOCK * BLOCK * BLOCK;
 const NONE: u32 = u32::MAX;
+/// A radius search whose ball spans at most this many rows of cells scans them directly,
+/// without visiting blocks.
+const DIRECT_ROWS: usize = 36;
+/// Queries farther than this many cells outside the point bounds start from one point per block.
+const FAR_CELLS: f32 = 8.0;
 
 /// Default number of cells per point the grid aims for (see [`PointGrid::set_cells_per_point`]).
 pub const DEFAULT_CELLS_PER_POINT: f32 = 2.0;
@@ -59,8 +65,11 @@ pub struct PointGrid {
     cell_start: Vec<u32>,
     /// Scratch: the cell slot of every input point.
     point_slot: Vec<u32>,
-    sorted: Vec<[f32; 3]>,
+    /// Sorted point coordinates, one array per axis (the scan takes four points at once).
+    sorted: [Vec<f32>; 3],
     sorted_index: Vec<u32>,
+    /// `rank[i]`: where input point `i` went in the sorted arrays (to read a hint's position).
+    rank: Vec<u32>,
     block_lo: Vec<[f32; 3]>,
     block_hi: Vec<[f32; 3]>,
 }
@@ -93,8 +102,9 @@ impl PointGrid {
             pad: 0.0,
             cell_start: vec![0; max_blocks * BLOCK_CELLS + 1],
             point_slot: vec![0; capacity],
-            sorted: vec![[0.0; 3]; capacity],
+            sorted: [vec![0.0; capacity], vec![0.0; capacity], vec![0.0; capacity]],
             sorted_index: vec![0; capacity],
+            rank: vec![0; capacity],
             block_lo: vec![[0.0; 3]; max_blocks],
             block_hi: vec![[0.0; 3]; max_blocks],
         })
@@ -161,8 +171,8 @@ impl PointGrid {
                 return Err(Error::NonFinite { what: "grid point", index: i });
             }
             for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
+                lo[a] = fmin(lo[a], p[a]);
+                hi[a] = fmax(hi[a], p[a]);
             }
         }
         let ext = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
@@ -178,34 +188,34 @@ impl PointGrid {
         let slots = self.n_blocks() * BLOCK_CELLS;
         let start = &mut self.cell_start[..slots + 1];
         start.fill(0);
+        // Counts into start[s], inclusive prefix sums (start[s] = end of slot s), then a reverse
+        // scatter that decrements start[s] down to the beginning of s: stable, no extra pass.
         for (p, slot) in points.iter().zip(self.point_slot.iter_mut()) {
             let c = cell_of(*p, lo, self.inv_cell, self.blocks);
             *slot = slot_of(c, self.blocks) as u32;
-            start[*slot as usize + 1] += 1;
+            start[*slot as usize] += 1;
         }
-        for s in 0..slots {
-            start[s + 1] += start[s];
+        for s in 1..slots {
+            start[s] += start[s - 1];
         }
-        // Scatter with start[s] as the cursor of slot s; afterwards start[s] is the end of s,
-        // i.e. the beginning of s + 1, so shift back by one.
-        for (i, (p, &slot)) in points.iter().zip(self.point_slot.iter()).enumerate() {
+        start[slots] = n as u32;
+        for (i, (p, &slot)) in points.iter().zip(self.point_slot.iter()).enumerate().rev() {
+            start[slot as usize] -= 1;
             let at = start[slot as usize] as usize;
-            start[slot as usize] += 1;
-            self.sorted[at] = *p;
+            for (axis, &c) in self.sorted.iter_mut().zip(p) {
+                axis[at] = c;
+            }
             self.sorted_index[at] = i as u32;
+            self.rank[i] = at as u32;
         }
-        for s in (1..=slots).rev() {
-            start[s] = start[s - 1];
-        }
-        start[0] = 0;
 
         for b in 0..slots / BLOCK_CELLS {
             let (p0, p1) = (start[b * BLOCK_CELLS] as usize, start[(b + 1) * BLOCK_CELLS] as usize);
             let (mut blo, mut bhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-            for p in &self.sorted[p0..p1] {
-                for a in 0..3 {
-                    blo[a] = blo[a].min(p[a]);
-                    bhi[a] = bhi[a].max(p[a]);
+            for a in 0..3 {
+                for &c in &self.sorted[a][p0..p1] {
+                    blo[a] = fmin(blo[a], c);
+                    bhi[a] = fmax(bhi[a], c);
                 }
             }
             self.block_lo[b] = blo;
@@ -249,32 +259,98 @@ impl PointGrid {
     /// The nearest point within `radius` (metres) of `q`, distance `<= radius` inclusive (in
     /// squared `f32` distances), lowest index on ties; `None` when no point is that close.
     pub fn nearest_within_one(&self, q: [f32; 3], radius: f32) -> Option<Nearest> {
-        if self.n_points == 0 || !(radius >= 0.0) {
+        self.nearest_within_one_hinted(q, radius, NONE)
+    }
+
+    /// As [`nearest_within_one`](Self::nearest_within_one), starting from a guess: the point
+    /// `hint` (e.g. last frame's answer; any index `>= len()` means no guess). The result is the
+    /// same whatever the hint; a good one makes the search faster.
+    pub fn nearest_within_one_hinted(&self, q: [f32; 3], radius: f32, hint: u32) -> Option<Nearest> {
+        if self.n_points == 0 || radius.is_nan() || radius < 0.0 {
             return None;
         }
         let r2 = radius * radius;
         if box_dist2(q, self.lo, self.hi) > self.padded(r2) {
             return None;
         }
-        let (i, d2) = self.search(q, r2);
-        (i != NONE).then(|| Nearest { index: i, distance: libm::sqrtf(d2) })
+        let mut best = (NONE, r2);
+        if let Some(p) = self.point(hint) {
+            consider(&mut best, dist2(p, q), hint);
+        }
+        found(self.search(q, best))
     }
 
     /// The nearest point to `q`, lowest index on ties, with no distance limit; `None` only when
     /// the grid is empty.
     ///
-    /// Stopping rule: after the shells of blocks up to Chebyshev distance `k` around the start
-    /// block have been visited, every unseen point lies in one of the (up to six) slabs of the
-    /// point bounds beyond the faces of that visited box; the search ends once the nearest of those
-    /// slabs is strictly farther than the best point found (or the box covers the grid).
+    /// Runs radius searches with radii `d0 + c·2^k` (`d0` the distance from `q` to the point
+    /// bounds, `c` the cell edge, k = 1, 2, ...) until one finds a point: that point is the
+    /// nearest overall. A radius search whose ball spans few cells scans them all; a larger one
+    /// visits blocks in shells around the query's block and stops by this rule: after the shells
+    /// up to Chebyshev distance `k` have been visited, every unseen point lies in one of the (up
+    /// to six) slabs of the point bounds beyond the faces of the visited box; the search ends once
+    /// the nearest of those slabs is strictly farther than the best point found, or than the
+    /// radius (or the box covers the grid). Blocks whose points' bounding box is farther are
+    /// skipped, which keeps queries far outside the grid cheap.
     /// Coordinates beyond about 1e18 m overflow `f32` squared distances; such queries get a valid
-    /// point index but not necessarily the nearest.
+    /// point index but not necessarily the nearest. A NaN coordinate gives `None`.
     pub fn nearest_one(&self, q: [f32; 3]) -> Option<Nearest> {
+        self.nearest_one_hinted(q, NONE)
+    }
+
+    /// As [`nearest_one`](Self::nearest_one), starting from a guess: the point `hint` (e.g. last
+    /// frame's answer; any index `>= len()` means no guess). The result is the same whatever the
+    /// hint; a good one replaces the growing radii by a single search within the hint's distance.
+    pub fn nearest_one_hinted(&self, q: [f32; 3], hint: u32) -> Option<Nearest> {
         if self.n_points == 0 {
             return None;
         }
-        let (i, d2) = self.search(q, f32::INFINITY);
-        (i != NONE).then(|| Nearest { index: i, distance: libm::sqrtf(d2) })
+        if let Some(p) = self.point(hint) {
+            let d2 = dist2(p, q);
+            if d2.is_finite() {
+                return found(self.search(q, (hint, d2)));
+            }
+        }
+        let lower = libm::sqrtf(box_dist2(q, self.lo, self.hi));
+        if lower > FAR_CELLS * self.cell {
+            // Far outside: the nearest of one point per block bounds the answer within about a
+            // block; the block boxes then prune most blocks.
+            let mut guess = (NONE, f32::INFINITY);
+            for b in 0..self.n_blocks() {
+                let at = self.cell_start[b * BLOCK_CELLS] as usize;
+                if at < self.cell_start[(b + 1) * BLOCK_CELLS] as usize {
+                    let p = [self.sorted[0][at], self.sorted[1][at], self.sorted[2][at]];
+                    consider(&mut guess, dist2(p, q), self.sorted_index[at]);
+                }
+            }
+            if guess.1.is_finite() {
+                return found(self.search(q, guess));
+            }
+        }
+        // Radius searches with a growing radius: the first that finds a point has found the
+        // nearest.
+        let ext = [self.hi[0] - self.lo[0], self.hi[1] - self.lo[1], self.hi[2] - self.lo[2]];
+        let diag = libm::sqrtf(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]);
+        let mut step = 2.0 * self.cell;
+        loop {
+            let r = lower + step;
+            let best = self.search(q, (NONE, r * r));
+            if best.0 != NONE {
+                return found(best);
+            }
+            if step.is_nan() || step > 2.0 * diag + self.cell || !(r * r).is_finite() {
+                // Every point is within `lower + diag`; only overflow or NaN ends up here.
+                return found(self.search(q, (NONE, f32::INFINITY)));
+            }
+            step *= 2.0;
+        }
+    }
+
+    /// The position of input point `i` of the last rebuild, if there is one.
+    #[inline(always)]
+    fn point(&self, i: u32) -> Option<[f32; 3]> {
+        let at = *self.rank[..self.n_points].get(i as usize)? as usize;
+        Some([self.sorted[0][at], self.sorted[1][at], self.sorted[2][at]])
     }
 
     /// For every query point (metres), the nearest point within `radius`, see
@@ -285,9 +361,23 @@ impl PointGrid {
     /// negative or non-finite radius; [`Error::NonFinite`] for a NaN/Inf query coordinate (`out`
     /// is then partly written).
     pub fn nearest_within(&self, queries: &[[f32; 3]], radius: f32, out: &mut [Option<Nearest>]) -> Result<()> {
-        if out.len() != queries.len() {
-            return Err(Error::SizeMismatch { what: "nearest-within output", expected: queries.len(), got: out.len() });
-        }
+        self.nearest_within_hinted(queries, radius, &[], out)
+    }
+
+    /// As [`nearest_within`](Self::nearest_within) with one hint per query (see
+    /// [`nearest_within_one_hinted`](Self::nearest_within_one_hinted)), or `hints` empty for none.
+    ///
+    /// # Errors
+    /// As [`nearest_within`](Self::nearest_within); [`Error::SizeMismatch`] for hints neither
+    /// empty nor one per query.
+    pub fn nearest_within_hinted(
+        &self,
+        queries: &[[f32; 3]],
+        radius: f32,
+        hints: &[u32],
+        out: &mut [Option<Nearest>],
+    ) -> Result<()> {
+        check_batch(queries.len(), hints.len(), out.len())?;
         if !(radius >= 0.0 && radius.is_finite()) {
             return Err(Error::OutOfRange { what: "query radius", index: 0 });
         }
@@ -295,7 +385,7 @@ impl PointGrid {
             if !finite3(*q) {
                 return Err(Error::NonFinite { what: "query point", index: i });
             }
-            *o = self.nearest_within_one(*q, radius);
+            *o = self.nearest_within_one_hinted(*q, radius, hints.get(i).copied().unwrap_or(NONE));
         }
         Ok(())
     }
@@ -308,9 +398,18 @@ impl PointGrid {
     /// long as `queries`; [`Error::NonFinite`] for a NaN/Inf query coordinate (`out` is then
     /// partly written).
     pub fn nearest(&self, queries: &[[f32; 3]], out: &mut [Nearest]) -> Result<()> {
-        if out.len() != queries.len() {
-            return Err(Error::SizeMismatch { what: "nearest output", expected: queries.len(), got: out.len() });
-        }
+        self.nearest_hinted(queries, &[], out)
+    }
+
+    /// As [`nearest`](Self::nearest) with one hint per query (see
+    /// [`nearest_one_hinted`](Self::nearest_one_hinted)), or `hints` empty for none. Last
+    /// frame's answers make good hints.
+    ///
+    /// # Errors
+    /// As [`nearest`](Self::nearest); [`Error::SizeMismatch`] for hints neither empty nor one per
+    /// query.
+    pub fn nearest_hinted(&self, queries: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
+        check_batch(queries.len(), hints.len(), out.len())?;
         if self.n_points == 0 {
             return Err(Error::Empty { what: "point grid" });
         }
@@ -318,8 +417,9 @@ impl PointGrid {
             if !finite3(*q) {
                 return Err(Error::NonFinite { what: "query point", index: i });
             }
-            // Non-empty grid: the search always returns a point.
-            *o = self.nearest_one(*q).unwrap_or(Nearest { index: 0, distance: f32::INFINITY });
+            // Non-empty grid and finite query: the search always returns a point.
+            let hint = hints.get(i).copied().unwrap_or(NONE);
+            *o = self.nearest_one_hinted(*q, hint).unwrap_or(Nearest { index: 0, distance: f32::INFINITY });
         }
         Ok(())
     }
@@ -331,10 +431,20 @@ impl PointGrid {
         d * d
     }
 
-    /// Best `(index, squared distance)` with squared distance `<= limit2` (or `NONE`).
-    fn search(&self, q: [f32; 3], limit2: f32) -> (u32, f32) {
-        let mut best = (NONE, limit2);
-        let start = cell_of_clamped(q, self.lo, self.inv_cell, self.blocks).map(|c| c / BLOCK);
+    /// The best `(index, squared distance)` among `best` (a guess, or `NONE` with the limit) and
+    /// the points within `sqrt(best.1)` of `q`.
+    fn search(&self, q: [f32; 3], mut best: (u32, f32)) -> (u32, f32) {
+        let limit2 = best.1;
+        let qcell = cell_of_clamped(q, self.lo, self.inv_cell, self.blocks);
+        if limit2.is_finite() {
+            // A small ball: scan its cells directly, the query's own cell first.
+            let (lo, hi) = self.cell_range(q, limit2);
+            if (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1) <= DIRECT_ROWS {
+                self.scan_ball(q, qcell, lo, hi, &mut best);
+                return best;
+            }
+        }
+        let start = qcell.map(|c| c / BLOCK);
         let last = self.blocks.map(|b| b - 1);
         let mut k = 0usize;
         loop {
@@ -357,17 +467,18 @@ impl PointGrid {
                     rhi[a] = rhi[a].min(ahi[a] / BLOCK);
                 }
             }
-            self.visit_shell(q, start, k, rlo, rhi, &mut best);
+            self.visit_shell(q, qcell, k, rlo, rhi, &mut best);
             k += 1;
         }
         best
     }
 
-    /// Visits the blocks at Chebyshev distance exactly `k` from `start` inside `[rlo, rhi]`.
+    /// Visits the blocks at Chebyshev distance exactly `k` from the block of `qcell` inside
+    /// `[rlo, rhi]`.
     fn visit_shell(
         &self,
         q: [f32; 3],
-        start: [usize; 3],
+        qcell: [usize; 3],
         k: usize,
         rlo: [usize; 3],
         rhi: [usize; 3],
@@ -376,72 +487,173 @@ impl PointGrid {
         if (0..3).any(|a| rlo[a] > rhi[a]) {
             return;
         }
+        let start = qcell.map(|c| c / BLOCK);
         for bz in rlo[2]..=rhi[2] {
             for by in rlo[1]..=rhi[1] {
-                let on_shell = bz.abs_diff(start[2]) == k || by.abs_diff(start[1]) == k;
-                if on_shell {
+                if bz.abs_diff(start[2]) == k || by.abs_diff(start[1]) == k {
                     for bx in rlo[0]..=rhi[0] {
-                        self.visit_block(q, [bx, by, bz], best);
+                        self.visit_block(q, qcell, [bx, by, bz], best);
                     }
                 } else {
                     // Only the two ends of the row are on the shell.
                     if let Some(bx) = start[0].checked_sub(k) {
                         if bx >= rlo[0] && bx <= rhi[0] {
-                            self.visit_block(q, [bx, by, bz], best);
+                            self.visit_block(q, qcell, [bx, by, bz], best);
                         }
                     }
                     let bx = start[0] + k;
                     if k > 0 && bx >= rlo[0] && bx <= rhi[0] {
-                        self.visit_block(q, [bx, by, bz], best);
+                        self.visit_block(q, qcell, [bx, by, bz], best);
                     }
                 }
             }
         }
     }
 
-    fn visit_block(&self, q: [f32; 3], b: [usize; 3], best: &mut (u32, f32)) {
+    /// Scans the cells of block `b` that the current best ball reaches: the query's own cell
+    /// first (a small ball early), then row by row, skipping rows beyond the ball and trimming
+    /// each row to the ball's chord.
+    fn visit_block(&self, q: [f32; 3], qcell: [usize; 3], b: [usize; 3], best: &mut (u32, f32)) {
         let bi = b[0] + self.blocks[0] * (b[1] + self.blocks[1] * b[2]);
         let base = bi * BLOCK_CELLS;
         let (p0, p1) = (self.cell_start[base] as usize, self.cell_start[base + BLOCK_CELLS] as usize);
         if p0 == p1 || box_dist2(q, self.block_lo[bi], self.block_hi[bi]) > self.padded(best.1) {
             return;
         }
-        if !best.1.is_finite() {
-            // Nothing found yet: first the cell of the query if it is in this block, to get a
-            // small search ball quickly, else the whole block.
-            let c = cell_of_clamped(q, self.lo, self.inv_cell, self.blocks);
-            if c.map(|x| x / BLOCK) == b {
-                let s = base + local_of(c);
-                self.scan(q, self.cell_start[s] as usize, self.cell_start[s + 1] as usize, best);
-            }
-            if !best.1.is_finite() {
-                self.scan(q, p0, p1, best);
-                return;
-            }
+        let own = qcell.map(|c| c / BLOCK) == b;
+        if own {
+            let s = base + local_of(qcell);
+            self.scan(q, (self.cell_start[s] as usize, self.cell_start[s + 1] as usize), best);
         }
-        let (clo, chi) = self.cell_range(q, best.1);
-        let lo = [0, 1, 2].map(|a| clo[a].max(b[a] * BLOCK) - b[a] * BLOCK);
-        let hi = [0, 1, 2].map(|a| chi[a].min(b[a] * BLOCK + BLOCK - 1) as isize - (b[a] * BLOCK) as isize);
-        if (0..3).any(|a| (lo[a] as isize) > hi[a]) {
+        if !best.1.is_finite() {
+            // Only for limits beyond f32 range: no ball to prune with.
+            self.scan(q, (p0, p1), best);
             return;
         }
-        let hi = hi.map(|h| h as usize);
+        let origin = b.map(|x| x * BLOCK);
+        let pb = self.padded(best.1);
+        let (clo, chi) = self.cell_range(q, best.1);
+        let lo = [0, 1, 2].map(|a| clo[a].max(origin[a]));
+        let hi = [0, 1, 2].map(|a| chi[a].min(origin[a] + BLOCK - 1));
         for z in lo[2]..=hi[2] {
+            let dz = self.gap(q, 2, z);
+            let dz2 = dz * dz;
+            if dz2 > pb {
+                continue;
+            }
             for y in lo[1]..=hi[1] {
+                let dy = self.gap(q, 1, y);
+                let rest = pb - dz2 - dy * dy;
+                if rest < 0.0 {
+                    continue;
+                }
+                let r = libm::sqrtf(rest);
+                let last = (origin[0] + BLOCK - 1) as f32;
+                let x0 = (clamp_cell((q[0] - r - self.lo[0]) * self.inv_cell, last) as usize).max(origin[0]);
+                let x1 = clamp_cell((q[0] + r - self.lo[0]) * self.inv_cell, last) as usize;
+                if x0 > x1 {
+                    continue;
+                }
                 // Cells of one row are consecutive slots, so their points are contiguous.
-                let s0 = base + local_of([lo[0], y, z]);
-                let s1 = base + local_of([hi[0], y, z]) + 1;
-                self.scan(q, self.cell_start[s0] as usize, self.cell_start[s1] as usize, best);
+                let s0 = base + local_of([x0, y, z]);
+                let s1 = base + local_of([x1, y, z]) + 1;
+                if own && y == qcell[1] && z == qcell[2] && (x0..=x1).contains(&qcell[0]) {
+                    // Skip the own cell, scanned above.
+                    let s = base + local_of(qcell);
+                    self.scan(q, (self.cell_start[s0] as usize, self.cell_start[s] as usize), best);
+                    self.scan(q, (self.cell_start[s + 1] as usize, self.cell_start[s1] as usize), best);
+                } else {
+                    self.scan(q, (self.cell_start[s0] as usize, self.cell_start[s1] as usize), best);
+                }
             }
         }
     }
 
+    /// Scans the rows of cells in `[lo, hi]` (cell coordinates) that the best ball reaches,
+    /// each row trimmed to the ball's chord and split where it crosses blocks.
+    /// Rows are visited from the query's row outwards, so that the ball shrinks early.
+    fn scan_ball(&self, q: [f32; 3], c: [usize; 3], lo: [usize; 3], hi: [usize; 3], best: &mut (u32, f32)) {
+        let last = (self.blocks[0] * BLOCK - 1) as f32;
+        // The padded best, recomputed only when the best changes.
+        let (mut seen, mut pb) = (best.1, self.padded(best.1));
+        for z in CenterOut::new(c[2], lo[2], hi[2]) {
+            let dz = self.gap(q, 2, z);
+            let dz2 = dz * dz;
+            if dz2 > pb {
+                continue;
+            }
+            for y in CenterOut::new(c[1], lo[1], hi[1]) {
+                if best.1 != seen {
+                    (seen, pb) = (best.1, self.padded(best.1));
+                }
+                let dy = self.gap(q, 1, y);
+                let rest = pb - dz2 - dy * dy;
+                if rest < 0.0 {
+                    continue;
+                }
+                let r = libm::sqrtf(rest);
+                let x0 = clamp_cell((q[0] - r - self.lo[0]) * self.inv_cell, last) as usize;
+                let x1 = clamp_cell((q[0] + r - self.lo[0]) * self.inv_cell, last) as usize;
+                let row = self.blocks[0] * ((y / BLOCK) + self.blocks[1] * (z / BLOCK));
+                let local_yz = BLOCK * ((y % BLOCK) + BLOCK * (z % BLOCK));
+                let mut x = x0;
+                while x <= x1 {
+                    let bx = x / BLOCK;
+                    let end = x1.min(bx * BLOCK + BLOCK - 1);
+                    let base = (row + bx) * BLOCK_CELLS + local_yz;
+                    let (p0, p1) = (self.cell_start[base + x % BLOCK], self.cell_start[base + end % BLOCK + 1]);
+                    if p1 > p0 {
+                        self.scan(q, (p0 as usize, p1 as usize), best);
+                    }
+                    x = end + 1;
+                }
+            }
+        }
+    }
+
+    /// Distance along axis `a` from `q` to the slab of cells with coordinate `c` (0 inside).
     #[inline(always)]
-    fn scan(&self, q: [f32; 3], p0: usize, p1: usize, best: &mut (u32, f32)) {
-        for (p, &i) in self.sorted[p0..p1].iter().zip(&self.sorted_index[p0..p1]) {
-            let d2 = dist2(*p, q);
-            if d2 <= best.1 && (d2 < best.1 || i < best.0) {
-                *best = (i, d2);
+    fn gap(&self, q: [f32; 3], a: usize, c: usize) -> f32 {
+        let lo = self.lo[a] + c as f32 * self.cell;
+        let hi = lo + self.cell;
+        fmax(fmax(lo - q[a], q[a] - hi), 0.0)
+    }
+
+    /// Scans the sorted points `p0..p1`, four at a time.
+    #[inline(always)]
+    fn scan(&self, q: [f32; 3], (p0, p1): (usize, usize), best: &mut (u32, f32)) {
+        let (xs, ys, zs) = (&self.sorted[0][p0..p1], &self.sorted[1][p0..p1], &self.sorted[2][p0..p1]);
+        let idx = &self.sorted_index[p0..p1];
+        let n = idx.len();
+        if n < 4 {
+            for k in 0..n {
+                consider(best, dist2([xs[k], ys[k], zs[k]], q), idx[k]);
+            }
+            return;
+        }
+        let (qx, qy, qz) = (Vec4::splat(q[0]), Vec4::splat(q[1]), Vec4::splat(q[2]));
+        let mut group = |x: &[f32; 4], y: &[f32; 4], z: &[f32; 4], i: &[u32; 4]| {
+            let (dx, dy, dz) = (Vec4::from_array(*x) - qx, Vec4::from_array(*y) - qy, Vec4::from_array(*z) - qz);
+            let d2 = dx * dx + dy * dy + dz * dz;
+            if d2.min_element() <= best.1 {
+                for (&d, &i) in d2.to_array().iter().zip(i) {
+                    consider(best, d, i);
+                }
+            }
+        };
+        let chunks = xs.chunks_exact(4).zip(ys.chunks_exact(4)).zip(zs.chunks_exact(4)).zip(idx.chunks_exact(4));
+        for (((x, y), z), i) in chunks {
+            if let (Ok(x), Ok(y), Ok(z), Ok(i)) = (x.try_into(), y.try_into(), z.try_into(), i.try_into()) {
+                group(x, y, z, i);
+            }
+        }
+        if !n.is_multiple_of(4) {
+            // The last four points, overlapping the group before: points seen twice change
+            // nothing (same distance, same index).
+            if let (Some(x), Some(y), Some(z), Some(i)) =
+                (xs.last_chunk(), ys.last_chunk(), zs.last_chunk(), idx.last_chunk())
+            {
+                group(x, y, z, i);
             }
         }
     }
@@ -476,6 +688,102 @@ impl PointGrid {
     }
 }
 
+/// `min` as one `minss` (no NaN care: inputs are finite where it matters).
+#[inline(always)]
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `max` as one `maxss`.
+#[inline(always)]
+fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// A cell coordinate clamped to `[0, last]` (NaN gives `last`).
+#[inline(always)]
+fn clamp_cell(t: f32, last: f32) -> f32 {
+    fmax(fmin(t, last), 0.0)
+}
+
+/// `c, c - 1, c + 1, c - 2, c + 2, ...` within `[lo, hi]` (which holds `c`).
+struct CenterOut {
+    c: usize,
+    lo: usize,
+    hi: usize,
+    k: usize,
+    below: bool,
+}
+
+impl CenterOut {
+    #[inline(always)]
+    fn new(c: usize, lo: usize, hi: usize) -> CenterOut {
+        CenterOut { c, lo, hi, k: 0, below: false }
+    }
+}
+
+impl Iterator for CenterOut {
+    type Item = usize;
+    #[inline(always)]
+    fn next(&mut self) -> Option<usize> {
+        loop {
+            if self.k == 0 {
+                self.k = 1;
+                self.below = true;
+                return Some(self.c);
+            }
+            if self.c < self.lo + self.k && self.c + self.k > self.hi {
+                return None;
+            }
+            let (k, below) = (self.k, self.below);
+            if below {
+                self.below = false;
+            } else {
+                self.below = true;
+                self.k += 1;
+            }
+            if below && self.c >= self.lo + k {
+                return Some(self.c - k);
+            }
+            if !below && self.c + k <= self.hi {
+                return Some(self.c + k);
+            }
+        }
+    }
+}
+
+fn check_batch(queries: usize, hints: usize, out: usize) -> Result<()> {
+    if out != queries {
+        return Err(Error::SizeMismatch { what: "query output", expected: queries, got: out });
+    }
+    if hints != 0 && hints != queries {
+        return Err(Error::SizeMismatch { what: "query hints", expected: queries, got: hints });
+    }
+    Ok(())
+}
+
+/// A search result as a [`Nearest`].
+#[inline(always)]
+fn found((i, d2): (u32, f32)) -> Option<Nearest> {
+    (i != NONE).then(|| Nearest { index: i, distance: libm::sqrtf(d2) })
+}
+
+/// Takes `(i, d2)` if it is nearer, or as near with a lower index.
+#[inline(always)]
+fn consider(best: &mut (u32, f32), d2: f32, i: u32) {
+    if d2 <= best.1 && (d2 < best.1 || i < best.0) {
+        *best = (i, d2);
+    }
+}
+
 #[inline(always)]
 fn dist2(p: [f32; 3], q: [f32; 3]) -> f32 {
     let (dx, dy, dz) = (p[0] - q[0], p[1] - q[1], p[2] - q[2]);
@@ -490,7 +798,7 @@ fn box_dist2(q: [f32; 3], lo: [f32; 3], hi: [f32; 3]) -> f32 {
         if lo[a] > hi[a] {
             return f32::INFINITY;
         }
-        let d = (lo[a] - q[a]).max(q[a] - hi[a]).max(0.0);
+        let d = fmax(fmax(lo[a] - q[a], q[a] - hi[a]), 0.0);
         d2 += d * d;
     }
     d2
@@ -505,11 +813,16 @@ fn cell_of(p: [f32; 3], lo: [f32; 3], inv_cell: f32, blocks: [usize; 3]) -> [usi
 /// Cell of any point, clamped into the grid. Monotonic in every coordinate.
 #[inline(always)]
 fn cell_of_clamped(p: [f32; 3], lo: [f32; 3], inv_cell: f32, blocks: [usize; 3]) -> [usize; 3] {
-    [0, 1, 2].map(|a| {
-        let last = (blocks[a] * BLOCK - 1) as f32;
-        let t = ((p[a] - lo[a]) * inv_cell).clamp(0.0, last);
-        t as usize
-    })
+    #[inline(always)]
+    fn axis(p: f32, lo: f32, inv_cell: f32, blocks: usize) -> usize {
+        let last = (blocks * BLOCK - 1) as f32;
+        clamp_cell((p - lo) * inv_cell, last) as usize
+    }
+    [
+        axis(p[0], lo[0], inv_cell, blocks[0]),
+        axis(p[1], lo[1], inv_cell, blocks[1]),
+        axis(p[2], lo[2], inv_cell, blocks[2]),
+    ]
 }
 
 #[inline(always)]

@@ -124,6 +124,24 @@ fn body_query_nearest_matches_brute_force() {
             assert_eq!(got.index, want.index, "round {round} kind {kind} n {n} query {q:?}: {got:?} vs {want:?}");
             assert_eq!(got.distance, want.distance);
         }
+        // Any hint (right, wrong, far, invalid) gives the same answer.
+        let hints: Vec<u32> = (0..qs.len())
+            .map(|k| match k % 4 {
+                0 => out[k].index,
+                1 => rng.below(n) as u32,
+                2 => u32::MAX,
+                _ => n as u32 + 3,
+            })
+            .collect();
+        let mut hinted = vec![Nearest { index: 0, distance: 0.0 }; qs.len()];
+        grid.nearest_hinted(&qs, &hints, &mut hinted).unwrap();
+        assert_eq!(hinted, out, "round {round}: hints changed the result");
+        let mut within = vec![None; qs.len()];
+        let mut within_hinted = vec![None; qs.len()];
+        grid.nearest_within(&qs, 0.05, &mut within).unwrap();
+        grid.nearest_within_hinted(&qs, 0.05, &hints, &mut within_hinted).unwrap();
+        assert_eq!(within, within_hinted, "round {round}: hints changed the radius result");
+        assert!(matches!(grid.nearest_hinted(&qs, &hints[1..], &mut hinted), Err(Error::SizeMismatch { .. })));
     }
 }
 
@@ -355,10 +373,16 @@ fn body_query_frame_matches_brute_force_with_omitted_vertices() {
             kept > 0 && n_omitted > 0,
             "the test must see both kept and omitted edges ({kept}, {n_omitted}, {n_raw})"
         );
-        frame.nearest_faces(&garment, &mut faces).unwrap();
+        // Last frame's answers as hints (the first frame: none).
+        let hints: Vec<u32> = if step == 0 { vec![] } else { faces.iter().map(|f| f.index).collect() };
+        let edge_hints: Vec<u32> = edges.iter().map(|e| e.map_or(u32::MAX, |e| e.index)).collect();
+        frame.nearest_faces_hinted(&garment, &hints, &mut faces).unwrap();
         for (g, got) in garment.iter().zip(&faces) {
             assert_eq!(Some(*got), brute(frame.centroids(), *g, f32::INFINITY));
         }
+        let mut edges2 = vec![None; n_garment];
+        assert_eq!(frame.body_edges_hinted(&mesh, &garment, r, &edge_hints, &mut edges2).unwrap(), kept);
+        assert_eq!(edges2, edges);
     }
     assert_eq!(
         frame.update(&mesh, &positions[1..]),

@@ -91,7 +91,7 @@ fn obj_split_components_counts_pieces() {
 fn obj_writer_round_trips() {
     let pos = vec![[0.1f32, -2.5, 3.0e-7], [1.0, 0.0, 0.0], [0.33333334, 1.0, 0.0]];
     let tris = vec![[0u32, 1, 2]];
-    let normals = vec![[0.0, 0.0, 1.0]; 3];
+    let normals = [[0.0, 0.0, 1.0]; 3];
     for nr in [None, Some(&normals[..])] {
         let text = to_string(&pos, &tris, nr).unwrap();
         let back = Obj::parse(&text).unwrap();

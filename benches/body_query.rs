@@ -1,0 +1,108 @@
+//! Body queries of one frame: grid rebuild, body edges (nearest body vertex within 0.03 m) and
+//! nearest face centroid, for ~4.4k garment points near the body. Uses the real MakeHuman body
+//! from `../shared/assets` when present, else a procedural ellipsoid of ~13k vertices.
+
+use criterion::{black_box, criterion_group, criterion_main, Criterion};
+use hood::body::{shapes::ellipsoid, BodyFrame, BodyMesh, Nearest};
+use hood::io::obj::Obj;
+
+const N_GARMENT: usize = 4400;
+const RADIUS: f32 = 0.03;
+
+fn load_body() -> (Vec<[f32; 3]>, Vec<[u32; 3]>, &'static str) {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/assets/body/base.obj");
+    if let Ok(mut obj) = Obj::read(path) {
+        obj.scale(0.1); // decimetres to metres
+        if let Ok(body) = obj.extract_groups(&["body"]) {
+            return (body.rest, body.faces, "MakeHuman body");
+        }
+    }
+    eprintln!("{path} not found: using a procedural ellipsoid body");
+    let (v, f) = ellipsoid(100, 133, [0.25, 0.85, 0.15], [0.0, 0.9, 0.0]);
+    (v, f, "ellipsoid body")
+}
+
+/// splitmix64.
+fn next(state: &mut u64) -> f32 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
+}
+
+/// Garment-like points: random body vertices pushed along their normal by -1 cm .. +5 cm.
+fn garment_points(mesh: &BodyMesh, body: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    let mut normals = vec![[0.0; 3]; body.len()];
+    mesh.vertex_normals(body, &mut normals).unwrap();
+    let mut s = 7u64;
+    (0..N_GARMENT)
+        .map(|_| {
+            let i = ((next(&mut s) * body.len() as f32) as usize).min(body.len() - 1);
+            let off = -0.01 + 0.06 * next(&mut s);
+            [0, 1, 2].map(|a| body[i][a] + off * normals[i][a])
+        })
+        .collect()
+}
+
+fn bench(c: &mut Criterion) {
+    let (body, faces, what) = load_body();
+    let mesh = BodyMesh::new(body.len(), &faces).unwrap();
+    let garment = garment_points(&mesh, &body);
+    let mut frame = BodyFrame::new(&mesh).unwrap();
+    frame.update(&mesh, &body).unwrap();
+    let mut edges = vec![None; garment.len()];
+    let mut nearest = vec![Nearest { index: 0, distance: 0.0 }; garment.len()];
+    let n_edges = frame.body_edges(&mesh, &garment, RADIUS, &mut edges).unwrap();
+    eprintln!(
+        "{what}: {} vertices, {} faces, {} garment points, {n_edges} body edges; vertex grid {:?} cells of {:.4} m, centroid grid {:?} cells of {:.4} m",
+        body.len(),
+        faces.len(),
+        garment.len(),
+        frame.vertex_grid().cells(),
+        frame.vertex_grid().cell_size(),
+        frame.centroid_grid().cells(),
+        frame.centroid_grid().cell_size()
+    );
+
+    let mut g = c.benchmark_group("body_query");
+    g.bench_function("rebuild_grids (centroids + 2 grids)", |b| {
+        b.iter(|| frame.update_grids(&mesh, black_box(&body)).unwrap())
+    });
+    g.bench_function("body_edges r=0.03", |b| {
+        b.iter(|| frame.body_edges(&mesh, black_box(&garment), RADIUS, &mut edges).unwrap())
+    });
+    g.bench_function("nearest_face_centroid", |b| {
+        b.iter(|| frame.nearest_faces(black_box(&garment), &mut nearest).unwrap())
+    });
+    // Last frame's answers as hints: the garment 3 mm away from where it is now.
+    let moved: Vec<[f32; 3]> = garment.iter().map(|p| [p[0] + 0.002, p[1] - 0.002, p[2] + 0.001]).collect();
+    frame.nearest_faces(&moved, &mut nearest).unwrap();
+    let face_hints: Vec<u32> = nearest.iter().map(|n| n.index).collect();
+    frame.body_edges(&mesh, &moved, RADIUS, &mut edges).unwrap();
+    let vertex_hints: Vec<u32> = edges.iter().map(|e| e.map_or(u32::MAX, |e| e.index)).collect();
+    g.bench_function("nearest_face_centroid hinted", |b| {
+        b.iter(|| frame.nearest_faces_hinted(black_box(&garment), &face_hints, &mut nearest).unwrap())
+    });
+    g.bench_function("whole body query", |b| {
+        b.iter(|| {
+            frame.update_grids(&mesh, black_box(&body)).unwrap();
+            frame.body_edges(&mesh, &garment, RADIUS, &mut edges).unwrap();
+            frame.nearest_faces(&garment, &mut nearest).unwrap();
+        })
+    });
+    g.bench_function("whole body query hinted", |b| {
+        b.iter(|| {
+            frame.update_grids(&mesh, black_box(&body)).unwrap();
+            frame.body_edges_hinted(&mesh, &garment, RADIUS, &vertex_hints, &mut edges).unwrap();
+            frame.nearest_faces_hinted(&garment, &face_hints, &mut nearest).unwrap();
+        })
+    });
+    g.bench_function("update (centroids, normals, 2 grids)", |b| {
+        b.iter(|| frame.update(&mesh, black_box(&body)).unwrap())
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
