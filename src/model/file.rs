@@ -110,7 +110,7 @@ fn rkyv_err<E>(_: E) -> Error {
 /// The column parts of layer `index` of an MLP (see the module docs).
 fn split_of(first_layer_parts: Option<usize>, index: usize, inp: usize) -> Vec<(usize, usize)> {
     match first_layer_parts {
-        Some(n) if index == 0 && n > 1 && inp % n == 0 => (0..n).map(|i| (i * inp / n, inp / n)).collect(),
+        Some(n) if index == 0 && n > 1 && inp.is_multiple_of(n) => (0..n).map(|i| (i * inp / n, inp / n)).collect(),
         _ => vec![(0, inp)],
     }
 }
@@ -341,7 +341,7 @@ impl<'a> Model<'a> {
         if version != FORMAT_VERSION {
             return Err(corrupt("unsupported .hood format version"));
         }
-        if bytes.as_ptr() as usize % ALIGN != 0 {
+        if !(bytes.as_ptr() as usize).is_multiple_of(ALIGN) {
             return Err(corrupt("model buffer is not 16-byte aligned"));
         }
         let rec = rkyv::access::<ArchivedModelRec, rkyv::rancor::Error>(&bytes[HEADER_LEN..]).map_err(rkyv_err)?;
