@@ -110,6 +110,18 @@ fn garment_assets_split_into_pieces() {
                 g.total_area()
             );
             assert_eq!(g.n_components(), 1);
+            // The coarse levels of each piece (MODEL.md section 2): nested node sets, about half
+            // as many nodes per level.
+            let h = hood::hierarchy::Hierarchy::build(&g, &hood::hierarchy::HierarchyConfig::default()).unwrap();
+            let mut prev = g.n_vertices();
+            let mut line = format!("{name} piece {k} levels:");
+            for (l, level) in h.levels().iter().enumerate() {
+                let nodes = level.nodes.len();
+                line += &format!(" c{l} {nodes} nodes / {} edges;", level.edges.len());
+                assert!(nodes < prev && nodes * 4 > prev, "{name} piece {k} level {l}: {nodes} nodes after {prev}");
+                prev = nodes;
+            }
+            println!("{line}");
         }
     }
 }
