@@ -331,8 +331,7 @@ pub extern "C" fn hood_version_string() -> *const c_char {
 #[no_mangle]
 pub extern "C" fn hood_last_error() -> *const c_char {
     static EMPTY: &CStr = c"";
-    catch_unwind(|| LAST_ERROR.try_with(|s| s.borrow().as_ptr()).unwrap_or(EMPTY.as_ptr()))
-        .unwrap_or(EMPTY.as_ptr())
+    catch_unwind(|| LAST_ERROR.try_with(|s| s.borrow().as_ptr()).unwrap_or(EMPTY.as_ptr())).unwrap_or(EMPTY.as_ptr())
 }
 
 // ---- Model -------------------------------------------------------------------------------------
@@ -677,10 +676,8 @@ pub unsafe extern "C" fn hood_sim_new(
             let mut mesh = BodyMesh::new(b.n_vertices, faces)?;
             if !b.omitted.is_null() {
                 // SAFETY: as above.
-                let om: Vec<bool> = unsafe { slice(b.omitted, b.n_vertices, "body omitted")? }
-                    .iter()
-                    .map(|&o| o != 0)
-                    .collect();
+                let om: Vec<bool> =
+                    unsafe { slice(b.omitted, b.n_vertices, "body omitted")? }.iter().map(|&o| o != 0).collect();
                 mesh = mesh.with_omitted(&om)?;
             }
             Some((mesh, pos))
@@ -944,7 +941,8 @@ fn check_rotation(r: &[f32; 9]) -> Result<()> {
             }
         }
     }
-    let det = r[0] * (r[4] * r[8] - r[5] * r[7]) - r[1] * (r[3] * r[8] - r[5] * r[6]) + r[2] * (r[3] * r[7] - r[4] * r[6]);
+    let det =
+        r[0] * (r[4] * r[8] - r[5] * r[7]) - r[1] * (r[3] * r[8] - r[5] * r[6]) + r[2] * (r[3] * r[7] - r[4] * r[6]);
     if det < 0.0 {
         return Err(Error::OutOfRange { what: "rotation (a reflection, determinant -1)", index: 0 }.into());
     }
