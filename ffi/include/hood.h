@@ -150,7 +150,8 @@ typedef struct hood_sim_config {
 } hood_sim_config;
 
 /* The defaults: body collision, pinning and start-up on; f32; 1 thread; sleeping after 3 frames
- * below 1e-5 m/frame (when enabled). A NULL `out` is ignored. */
+ * below 1e-5 m/frame (when enabled). A NULL `out` is ignored
+ * (only hood_last_error records it). */
 void hood_sim_config_default(hood_sim_config *out);
 
 /* The body of a scene. `positions`: 3 * n_vertices floats, the body at the first frame (m).

@@ -588,25 +588,28 @@ impl Drop for hood_sim {
 /// `out` is NULL (ignored) or writable.
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
-    if out.is_null() {
-        return;
-    }
-    let d = SimConfig::default();
-    let s = Sleeping::default();
-    let effects = HOOD_EFFECT_BODY_COLLISION * d.body_collision as u32
-        | HOOD_EFFECT_PINNING * d.pinning as u32
-        | HOOD_EFFECT_NORMALS * d.normals as u32
-        | HOOD_EFFECT_SLEEPING * d.sleeping.is_some() as u32
-        | HOOD_EFFECT_STARTUP * d.startup as u32;
-    let c = hood_sim_config {
-        effects,
-        precision: HOOD_PRECISION_F32,
-        threads: d.threads as u32,
-        sleep_frames: s.frames,
-        sleep_threshold: s.threshold,
-    };
-    // SAFETY: non-null; writable by the caller's promise.
-    unsafe { write_out(out, c) };
+    // No status to return: a (never expected) panic just leaves `out` unwritten.
+    let _ = guard(|| {
+        require(out, "out")?;
+        let d = SimConfig::default();
+        let s = Sleeping::default();
+        let flag = |on: bool, f: u32| if on { f } else { 0 };
+        let effects = flag(d.body_collision, HOOD_EFFECT_BODY_COLLISION)
+            | flag(d.pinning, HOOD_EFFECT_PINNING)
+            | flag(d.normals, HOOD_EFFECT_NORMALS)
+            | flag(d.sleeping.is_some(), HOOD_EFFECT_SLEEPING)
+            | flag(d.startup, HOOD_EFFECT_STARTUP);
+        let c = hood_sim_config {
+            effects,
+            precision: HOOD_PRECISION_F32,
+            threads: d.threads as u32,
+            sleep_frames: s.frames,
+            sleep_threshold: s.threshold,
+        };
+        // SAFETY: non-null; writable by the caller's promise.
+        unsafe { write_out(out, c) };
+        Ok(())
+    });
 }
 
 fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {

@@ -342,13 +342,14 @@ fn misaligned_and_corrupt_models_are_refused() {
     let b = bytes.as_bytes();
     // An aligned buffer with the model copied one byte in.
     let mut shifted = ModelBytes::new(&[&[0u8][..], b].concat());
-    let mut out: *mut hood_model = 0x1 as *mut hood_model; // a sentinel that must stay
-                                                           // SAFETY: readable ranges; `out` is writable.
+    // A sentinel that must stay.
+    let mut out: *mut hood_model = std::ptr::dangling_mut::<hood_model>();
+    // SAFETY: readable ranges; `out` is writable.
     unsafe {
         let s = hood_model_load(shifted.as_bytes().as_ptr().add(1), b.len(), &mut out);
         assert_eq!(s, HOOD_ERR_CORRUPT_DATA);
         assert!(last_error().contains("align"), "{}", last_error());
-        assert_eq!(out, 0x1 as *mut hood_model);
+        assert_eq!(out, std::ptr::dangling_mut::<hood_model>());
         // Truncated.
         assert_eq!(hood_model_load(b.as_ptr(), b.len() / 2, &mut out), HOOD_ERR_CORRUPT_DATA);
         // Bad magic.
@@ -368,10 +369,10 @@ fn misaligned_and_corrupt_models_are_refused() {
         assert!(s == HOOD_ERR_CORRUPT_DATA || s == HOOD_OK, "status {s}");
         if s == HOOD_OK {
             assert_eq!(hood_model_free(out), HOOD_OK);
-            out = 0x1 as *mut hood_model;
+            out = std::ptr::dangling_mut::<hood_model>();
         }
         assert_eq!(hood_model_load(b.as_ptr(), 0, &mut out), HOOD_ERR_CORRUPT_DATA);
-        assert_eq!(out, 0x1 as *mut hood_model);
+        assert_eq!(out, std::ptr::dangling_mut::<hood_model>());
         // The intact bytes load, and the f32-only model refuses bf16.
         assert_eq!(hood_model_load(b.as_ptr(), b.len(), &mut out), HOOD_OK);
         let mut bf = 9;
@@ -460,7 +461,7 @@ fn model_freed_while_a_sim_lives_is_refused() {
 #[test]
 fn last_error_is_per_thread() {
     // SAFETY: NULL arguments only.
-    assert_eq!(unsafe { hood_sim_free(0x10 as *mut hood_sim) }, HOOD_ERR_INVALID_HANDLE);
+    assert_eq!(unsafe { hood_sim_free(std::ptr::dangling_mut::<hood_sim>()) }, HOOD_ERR_INVALID_HANDLE);
     assert!(!last_error().is_empty());
     let other = std::thread::spawn(last_error).join().unwrap();
     assert_eq!(other, "");
@@ -519,13 +520,11 @@ fn teleport_moves_state_rigidly_and_translation_commutes_with_steps() {
         let want_v = [v[2], v[1], -v[0]];
         assert!(max_diff(&[p1[i]], &[want_p]) < 1e-6 && max_diff(&[v1[i]], &[want_v]) < 1e-7, "vertex {i}");
     }
-    // Rotate back (R^T) without translation, then shift by t' = -R^T t: b is a pure translation
-    // of a by -R^T t... simpler: undo entirely and translate by d only.
+    // Undo it: shift by -t, then rotate by R^T.
     let rt = [0.0f32, 0.0, -1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0];
     // SAFETY: 9 floats.
     unsafe {
         let back = [-t[0], -t[1], -t[2]];
-        // R^T (R p + t - t) = p: translate first, then rotate.
         assert_eq!(hood_sim_teleport(b, null(), back.as_ptr()), HOOD_OK);
         assert_eq!(hood_sim_teleport(b, rt.as_ptr(), null()), HOOD_OK);
     }
