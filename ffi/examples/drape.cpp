@@ -1,4 +1,4 @@
-// drape.cpp: the drape.c scene from C++ (RAII handles, std::thread job system as executor).
+// drape.cpp: the drape.c scene from C++ (RAII handles, a std::thread job system as the executor).
 //
 //   drape_cpp MODEL.hood [GRID]
 //
@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <condition_variable>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -17,6 +18,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <memory>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -64,18 +66,74 @@ AlignedBytes read_file(const char *path) {
     return b;
 }
 
-// A minimal job system: each run() splits the tasks between the calling thread and one helper
-// thread, claiming indices from a shared counter.
-struct TwoThreads {
-    static void run(void *, std::uint32_t n, hood_task_fn task, void *ctx) {
-        std::atomic<std::uint32_t> next{0};
-        auto work = [&] {
-            for (std::uint32_t i; (i = next.fetch_add(1)) < n;) task(ctx, i);
-        };
-        std::thread helper(work);
-        work();
-        helper.join();
+// A minimal job system: one persistent helper thread; each run() shares the tasks between the
+// calling thread and the helper, which claim indices from a shared counter.
+class HelperPool {
+  public:
+    HelperPool() : worker_([this] { loop(); }) {}
+    ~HelperPool() {
+        {
+            std::lock_guard<std::mutex> lock(m_);
+            stop_ = true;
+        }
+        wake_.notify_all();
+        worker_.join();
     }
+    HelperPool(const HelperPool &) = delete;
+    HelperPool &operator=(const HelperPool &) = delete;
+
+    static void run(void *user, std::uint32_t n, hood_task_fn task, void *ctx) {
+        static_cast<HelperPool *>(user)->run_job(n, task, ctx);
+    }
+
+  private:
+    void run_job(std::uint32_t n, hood_task_fn task, void *ctx) {
+        next_.store(0);
+        {
+            std::lock_guard<std::mutex> lock(m_);
+            task_ = task;
+            ctx_ = ctx;
+            n_ = n;
+            busy_ = true;
+            ++generation_;
+        }
+        wake_.notify_all();
+        claim(task, ctx, n);
+        std::unique_lock<std::mutex> lock(m_);
+        done_.wait(lock, [this] { return !busy_; });
+    }
+
+    void claim(hood_task_fn task, void *ctx, std::uint32_t n) {
+        for (std::uint32_t i; (i = next_.fetch_add(1)) < n;) task(ctx, i);
+    }
+
+    void loop() {
+        std::uint64_t seen = 0;
+        std::unique_lock<std::mutex> lock(m_);
+        for (;;) {
+            wake_.wait(lock, [&] { return stop_ || generation_ != seen; });
+            if (stop_) return;
+            seen = generation_;
+            hood_task_fn task = task_;
+            void *ctx = ctx_;
+            std::uint32_t n = n_;
+            lock.unlock();
+            claim(task, ctx, n);
+            lock.lock();
+            busy_ = false;
+            done_.notify_all();
+        }
+    }
+
+    std::mutex m_;
+    std::condition_variable wake_, done_;
+    std::atomic<std::uint32_t> next_{0};
+    hood_task_fn task_ = nullptr;
+    void *ctx_ = nullptr;
+    std::uint32_t n_ = 0;
+    std::uint64_t generation_ = 0;
+    bool busy_ = false, stop_ = false;
+    std::thread worker_;  // last: starts once the members above exist
 };
 
 void ellipsoid(int rings, int segs, const float r[3], std::vector<float> &v, std::vector<std::uint32_t> &f) {
@@ -150,7 +208,8 @@ int run(int argc, char **argv) {
     check(hood_sim_new(model.get(), garment.get(), &bd, &cfg, &raw_sim), "hood_sim_new");
     std::unique_ptr<hood_sim, SimFree> sim(raw_sim);  // declared after the model: freed first
 
-    hood_executor exec{nullptr, 2, &TwoThreads::run};
+    HelperPool pool;  // dies before the sim, which is why it is unplugged after the last step
+    hood_executor exec{&pool, 2, &HelperPool::run};
     check(hood_sim_set_executor(sim.get(), &exec), "hood_sim_set_executor");
     std::printf("garment: %zu vertices, body: %zu vertices\n", nv, nb);
 
@@ -176,6 +235,7 @@ int run(int argc, char **argv) {
     }
     std::printf("steps: %d\n", kSteps);
     std::printf("time: %.3f ms total, %.3f ms/step (wall clock, 2-thread executor)\n", ms, ms / kSteps);
+    check(hood_sim_set_executor(sim.get(), nullptr), "hood_sim_set_executor");  // before `pool` dies
     std::printf("bbox: min %.6f %.6f %.6f max %.6f %.6f %.6f\n", double(lo[0]), double(lo[1]), double(lo[2]),
                 double(hi[0]), double(hi[1]), double(hi[2]));
     return 0;
