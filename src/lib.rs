@@ -30,6 +30,8 @@ extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
+#[cfg(feature = "std")]
+pub mod bench;
 pub mod body;
 pub mod error;
 pub mod features;
@@ -41,7 +43,11 @@ pub mod math;
 pub mod mesh;
 pub mod model;
 pub mod normaliser;
+pub mod physics;
 pub mod rng;
 pub mod sim;
+pub mod solve;
+#[cfg(feature = "std")]
+pub mod workloads;
 
 pub use error::{Error, Result};

@@ -13,6 +13,7 @@
 mod frame;
 pub mod geometry;
 mod grid;
+pub mod rigid;
 pub mod shapes;
 
 pub use frame::BodyFrame;

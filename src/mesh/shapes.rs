@@ -32,3 +32,30 @@ pub fn grid(nx: usize, nz: usize, width: f32, depth: f32, y: f32) -> (Vec<[f32; 
     }
     (rest, faces)
 }
+
+/// One 1-to-4 midpoint subdivision: a new vertex at the middle of every edge (appended after
+/// the original vertices, in the order of the garment's sorted unique edges), each triangle
+/// split into four with the same orientation. Apply the same call to any per-vertex positions
+/// of the mesh (rest, current, previous) to get consistent subdivided copies.
+pub fn subdivide(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    let mut edges: Vec<[u32; 2]> = faces.iter().flat_map(|f| [0, 1, 2].map(|k| sorted(f[k], f[(k + 1) % 3]))).collect();
+    edges.sort_unstable();
+    edges.dedup();
+    let n = positions.len() as u32;
+    let mut out = positions.to_vec();
+    for &[a, b] in &edges {
+        let (pa, pb) = (positions[a as usize], positions[b as usize]);
+        out.push([0.5 * (pa[0] + pb[0]), 0.5 * (pa[1] + pb[1]), 0.5 * (pa[2] + pb[2])]);
+    }
+    let mid = |a: u32, b: u32| n + edges.binary_search(&sorted(a, b)).unwrap_or(0) as u32;
+    let mut new_faces = Vec::with_capacity(faces.len() * 4);
+    for &[a, b, c] in faces {
+        let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
+        new_faces.extend_from_slice(&[[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+    }
+    (out, new_faces)
+}
+
+fn sorted(a: u32, b: u32) -> [u32; 2] {
+    [a.min(b), a.max(b)]
+}

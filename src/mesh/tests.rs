@@ -162,3 +162,17 @@ fn garment_per_vertex_materials_set_masses() {
         assert!((g.vertex_mass()[i] - mats[i].density * area[i]).abs() < 1e-7);
     }
 }
+
+#[test]
+fn garment_subdivision_counts_and_area() {
+    let (rest, faces) = grid(5, 4, 1.0, 1.0, 0.0);
+    let g = Garment::new(GarmentDesc::new(&rest, &faces)).unwrap();
+    let (r2, f2) = shapes::subdivide(&rest, &faces);
+    let g2 = Garment::new(GarmentDesc::new(&r2, &f2)).unwrap();
+    assert_eq!(g2.n_vertices(), g.n_vertices() + g.edges().len());
+    assert_eq!(f2.len(), 4 * faces.len());
+    assert!((g2.total_area() - g.total_area()).abs() < 1e-6);
+    let mut n = vec![[0.0; 3]; g2.n_vertices()];
+    g2.normals_into(&r2, &mut n).unwrap();
+    assert!(n.iter().all(|v| (v[1] - 1.0).abs() < 1e-6), "orientation kept");
+}

@@ -7,11 +7,13 @@
 //!
 //! Units: metres; one step is one frame at the model's 30 Hz (velocities are m/frame).
 
+pub mod driver;
 pub mod exec;
 pub mod graph;
 pub mod network;
 mod par;
 
+use crate::body::rigid::{best_rigid_motion, RigidMotion};
 use crate::body::{BodyMesh, Nearest, PointGrid};
 use crate::error::{Error, Result};
 use crate::features::{self, BodyNodes, Embeddings, GarmentNodes, DT, DT_STARTUP, EDGE_WIDTH, NODE_WIDTH};
@@ -24,12 +26,17 @@ use crate::model::spec::EdgeKey;
 use alloc::boxed::Box;
 use alloc::vec;
 use alloc::vec::Vec;
+pub use driver::FixedStep;
 #[cfg(feature = "std")]
 pub use exec::ThreadPool;
 pub use exec::{Executor, Serial};
 pub use graph::Graph;
 use network::{BodyEdges, Net, Workspace};
 pub use network::{Probe, Stage};
+
+/// Default teleport threshold, metres per frame: a fast run moves a hand about 0.35 m per
+/// frame; a jump of the whole body by a metre, or a 180° turn in one frame, moves far more.
+pub const DEFAULT_TELEPORT: f32 = 0.45;
 
 /// Body-edge radius (MODEL.md section 1), metres.
 pub const BODY_EDGE_RADIUS: f32 = 0.03;
@@ -78,6 +85,10 @@ pub struct SimConfig {
     pub startup: bool,
     /// Kernel path cap (`None`: the best this CPU has).
     pub tier: Option<Tier>,
+    /// Teleport threshold, metres: when some body vertex moves farther than this in one frame,
+    /// the garment is carried along by the body's best-fit rigid motion instead of being
+    /// stepped through the jump (`None`: never).
+    pub teleport: Option<f32>,
     /// Threads for the step's parallel parts when no executor is plugged in with
     /// [`Sim::set_executor`]: 1 runs serially; more starts a [`ThreadPool`] (feature `std`).
     pub threads: usize,
@@ -93,6 +104,7 @@ impl Default for SimConfig {
             precision: Precision::F32,
             startup: true,
             tier: None,
+            teleport: Some(DEFAULT_TELEPORT),
             threads: 1,
         }
     }
@@ -143,6 +155,7 @@ pub struct Sim<'m> {
     rest_frames: u32,
     ws: Workspace,
     exec: Box<dyn Executor + 'm>,
+    last_body: (usize, usize),
 }
 
 /// The body of a scene: its mesh (optionally with omitted vertices) and its positions at the
@@ -264,6 +277,7 @@ impl<'m> Sim<'m> {
             rest_frames: 0,
             ws,
             exec: default_executor(cfg.threads),
+            last_body: (0, 0),
         })
         .map(|mut sim: Sim<'m>| {
             sim.ws.set_tasks(sim.exec.parallelism(), &sim.graph);
@@ -277,6 +291,17 @@ impl<'m> Sim<'m> {
     pub fn set_executor(&mut self, exec: Box<dyn Executor + 'm>) {
         self.ws.set_tasks(exec.parallelism(), &self.graph);
         self.exec = exec;
+    }
+
+    /// Useful floating-point operations of the network's matrix products in the last network
+    /// pass (counted from the shapes, with the split first layer; a multiply-add is 2).
+    pub fn last_step_flops(&self) -> u64 {
+        self.ws.flops
+    }
+
+    /// Body edges and active body nodes of the last network pass.
+    pub fn last_body_counts(&self) -> (usize, usize) {
+        self.last_body
     }
 
     /// The kernel path in use.
@@ -391,6 +416,18 @@ impl<'m> Sim<'m> {
             }
             check_finite("body vertex", body_next)?;
         }
+        if let (Some(limit), Some(_)) = (self.cfg.teleport, &self.body) {
+            let l2 = limit * limit;
+            let jump = self.state.body_pos.iter().zip(body_next).any(|(a, b)| {
+                let d = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+                d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > l2
+            });
+            if jump {
+                let motion = best_rigid_motion(&self.state.body_pos, body_next);
+                self.teleport(&motion, body_next)?;
+                return Ok(&self.state.pos);
+            }
+        }
         if let Some(sl) = self.cfg.sleeping {
             if self.at_rest(body_next, sl.threshold) {
                 self.rest_frames = self.rest_frames.saturating_add(1);
@@ -410,6 +447,42 @@ impl<'m> Sim<'m> {
         let next = if self.body.is_some() { Some(body_next) } else { None };
         self.advance(next, DT, observer)?;
         Ok(&self.state.pos)
+    }
+
+    /// Moves the garment (positions, velocities, pin targets) by `motion` without simulating,
+    /// and puts the body at `body_now` at rest (previous = current). For a body that jumps
+    /// (a cut, a respawn): [`SimConfig::teleport`] does this by itself for large jumps.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`], [`Error::NonFinite`] for bad body input (state unchanged).
+    pub fn teleport(&mut self, motion: &RigidMotion, body_now: &[[f32; 3]]) -> Result<()> {
+        if let Some(b) = &self.body {
+            if body_now.len() != b.mesh.n_vertices() {
+                return Err(Error::SizeMismatch {
+                    what: "body vertices",
+                    expected: b.mesh.n_vertices(),
+                    got: body_now.len(),
+                });
+            }
+            check_finite("body vertex", body_now)?;
+        }
+        if !motion.rotation.is_finite() || !motion.translation.is_finite() {
+            return Err(Error::NonFinite { what: "teleport motion", index: 0 });
+        }
+        for p in self.state.pos.iter_mut().chain(self.pin_targets.iter_mut()) {
+            *p = motion.apply(*p);
+        }
+        for v in self.state.velocity.iter_mut() {
+            *v = motion.rotate(*v);
+        }
+        if self.body.is_some() {
+            self.state.body_pos.copy_from_slice(body_now);
+            self.state.body_prev.copy_from_slice(body_now);
+        }
+        if self.cfg.normals {
+            vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
+        }
+        Ok(())
     }
 
     fn at_rest(&self, body_next: &[[f32; 3]], threshold: f32) -> bool {
@@ -508,6 +581,7 @@ impl<'m> Sim<'m> {
                 &mut self.ws.b2g_features[..nb * 9],
             )?;
         }
+        self.ws.flops = 0;
         // Mesh and coarse edges: features, then encode.
         let rest = self.garment.rest();
         if self.ws.uses(EdgeKey::Mesh) {
@@ -531,6 +605,7 @@ impl<'m> Sim<'m> {
             None => BodyEdges { garment: &[], body: &[], n_active: 0, prefix: [0; 4] },
         };
         self.ws.forward(&self.net, &*self.exec, &self.graph, &body_edges, observer)?;
+        self.last_body = (nb, n_active);
         // Integrate: acc = decoded * std + mean; v' = v + acc; x' = x + v + acc.
         let (mean, std) = model.output_stats();
         for i in 0..n {

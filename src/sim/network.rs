@@ -122,6 +122,9 @@ pub struct Workspace {
     /// Decoder output (normalised accelerations), `v × 3`.
     pub decoded: Vec<f32>,
     uses_key: [bool; 4],
+    /// Useful floating-point operations of the matrix products since the last reset (a
+    /// multiply-add counts 2; skipped zero operands count nothing).
+    pub flops: u64,
 }
 
 fn key_index(k: EdgeKey) -> usize {
@@ -193,6 +196,7 @@ impl Workspace {
             coarse_split: Vec::new(),
             decoded: vec![0.0; v * 3],
             uses_key,
+            flops: 0,
         };
         ws.set_tasks(1, graph);
         Ok(ws)
@@ -240,7 +244,7 @@ impl Workspace {
             Some(l) => &mut self.coarse_latents[l][..n * self.h],
             None => &mut self.mesh_latents[..n * self.h],
         };
-        let mut p = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors };
+        let mut p = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors, flops: &mut self.flops };
         p.mlp(net, &net.model.edge_encoders[enc_i], &[Some(&self.edge_features[..n * EDGE_WIDTH])], n, out, false)
     }
 
@@ -263,7 +267,7 @@ impl Workspace {
         let rows = v + a;
         let nb = body.prefix[0];
         let model = net.model;
-        let mut par = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors };
+        let mut par = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors, flops: &mut self.flops };
         // Nodes: normalise the first 21 columns, encode.
         let (mean, std) = model.node_stats();
         let feats = &mut self.node_features[..rows * NODE_WIDTH];
@@ -457,6 +461,7 @@ struct Par<'w> {
     exec: &'w dyn Executor,
     tasks: &'w mut [TaskBufs],
     errors: &'w mut [Option<Error>],
+    flops: &'w mut u64,
 }
 
 impl Par<'_> {
@@ -491,6 +496,15 @@ impl Par<'_> {
             return Ok(());
         }
         let w = out.len() / rows;
+        let first: usize = mlp.layers[0]
+            .parts(net.bf16)
+            .iter()
+            .zip(inputs)
+            .filter(|(_, x)| x.is_some())
+            .map(|(p, _)| p.k() * p.n())
+            .sum();
+        let rest: usize = mlp.layers[1..].iter().map(|l| l.inp * l.out).sum();
+        *self.flops += 2 * (rows * (first + rest)) as u64;
         let chunks = rows.div_ceil(CHUNK);
         let n = self.tasks.len().min(chunks);
         let out = Disjoint::new(out);
@@ -543,6 +557,7 @@ impl Par<'_> {
         };
         let k_e = em.w3.n();
         let n_edges = latent.len() / k_e;
+        *self.flops += 2 * (n_edges * (em.w1_edge.k() * h + em.w2.k() * em.w2.n() + em.w3.k() * k_e)) as u64;
         let latent = Disjoint::new(latent);
         let aggregate = Disjoint::new(aggregate);
         let tasks = self.tasks.len().min(n_edges.div_ceil(64)).max(1);
@@ -590,6 +605,7 @@ impl Par<'_> {
     fn linear(&mut self, net: &Net<'_>, x: &[f32], w: kernels::Weights<'_>, out: &mut [f32]) -> Result<()> {
         let (k, n_out) = (w.k(), w.n());
         let rows = x.len() / k.max(1);
+        *self.flops += 2 * (rows * k * n_out) as u64;
         let n = self.tasks.len().min(rows.div_ceil(64)).max(1);
         let out = Disjoint::new(out);
         self.run(n, &|t, tb| {

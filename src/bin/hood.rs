@@ -1,0 +1,189 @@
+//! The `hood` command line (feature `cli`).
+
+use clap::{Args, Parser, Subcommand};
+use hood::bench::{bench_step, machine_peak, BenchRow};
+use hood::model::{write_model, ModelBytes, ModelSpec, Params};
+use hood::sim::Precision;
+use hood::workloads::{default_shared_dir, workload, NAMES};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "hood", version, about = "HOOD-style neural cloth: simulate, measure, train")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Step latency per workload, model size, precision and thread count (EVALUATION.md).
+    Bench(BenchArgs),
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Workloads (comma-separated); default: every one whose files are present.
+    #[arg(long, value_delimiter = ',')]
+    workload: Vec<String>,
+    /// Latent widths of the HOOD architecture to time (random weights: timing does not depend
+    /// on their values).
+    #[arg(long, value_delimiter = ',', default_value = "128,64,32")]
+    latent: Vec<usize>,
+    /// A model file to time instead of random models.
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Precisions: f32, bf16.
+    #[arg(long, value_delimiter = ',', default_value = "f32,bf16")]
+    precision: Vec<String>,
+    /// Thread counts.
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    threads: Vec<usize>,
+    /// Timed steps per configuration (the median is reported).
+    #[arg(long, default_value_t = 15)]
+    steps: usize,
+    /// Untimed steps first.
+    #[arg(long, default_value_t = 3)]
+    warmup: usize,
+    /// Folder holding `fixtures/` and `assets/` (default: ../shared beside the source).
+    #[arg(long)]
+    shared: Option<PathBuf>,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Bench(a) => bench(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("hood: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn random_model(h: usize) -> hood::Result<ModelBytes> {
+    let mut p = Params::init(&ModelSpec::hood(h), 0)?;
+    // Unit-scale statistics, so that a random model's features and outputs stay sane.
+    let mut rng = hood::rng::Rng::new(1);
+    let n = &mut p.normalisers;
+    for (norm, w, s) in
+        [(&mut n.node, 21, 1.0), (&mut n.edge, 9, 0.05), (&mut n.body_edge, 9, 0.02), (&mut n.output, 3, 1e-3)]
+    {
+        let rows: Vec<f32> = (0..64 * w).map(|_| (rng.normal() * s) as f32).collect();
+        norm.accumulate(&rows, w);
+    }
+    Ok(ModelBytes::new(&write_model(&p, true, &[("kind", "random, for timing")])?))
+}
+
+fn bench(a: BenchArgs) -> hood::Result<()> {
+    let shared = a.shared.clone().unwrap_or_else(default_shared_dir);
+    let names: Vec<String> =
+        if a.workload.is_empty() { NAMES.iter().map(|s| s.to_string()).collect() } else { a.workload.clone() };
+    let mut workloads = Vec::new();
+    for n in &names {
+        match workload(n, &shared) {
+            Ok(w) => workloads.push(w),
+            Err(e) if a.workload.is_empty() => eprintln!("skipping {n}: {e}"),
+            Err(e) => return Err(e),
+        }
+    }
+    let precisions: Vec<Precision> = a
+        .precision
+        .iter()
+        .map(|p| match p.as_str() {
+            "bf16" => Ok(Precision::Bf16),
+            "f32" => Ok(Precision::F32),
+            _ => Err(hood::Error::parse("precision", 0, format!("'{p}' (use f32 or bf16)"))),
+        })
+        .collect::<hood::Result<_>>()?;
+    let models: Vec<ModelBytes> = match &a.model {
+        Some(p) => vec![ModelBytes::read(p)?],
+        None => a.latent.iter().map(|&h| random_model(h)).collect::<hood::Result<_>>()?,
+    };
+    let peak = machine_peak();
+    eprintln!(
+        "peak per core ({}): f32 {:.1} GFLOP/s, bf16 {:.1} GFLOP/s",
+        peak.tier.name(),
+        peak.f32_gflops,
+        peak.bf16_gflops
+    );
+    let mut rows: Vec<BenchRow> = Vec::new();
+    for w in &workloads {
+        for mb in &models {
+            let model = mb.model()?;
+            for &p in &precisions {
+                for &t in &a.threads {
+                    let r = bench_step(w, &model, p, t, a.warmup, a.steps, &peak)?;
+                    if !a.json {
+                        print_row(&r, rows.is_empty());
+                    }
+                    rows.push(r);
+                }
+            }
+        }
+    }
+    if a.json {
+        println!("{}", to_json(&rows, &peak));
+    }
+    Ok(())
+}
+
+fn print_row(r: &BenchRow, header: bool) {
+    if header {
+        println!(
+            "{:<9} {:>6} {:>6} {:>4} {:>5} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6}",
+            "workload", "verts", "bodyE", "h", "prec", "thr", "median ms", "GFLOP/step", "GFLOP/s", "peak", "eff"
+        );
+    }
+    println!(
+        "{:<9} {:>6} {:>6} {:>4} {:>5} {:>3} {:>10.2} {:>10.3} {:>9.1} {:>8.1} {:>5.0}%",
+        r.workload,
+        r.vertices,
+        r.body_edges,
+        r.latent,
+        if r.precision == Precision::Bf16 { "bf16" } else { "f32" },
+        r.threads,
+        r.median_ms,
+        r.flops as f64 / 1e9,
+        r.gflops,
+        r.peak_gflops,
+        100.0 * r.efficiency
+    );
+}
+
+fn to_json(rows: &[BenchRow], peak: &hood::kernels::peak::Peak) -> String {
+    let items: Vec<String> = rows
+        .iter()
+        .map(|r| {
+            format!(
+                "{{\"workload\":\"{}\",\"vertices\":{},\"body_edges\":{},\"latent\":{},\"blocks\":{},\"precision\":\"{}\",\"threads\":{},\"median_ms\":{:.4},\"min_ms\":{:.4},\"flops\":{},\"gflops\":{:.3},\"peak_gflops\":{:.3},\"efficiency\":{:.4}}}",
+                r.workload,
+                r.vertices,
+                r.body_edges,
+                r.latent,
+                r.blocks,
+                if r.precision == Precision::Bf16 { "bf16" } else { "f32" },
+                r.threads,
+                r.median_ms,
+                r.min_ms,
+                r.flops,
+                r.gflops,
+                r.peak_gflops,
+                r.efficiency
+            )
+        })
+        .collect();
+    format!(
+        "{{\"peak\":{{\"tier\":\"{}\",\"f32_gflops\":{:.3},\"bf16_gflops\":{:.3}}},\"rows\":[{}]}}",
+        peak.tier.name(),
+        peak.f32_gflops,
+        peak.bf16_gflops,
+        items.join(",")
+    )
+}

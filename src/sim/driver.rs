@@ -1,0 +1,103 @@
+//! A fixed-step driver: the model runs at its 30 Hz; engines call it at their own frame rate
+//! with the body at engine time, and get the garment interpolated between the last two model
+//! frames (MODEL.md section 5: resample the body, interpolate the output, never feed another dt).
+
+use super::Sim;
+use crate::error::{Error, Result};
+use crate::math::finite3;
+use alloc::vec::Vec;
+
+/// Model frame length, seconds.
+pub const MODEL_DT: f64 = 1.0 / 30.0;
+
+/// Drives a [`Sim`] at 30 Hz from engine frames of any length. Allocates nothing per update.
+pub struct FixedStep<'m> {
+    sim: Sim<'m>,
+    /// Engine seconds since the last model frame, in `[0, MODEL_DT)`.
+    since_frame: f64,
+    engine_body: Vec<[f32; 3]>,
+    body_sample: Vec<[f32; 3]>,
+    prev_out: Vec<[f32; 3]>,
+    out: Vec<[f32; 3]>,
+    steps: u64,
+}
+
+impl<'m> FixedStep<'m> {
+    /// Wraps `sim`; the body starts where the sim's state has it.
+    pub fn new(sim: Sim<'m>) -> FixedStep<'m> {
+        let body = sim.state().body_pos.clone();
+        let pos = sim.positions().to_vec();
+        FixedStep {
+            since_frame: 0.0,
+            body_sample: body.clone(),
+            engine_body: body,
+            prev_out: pos.clone(),
+            out: pos,
+            steps: 0,
+            sim,
+        }
+    }
+
+    /// The wrapped simulation.
+    pub fn sim(&self) -> &Sim<'m> {
+        &self.sim
+    }
+
+    /// Model steps taken so far.
+    pub fn model_steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// Advances engine time by `dt` seconds, with `body_now` the body at the new engine time
+    /// (ignored without a body). Runs as many model steps as 30 Hz frames were crossed, with
+    /// the body linearly interpolated to each frame's time, and returns the garment
+    /// interpolated to engine time (one model frame behind, as fixed-step rendering is).
+    ///
+    /// # Errors
+    /// [`Error::OutOfRange`] for a negative or non-finite `dt`; bad body input is refused
+    /// before any step (state unchanged); errors of [`Sim::step`].
+    pub fn update(&mut self, dt: f32, body_now: &[[f32; 3]]) -> Result<&[[f32; 3]]> {
+        let dt = dt as f64;
+        if !(dt >= 0.0 && dt.is_finite()) {
+            return Err(Error::OutOfRange { what: "engine frame time", index: 0 });
+        }
+        let has_body = !self.engine_body.is_empty();
+        if has_body {
+            if body_now.len() != self.engine_body.len() {
+                return Err(Error::SizeMismatch {
+                    what: "body vertices",
+                    expected: self.engine_body.len(),
+                    got: body_now.len(),
+                });
+            }
+            if let Some(i) = body_now.iter().position(|p| !finite3(*p)) {
+                return Err(Error::NonFinite { what: "body vertex", index: i });
+            }
+        }
+        let mut elapsed = 0.0; // engine seconds of this update already simulated
+        while self.since_frame + (dt - elapsed) >= MODEL_DT {
+            let to_frame = MODEL_DT - self.since_frame;
+            elapsed += to_frame;
+            // Body at the frame's time: between the previous engine body and `body_now`.
+            if has_body {
+                let f = if dt > 0.0 { (elapsed / dt) as f32 } else { 1.0 };
+                for ((s, a), b) in self.body_sample.iter_mut().zip(&self.engine_body).zip(body_now) {
+                    *s = [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])];
+                }
+            }
+            self.prev_out.copy_from_slice(self.sim.positions());
+            self.sim.step(&self.body_sample)?;
+            self.steps += 1;
+            self.since_frame = 0.0;
+        }
+        self.since_frame += dt - elapsed;
+        if has_body {
+            self.engine_body.copy_from_slice(body_now);
+        }
+        let alpha = (self.since_frame / MODEL_DT) as f32;
+        for ((o, a), b) in self.out.iter_mut().zip(&self.prev_out).zip(self.sim.positions()) {
+            *o = [a[0] + alpha * (b[0] - a[0]), a[1] + alpha * (b[1] - a[1]), a[2] + alpha * (b[2] - a[2])];
+        }
+        Ok(&self.out)
+    }
+}

@@ -1,0 +1,234 @@
+//! The implicit step: minimise the objective over the next garment positions.
+
+use super::{Lbfgs, LbfgsParams, LbfgsReport};
+use crate::error::{Error, Result};
+use crate::math::{add3, Real};
+use crate::physics::{check_len, CentroidQuery, Cloth, CollisionInput, FaceFrame, FrictionFrames, FrictionInput};
+use crate::physics::{Objective, StepInputs, Terms};
+use alloc::vec;
+use alloc::vec::Vec;
+
+/// The garment state a step starts from.
+#[derive(Clone, Copy, Debug)]
+pub struct StepState<'a, T> {
+    /// Positions at the current frame, m.
+    pub pos: &'a [[T; 3]],
+    /// Velocity, m/frame.
+    pub velocity: &'a [[T; 3]],
+    /// Time step, s.
+    pub dt: T,
+    /// Pinned flag per vertex (empty: none pinned).
+    pub pinned: &'a [bool],
+    /// Positions of the pinned vertices at the next frame (one per vertex, only the pinned ones
+    /// are read; empty when none is pinned), m.
+    pub targets: &'a [[T; 3]],
+}
+
+/// The body around one step: its faces at the previous, current and next frame, and a
+/// nearest-centroid query over each frame's centroids. The previous frame is only read by the
+/// reference form of friction ([`FrictionFrames::PrevCurrent`]).
+#[derive(Clone, Copy)]
+pub struct StepBody<'a, T> {
+    /// Faces at the previous frame.
+    pub prev: FaceFrame<'a, T>,
+    /// Faces at the current frame.
+    pub current: FaceFrame<'a, T>,
+    /// Faces at the next frame.
+    pub next: FaceFrame<'a, T>,
+    /// Nearest centroid at the previous frame.
+    pub query_prev: &'a dyn CentroidQuery,
+    /// Nearest centroid at the current frame.
+    pub query_current: &'a dyn CentroidQuery,
+    /// Nearest centroid at the next frame.
+    pub query_next: &'a dyn CentroidQuery,
+}
+
+/// Reusable workspace of the implicit step (L-BFGS buffers, nearest-face indices, the
+/// preconditioner).
+#[derive(Clone, Debug)]
+pub struct ImplicitStep<T: Real> {
+    lbfgs: Lbfgs<T>,
+    near_cur: Vec<u32>,
+    near_a: Vec<u32>,
+    near_b: Vec<u32>,
+    x32: Vec<[f32; 3]>,
+    diag: Vec<T>,
+    precondition: bool,
+}
+
+fn to_f32<T: Real>(x: &[[T; 3]], out: &mut [[f32; 3]]) {
+    for (o, p) in out.iter_mut().zip(x) {
+        *o = p.map(|c| c.to_f64() as f32);
+    }
+}
+
+impl<T: Real> ImplicitStep<T> {
+    /// A workspace for `n` vertices with `memory` L-BFGS correction pairs (10 is a good default).
+    pub fn new(n: usize, memory: usize) -> ImplicitStep<T> {
+        ImplicitStep {
+            lbfgs: Lbfgs::new(n, memory),
+            near_cur: vec![0; n],
+            near_a: vec![0; n],
+            near_b: vec![0; n],
+            x32: vec![[0.0; 3]; n],
+            diag: vec![T::ZERO; n],
+            precondition: true,
+        }
+    }
+
+    /// Whether L-BFGS is preconditioned with the inverse of `m / dt² + k_stretch` per vertex
+    /// (default on; off gives plain L-BFGS, for comparison).
+    pub fn set_preconditioning(&mut self, on: bool) {
+        self.precondition = on;
+    }
+
+    /// Minimises `objective` over the next positions `x` (written, m) starting from the coasting
+    /// guess `pos + velocity`, with pinned vertices held at their targets. Collision uses the
+    /// face nearest to `pos` at the current frame; friction's nearest face of `x` is refreshed at
+    /// every evaluation. Allocates nothing.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] for buffers of the wrong length; [`Error::Empty`] when a contact
+    /// term is enabled without a body; errors of the objective.
+    pub fn step(
+        &mut self,
+        cloth: &Cloth<T>,
+        objective: &Objective,
+        state: &StepState<'_, T>,
+        body: Option<&StepBody<'_, T>>,
+        params: &LbfgsParams,
+        x: &mut [[T; 3]],
+    ) -> Result<LbfgsReport> {
+        let n = cloth.n_vertices();
+        check_len("implicit step workspace", self.lbfgs.n_vertices(), n)?;
+        check_len("positions", x.len(), n)?;
+        check_len("current positions", state.pos.len(), n)?;
+        check_len("velocities", state.velocity.len(), n)?;
+        let pinned = state.pinned;
+        if !pinned.is_empty() {
+            check_len("pinned flags", pinned.len(), n)?;
+            if pinned.iter().any(|&p| p) {
+                check_len("pinned targets", state.targets.len(), n)?;
+            }
+        }
+        if body.is_none() && (objective.collision.is_some() || objective.friction.is_some()) {
+            return Err(Error::Empty { what: "body (collision or friction enabled)" });
+        }
+        for i in 0..n {
+            x[i] = if pinned.get(i).copied().unwrap_or(false) {
+                state.targets[i]
+            } else {
+                add3(state.pos[i], state.velocity[i])
+            };
+        }
+        let Self { lbfgs, near_cur, near_a, near_b, x32, diag, precondition } = self;
+        if *precondition {
+            diag.iter_mut().for_each(|d| *d = T::ZERO);
+            cloth.stretch_stiffness_into(diag)?;
+            let inv_dt2 = if objective.inertia { T::ONE / (state.dt * state.dt) } else { T::ZERO };
+            for (d, &m) in diag.iter_mut().zip(cloth.mass()) {
+                *d = T::ONE / (*d + m * inv_dt2);
+            }
+            lbfgs.set_preconditioner(Some(diag))?;
+        } else {
+            lbfgs.set_preconditioner(None)?;
+        }
+        let friction_b = prepare_contacts(objective, state, body, near_cur, near_a, x32);
+        let next = body.map(|b| b.next);
+        let mut scratch = Contacts { near_cur, near_a, near_b, x32 };
+        lbfgs.minimize(x, params, |y, grad| {
+            let t = eval_terms(cloth, objective, state, next, friction_b, &mut scratch, y, Some(&mut *grad))?;
+            for (g, &p) in grad.iter_mut().zip(pinned) {
+                if p {
+                    *g = [T::ZERO; 3];
+                }
+            }
+            Ok(t.total())
+        })
+    }
+
+    /// The objective's terms at `x` under the same rules as [`ImplicitStep::step`] (collision
+    /// faces nearest to `pos`, friction faces nearest to `x`): the figure to compare a model's
+    /// prediction, the coasting guess `pos + velocity` and the step's optimum with (EVALUATION.md
+    /// "objective gap"). Allocates nothing.
+    ///
+    /// # Errors
+    /// As [`ImplicitStep::step`].
+    pub fn evaluate(
+        &mut self,
+        cloth: &Cloth<T>,
+        objective: &Objective,
+        state: &StepState<'_, T>,
+        body: Option<&StepBody<'_, T>>,
+        x: &[[T; 3]],
+    ) -> Result<Terms<T>> {
+        let n = cloth.n_vertices();
+        check_len("implicit step workspace", self.near_cur.len(), n)?;
+        check_len("positions", x.len(), n)?;
+        check_len("current positions", state.pos.len(), n)?;
+        if body.is_none() && (objective.collision.is_some() || objective.friction.is_some()) {
+            return Err(Error::Empty { what: "body (collision or friction enabled)" });
+        }
+        let Self { near_cur, near_a, near_b, x32, .. } = self;
+        let friction_b = prepare_contacts(objective, state, body, near_cur, near_a, x32);
+        let mut scratch = Contacts { near_cur, near_a, near_b, x32 };
+        eval_terms(cloth, objective, state, body.map(|b| b.next), friction_b, &mut scratch, x, None)
+    }
+}
+
+/// The nearest-face buffers the contact terms read.
+struct Contacts<'a> {
+    near_cur: &'a mut [u32],
+    near_a: &'a mut [u32],
+    near_b: &'a mut [u32],
+    x32: &'a mut [[f32; 3]],
+}
+
+/// What friction needs per evaluation: the query at `B_b` and the two frames.
+type FrictionFramesOf<'a, T> = (&'a dyn CentroidQuery, FaceFrame<'a, T>, FaceFrame<'a, T>);
+
+/// Nearest faces of `pos` (collision at the current frame, friction at `B_a`).
+fn prepare_contacts<'a, T: Real>(
+    objective: &Objective,
+    state: &StepState<'_, T>,
+    body: Option<&StepBody<'a, T>>,
+    near_cur: &mut [u32],
+    near_a: &mut [u32],
+    x32: &mut [[f32; 3]],
+) -> Option<FrictionFramesOf<'a, T>> {
+    let b = body?;
+    to_f32(state.pos, x32);
+    b.query_current.nearest_into(x32, near_cur);
+    let fp = objective.friction.as_ref()?;
+    let (qa, fa, qb, fb) = match fp.frames {
+        FrictionFrames::CurrentNext => (b.query_current, b.current, b.query_next, b.next),
+        FrictionFrames::PrevCurrent => (b.query_prev, b.prev, b.query_current, b.current),
+    };
+    qa.nearest_into(x32, near_a);
+    Some((qb, fa, fb))
+}
+
+/// The objective at `y`, refreshing friction's nearest faces of `y` first.
+#[allow(clippy::too_many_arguments)]
+fn eval_terms<T: Real>(
+    cloth: &Cloth<T>,
+    objective: &Objective,
+    state: &StepState<'_, T>,
+    next: Option<FaceFrame<'_, T>>,
+    friction_b: Option<FrictionFramesOf<'_, T>>,
+    c: &mut Contacts<'_>,
+    y: &[[T; 3]],
+    grad: Option<&mut [[T; 3]]>,
+) -> Result<Terms<T>> {
+    let mut inputs =
+        StepInputs { pos: state.pos, velocity: state.velocity, dt: state.dt, collision: None, friction: None };
+    if let Some(next) = next {
+        inputs.collision = Some(CollisionInput { nearest: c.near_cur, next });
+    }
+    if let Some((qb, fa, fb)) = friction_b {
+        to_f32(y, c.x32);
+        qb.nearest_into(c.x32, c.near_b);
+        inputs.friction = Some(FrictionInput { frame_a: fa, frame_b: fb, nearest_a: c.near_a, nearest_b: c.near_b });
+    }
+    objective.eval(cloth, &inputs, y, grad)
+}
