@@ -137,6 +137,7 @@ hood_status hood_garment_face_count(const hood_garment *garment, size_t *out);
 #define HOOD_EFFECT_NORMALS 4u        /* compute vertex normals after each step (hood_sim_normals) */
 #define HOOD_EFFECT_SLEEPING 8u       /* skip steps while body and garment are at rest */
 #define HOOD_EFFECT_STARTUP 16u       /* relaxation step with a static body before the first step */
+#define HOOD_EFFECT_AUTO_TELEPORT 32u /* body jumps beyond teleport_threshold carry the garment along */
 
 #define HOOD_PRECISION_F32 0u  /* f32 weights and activations */
 #define HOOD_PRECISION_BF16 1u /* bf16 weights, f32 accumulation (model with bf16 weights) */
@@ -147,10 +148,13 @@ typedef struct hood_sim_config {
     uint32_t threads;        /* worker threads without an executor (0 or 1: the calling thread) */
     uint32_t sleep_frames;   /* frames at rest before sleeping (HOOD_EFFECT_SLEEPING) */
     float sleep_threshold;   /* "at rest": body motion and garment speed below this, m/frame */
+    float teleport_threshold; /* HOOD_EFFECT_AUTO_TELEPORT: when some body vertex moves farther than
+                                 this (m) in one frame, hood_sim_step moves the garment by the body's
+                                 best-fit rigid motion instead of simulating the jump */
 } hood_sim_config;
 
-/* The defaults: body collision, pinning and start-up on; f32; 1 thread; sleeping after 3 frames
- * below 1e-5 m/frame (when enabled). A NULL `out` is ignored
+/* The defaults: body collision, pinning, start-up and auto-teleport (0.45 m) on; f32; 1 thread;
+ * sleeping after 3 frames below 1e-5 m/frame (when enabled). A NULL `out` is ignored
  * (only hood_last_error records it). */
 void hood_sim_config_default(hood_sim_config *out);
 
@@ -207,13 +211,16 @@ hood_status hood_sim_set_pin_targets(hood_sim *sim, const float *targets, size_t
 hood_status hood_sim_reset(hood_sim *sim, const float *positions, size_t n_vertices, const float *body_positions,
                            size_t n_body_vertices);
 
-/* Moves the whole scene rigidly (a character teleported): every garment position, pin target
- * and stored body frame p becomes R p + t, every velocity v becomes R v, so the garment keeps
- * its shape and motion relative to the body. `rotation`: 9 floats, row-major 3x3, a proper
- * rotation (orthonormal within 1e-3, determinant +1; else HOOD_ERR_OUT_OF_RANGE), NULL for the
- * identity. `translation`: 3 floats (m), NULL for none. The next body_next passed to
- * hood_sim_step is expected in the moved frame. */
-hood_status hood_sim_teleport(hood_sim *sim, const float *rotation, const float *translation);
+/* Moves the garment rigidly without simulating (a cut, a respawn, a character teleported):
+ * every garment position and pin target p becomes R p + t, every velocity v becomes R v, so the
+ * garment keeps its shape and motion relative to the body. `rotation`: 9 floats, row-major 3x3,
+ * a proper rotation (orthonormal within 1e-3, determinant +1; else HOOD_ERR_OUT_OF_RANGE), NULL
+ * for the identity. `translation`: 3 floats (m), NULL for none. The body is then at rest at
+ * `body_now` (3 * n_body_vertices floats: its vertices now, as previous and current frame), or,
+ * with NULL and 0, at its current vertices moved by the same motion. Later hood_sim_step calls
+ * pass the body in the moved frame. */
+hood_status hood_sim_teleport(hood_sim *sim, const float *rotation, const float *translation, const float *body_now,
+                              size_t n_body_vertices);
 
 /* ---- Executor (an engine's job system) --------------------------------------------------- */
 

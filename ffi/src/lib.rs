@@ -11,6 +11,8 @@
 // The C names of the types are the Rust names (the header check maps them one to one).
 #![allow(non_camel_case_types)]
 
+use glam::{Mat3, Quat, Vec3};
+use hood::body::rigid::RigidMotion;
 use hood::body::BodyMesh;
 use hood::mesh::{Garment, GarmentDesc, Material};
 use hood::model::Model;
@@ -79,7 +81,9 @@ pub const HOOD_EFFECT_NORMALS: u32 = 4;
 pub const HOOD_EFFECT_SLEEPING: u32 = 8;
 /// Effect flag: start-up (relaxation) step.
 pub const HOOD_EFFECT_STARTUP: u32 = 16;
-const ALL_EFFECTS: u32 = 31;
+/// Effect flag: carry the garment along when the body jumps farther than the threshold.
+pub const HOOD_EFFECT_AUTO_TELEPORT: u32 = 32;
+const ALL_EFFECTS: u32 = 63;
 
 /// f32 arithmetic.
 pub const HOOD_PRECISION_F32: u32 = 0;
@@ -529,6 +533,8 @@ pub struct hood_sim_config {
     pub sleep_frames: u32,
     /// "At rest" threshold, m/frame.
     pub sleep_threshold: f32,
+    /// Auto-teleport threshold: largest body vertex jump per frame still simulated, m.
+    pub teleport_threshold: f32,
 }
 
 /// The body of a scene (see the header).
@@ -568,8 +574,6 @@ pub struct hood_sim {
     /// `hood_model_free` enforces.
     sim: ManuallyDrop<Sim<'static>>,
     model: *const hood_model,
-    /// Pin targets as last set (the sim does not expose them; teleport moves them).
-    pin_targets: Vec<[f32; 3]>,
 }
 
 impl Drop for hood_sim {
@@ -598,13 +602,15 @@ pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
             | flag(d.pinning, HOOD_EFFECT_PINNING)
             | flag(d.normals, HOOD_EFFECT_NORMALS)
             | flag(d.sleeping.is_some(), HOOD_EFFECT_SLEEPING)
-            | flag(d.startup, HOOD_EFFECT_STARTUP);
+            | flag(d.startup, HOOD_EFFECT_STARTUP)
+            | flag(d.teleport.is_some(), HOOD_EFFECT_AUTO_TELEPORT);
         let c = hood_sim_config {
             effects,
             precision: HOOD_PRECISION_F32,
             threads: d.threads as u32,
             sleep_frames: s.frames,
             sleep_threshold: s.threshold,
+            teleport_threshold: d.teleport.unwrap_or(hood::sim::DEFAULT_TELEPORT),
         };
         // SAFETY: non-null; writable by the caller's promise.
         unsafe { write_out(out, c) };
@@ -629,7 +635,16 @@ fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
     } else {
         None
     };
+    let teleport = if c.effects & HOOD_EFFECT_AUTO_TELEPORT != 0 {
+        if !(c.teleport_threshold.is_finite() && c.teleport_threshold > 0.0) {
+            return Err(Error::OutOfRange { what: "config teleport threshold", index: 0 }.into());
+        }
+        Some(c.teleport_threshold)
+    } else {
+        None
+    };
     Ok(SimConfig {
+        teleport,
         body_collision: c.effects & HOOD_EFFECT_BODY_COLLISION != 0,
         pinning: c.effects & HOOD_EFFECT_PINNING != 0,
         normals: c.effects & HOOD_EFFECT_NORMALS != 0,
@@ -705,8 +720,7 @@ pub unsafe extern "C" fn hood_sim_new(
         let bd = body_parts.as_ref().map(|(mesh, pos)| BodyDesc { mesh, positions: pos });
         match Sim::new(m, garment, bd, cfg) {
             Ok(sim) => {
-                let pin_targets = garment.rest().to_vec();
-                let h = register(Box::new(hood_sim { sim: ManuallyDrop::new(sim), model, pin_targets }), Kind::Sim);
+                let h = register(Box::new(hood_sim { sim: ManuallyDrop::new(sim), model }), Kind::Sim);
                 // SAFETY: `out` checked non-null.
                 unsafe { write_out(out, h) };
                 Ok(())
@@ -874,7 +888,6 @@ pub unsafe extern "C" fn hood_sim_set_pin_targets(
         // SAFETY: count is the caller's promise.
         let t = unsafe { points(targets, n_vertices, "targets")? };
         s.sim.set_pin_targets(t)?;
-        s.pin_targets.copy_from_slice(t);
         Ok(())
     })
 }
@@ -917,17 +930,8 @@ pub unsafe extern "C" fn hood_sim_reset(
         s.sim.set_state(&state)?;
         // Pins hold where the garment was placed (always finite: `set_state` checked them).
         s.sim.set_pin_targets(pos)?;
-        s.pin_targets.copy_from_slice(pos);
         Ok(())
     })
-}
-
-fn mat_vec(r: &[f32; 9], p: [f32; 3]) -> [f32; 3] {
-    [
-        r[0] * p[0] + r[1] * p[1] + r[2] * p[2],
-        r[3] * p[0] + r[4] * p[1] + r[5] * p[2],
-        r[6] * p[0] + r[7] * p[1] + r[8] * p[2],
-    ]
 }
 
 fn check_rotation(r: &[f32; 9]) -> Result<()> {
@@ -952,16 +956,19 @@ fn check_rotation(r: &[f32; 9]) -> Result<()> {
     Ok(())
 }
 
-/// Moves the whole scene rigidly: `p -> R p + t`, `v -> R v` (see the header).
+/// Moves the garment rigidly, `p -> R p + t`, `v -> R v`, and puts the body at rest (see the
+/// header).
 ///
 /// # Safety
 /// `sim` is NULL or a handle (checked); `rotation` is NULL or 9 floats; `translation` is NULL
-/// or 3 floats.
+/// or 3 floats; `body_now` is NULL or holds `3 * n_body_vertices` floats.
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_teleport(
     sim: *mut hood_sim,
     rotation: *const f32,
     translation: *const f32,
+    body_now: *const f32,
+    n_body_vertices: usize,
 ) -> hood_status {
     guard(|| {
         // SAFETY: checked by `sim_mut`.
@@ -982,23 +989,18 @@ pub unsafe extern "C" fn hood_sim_teleport(
         if let Some(i) = t.iter().position(|v| !v.is_finite()) {
             return Err(Error::NonFinite { what: "translation entry", index: i }.into());
         }
-        let place = |p: [f32; 3]| {
-            let q = mat_vec(&r, p);
-            [q[0] + t[0], q[1] + t[1], q[2] + t[2]]
+        // Row-major in, column-major `Mat3`: transpose.
+        let rotation = Quat::from_mat3(&Mat3::from_cols_array(&r).transpose()).normalize();
+        let motion = RigidMotion { rotation, translation: Vec3::from_array(t) };
+        let body: Vec<[f32; 3]> = if body_now.is_null() && n_body_vertices == 0 {
+            s.sim.state().body_pos.iter().map(|p| motion.apply(*p)).collect()
+        } else {
+            expect_len("teleport body vertices", s.sim.state().body_pos.len(), n_body_vertices)?;
+            require(body_now, "body_now")?;
+            // SAFETY: count is the caller's promise.
+            unsafe { points(body_now, n_body_vertices, "body_now")? }.to_vec()
         };
-        let mut st = s.sim.state().clone();
-        st.pos.iter_mut().for_each(|p| *p = place(*p));
-        st.velocity.iter_mut().for_each(|v| *v = mat_vec(&r, *v));
-        st.body_prev.iter_mut().for_each(|p| *p = place(*p));
-        st.body_pos.iter_mut().for_each(|p| *p = place(*p));
-        let targets: Vec<[f32; 3]> = s.pin_targets.iter().map(|p| place(*p)).collect();
-        s.sim.set_pin_targets(&targets)?;
-        if let Err(e) = s.sim.set_state(&st) {
-            // Keep the call all-or-nothing: restore the old targets.
-            s.sim.set_pin_targets(&s.pin_targets)?;
-            return Err(e.into());
-        }
-        s.pin_targets = targets;
+        s.sim.teleport(&motion, &body)?;
         Ok(())
     })
 }

@@ -229,7 +229,7 @@ fn null_arguments_give_status() {
         assert_eq!(hood_sim_set_pin_targets(sim, null(), n), HOOD_ERR_NULL_POINTER);
         assert_eq!(hood_sim_reset(sim, null(), n, null(), 0), HOOD_ERR_NULL_POINTER);
         assert_eq!(hood_sim_vertex_count(sim, null_mut()), HOOD_ERR_NULL_POINTER);
-        assert_eq!(hood_sim_teleport(null_mut(), null(), null()), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_sim_teleport(null_mut(), null(), null(), null(), 0), HOOD_ERR_NULL_POINTER);
         let e = hood_executor { user: null_mut(), parallelism: 2, run: None };
         assert_eq!(hood_sim_set_executor(sim, &e), HOOD_ERR_NULL_POINTER);
         hood_sim_config_default(null_mut());
@@ -512,7 +512,7 @@ fn teleport_moves_state_rigidly_and_translation_commutes_with_steps() {
     let r = [0.0f32, 0.0, 1.0, 0.0, 1.0, 0.0, -1.0, 0.0, 0.0];
     let t = [1.5f32, -0.25, 2.0];
     // SAFETY: 9 and 3 floats.
-    assert_eq!(unsafe { hood_sim_teleport(b, r.as_ptr(), t.as_ptr()) }, HOOD_OK, "{}", last_error());
+    assert_eq!(unsafe { hood_sim_teleport(b, r.as_ptr(), t.as_ptr(), null(), 0) }, HOOD_OK, "{}", last_error());
     let (p1, v1) = (positions(b, n), velocities(b, n));
     for i in 0..n {
         let (p, v) = (p0[i], v0[i]);
@@ -525,15 +525,19 @@ fn teleport_moves_state_rigidly_and_translation_commutes_with_steps() {
     // SAFETY: 9 floats.
     unsafe {
         let back = [-t[0], -t[1], -t[2]];
-        assert_eq!(hood_sim_teleport(b, null(), back.as_ptr()), HOOD_OK);
-        assert_eq!(hood_sim_teleport(b, rt.as_ptr(), null()), HOOD_OK);
+        assert_eq!(hood_sim_teleport(b, null(), back.as_ptr(), null(), 0), HOOD_OK);
+        assert_eq!(hood_sim_teleport(b, rt.as_ptr(), null(), null(), 0), HOOD_OK);
     }
     assert!(max_diff(&positions(b, n), &p0) < 1e-5);
     // Now a pure translation: the network sees only relative quantities, so stepping the moved
-    // scene equals stepping the original and moving the result.
+    // scene equals stepping the original and moving the result. (A teleport leaves the body at
+    // rest: the identity teleport of `a` does the same to it.)
     let d = [3.0f32, 0.5, -2.0];
     // SAFETY: 3 floats.
-    assert_eq!(unsafe { hood_sim_teleport(b, null(), d.as_ptr()) }, HOOD_OK);
+    unsafe {
+        assert_eq!(hood_sim_teleport(b, null(), d.as_ptr(), null(), 0), HOOD_OK);
+        assert_eq!(hood_sim_teleport(a, null(), null(), null(), 0), HOOD_OK);
+    }
     for t in 5..=8 {
         assert_eq!(step(a, &sc.body_at(t, [0.0; 3]), &mut out_a), HOOD_OK);
         assert_eq!(step(b, &sc.body_at(t, d), &mut out_b), HOOD_OK);
@@ -548,11 +552,26 @@ fn teleport_moves_state_rigidly_and_translation_commutes_with_steps() {
     let nan_t = [f32::NAN, 0.0, 0.0];
     // SAFETY: 9 and 3 floats.
     unsafe {
-        assert_eq!(hood_sim_teleport(b, scale.as_ptr(), null()), HOOD_ERR_OUT_OF_RANGE);
-        assert_eq!(hood_sim_teleport(b, mirror.as_ptr(), null()), HOOD_ERR_OUT_OF_RANGE);
-        assert_eq!(hood_sim_teleport(b, null(), nan_t.as_ptr()), HOOD_ERR_NON_FINITE);
+        assert_eq!(hood_sim_teleport(b, scale.as_ptr(), null(), null(), 0), HOOD_ERR_OUT_OF_RANGE);
+        assert_eq!(hood_sim_teleport(b, mirror.as_ptr(), null(), null(), 0), HOOD_ERR_OUT_OF_RANGE);
+        assert_eq!(hood_sim_teleport(b, null(), nan_t.as_ptr(), null(), 0), HOOD_ERR_NON_FINITE);
+    }
+    // An explicit body: wrong count or NaN refused, state unchanged.
+    let mut body = sc.body_at(9, d);
+    // SAFETY: the counts passed are at most the array lengths.
+    unsafe {
+        assert_eq!(hood_sim_teleport(b, null(), null(), body.as_ptr().cast(), 3), HOOD_ERR_SIZE_MISMATCH);
+        body[2][2] = f32::NAN;
+        let s = hood_sim_teleport(b, null(), null(), body.as_ptr().cast(), body.len());
+        assert_eq!(s, HOOD_ERR_NON_FINITE);
     }
     assert_eq!(positions(b, n), before);
+    // Auto-teleport (on by default): a 2 m jump of the body carries the garment along.
+    let jump = [d[0] + 2.0, d[1], d[2]];
+    assert_eq!(step(b, &sc.body_at(9, jump), &mut out_b), HOOD_OK);
+    let shifted: Vec<[f32; 3]> = before.iter().map(|p| [p[0] + 2.0, p[1], p[2]]).collect();
+    let err = max_diff(&out_b, &shifted);
+    assert!(err < 0.03, "auto-teleport moved the garment {err} m away from the body's jump");
     // SAFETY: live sims.
     unsafe {
         assert_eq!(hood_sim_free(a), HOOD_OK);
