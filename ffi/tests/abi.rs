@@ -680,3 +680,24 @@ fn config_effects_are_honoured() {
         assert_eq!(hood_garment_free(g), HOOD_OK);
     }
 }
+
+#[test]
+fn one_model_shared_by_sims_on_several_threads() {
+    let l = load(8, 12);
+    let model = l.model as usize; // raw pointers are not Send; the header allows this sharing
+    let run = move || {
+        let sc = scene(6);
+        let sim = sc.sim(model as *const hood_model);
+        let mut out = vec![[0.0f32; 3]; sc.rest.len()];
+        for t in 1..=4 {
+            assert_eq!(step(sim, &sc.body_at(t, [0.0; 3]), &mut out), HOOD_OK, "{}", last_error());
+        }
+        // SAFETY: a live sim used by this thread only.
+        assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+        out
+    };
+    let threads: Vec<_> = (0..3).map(|_| std::thread::spawn(run)).collect();
+    let results: Vec<Vec<[f32; 3]>> = threads.into_iter().map(|t| t.join().unwrap()).collect();
+    assert!(results.windows(2).all(|w| w[0] == w[1]), "sims on different threads disagree");
+    assert_eq!(results[0], run());
+}
