@@ -207,7 +207,8 @@ hood_status hood_sim_set_pin_targets(hood_sim *sim, const float *targets, size_t
 
 /* Restarts from `positions` (3 * n_vertices floats) with zero velocity; the start-up step runs
  * again if configured. `body_positions` (optional, NULL with 0 to keep the current body): the
- * body's vertices now, used as both previous and current frame (a body at rest). */
+ * body's vertices now, used as both previous and current frame (a body at rest). Pinned
+ * vertices' targets become their given positions. */
 hood_status hood_sim_reset(hood_sim *sim, const float *positions, size_t n_vertices, const float *body_positions,
                            size_t n_body_vertices);
 
