@@ -1,0 +1,251 @@
+/*
+ * hood.h: the C ABI of hood (HOOD-style neural cloth). C99; usable from C++ unchanged.
+ *
+ * Link with the static library (libhood_ffi.a; on Linux also -lpthread -ldl -lm) or the dynamic
+ * library (libhood_ffi.so / .dylib / .dll).
+ *
+ * Conventions
+ * -----------
+ * - Units: metres; y is up; one step is one frame at the model's 30 Hz (velocities are metres per
+ *   frame). Positions are arrays of 3 * n floats (x, y, z per vertex); counts passed beside
+ *   arrays are VERTEX (or face) counts, never float counts, and are checked against the handle.
+ * - Every function except hood_version, hood_version_string, hood_last_error and
+ *   hood_sim_config_default returns a hood_status: HOOD_OK (0) or an error code below. After an
+ *   error, hood_last_error() explains it. Out-parameters are written only on success. A failed
+ *   call changes nothing (a refused step leaves the simulation state unchanged).
+ * - NULL handles or pointers give HOOD_ERR_NULL_POINTER, never a crash; where a pointer is
+ *   optional, the comment says so. Handles that were never created or were already freed give
+ *   HOOD_ERR_INVALID_HANDLE (the library keeps a registry of live handles; an address reused by a
+ *   newer handle of the same kind cannot be told apart from it). Free functions accept NULL.
+ * - No panic crosses the boundary: an internal bug is reported as HOOD_ERR_PANIC.
+ *
+ * Ownership and lifetimes (the caller's responsibility)
+ * ---------------------------------------------------
+ * - hood_model_load does NOT copy the model bytes: they must start at a HOOD_MODEL_ALIGN-byte
+ *   aligned address, stay valid and unmodified until hood_model_free has returned HOOD_OK, and
+ *   hence outlive every sim created from the model.
+ * - A model cannot be freed while sims made from it live: hood_model_free then returns
+ *   HOOD_ERR_MODEL_IN_USE and frees nothing. A garment may be freed right after hood_sim_new
+ *   (the sim keeps its own copy).
+ * - Pointers into caller arrays are only read during the call.
+ *
+ * Threads
+ * -------
+ * - A model may be shared by sims on many threads (it is read-only after loading).
+ * - One sim is used by one thread at a time; different sims may be stepped concurrently.
+ * - hood_last_error() is per thread.
+ */
+#ifndef HOOD_H
+#define HOOD_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- Version ----------------------------------------------------------------------------- */
+
+#define HOOD_VERSION_MAJOR 0
+#define HOOD_VERSION_MINOR 1
+#define HOOD_VERSION_PATCH 0
+/* The version as one number: (major << 16) | (minor << 8) | patch. */
+#define HOOD_MAKE_VERSION(major, minor, patch) (((uint32_t)(major) << 16) | ((uint32_t)(minor) << 8) | (uint32_t)(patch))
+#define HOOD_VERSION HOOD_MAKE_VERSION(HOOD_VERSION_MAJOR, HOOD_VERSION_MINOR, HOOD_VERSION_PATCH)
+
+/* The library's version, as HOOD_MAKE_VERSION encodes it (compare with HOOD_VERSION). */
+uint32_t hood_version(void);
+/* The library's version as "major.minor.patch" (static storage, NUL-terminated). */
+const char *hood_version_string(void);
+
+/* ---- Status codes (never reused) --------------------------------------------------------- */
+
+typedef uint32_t hood_status;
+
+#define HOOD_OK 0u
+/* Codes 1-14 mirror hood::Error (Error::code). */
+#define HOOD_ERR_INDEX_OUT_OF_RANGE 1u /* an index (e.g. in a face) refers past the end */
+#define HOOD_ERR_NON_FINITE 2u         /* a coordinate or parameter is NaN or infinite */
+#define HOOD_ERR_DEGENERATE_FACE 3u    /* a garment triangle has zero area */
+#define HOOD_ERR_REPEATED_VERTEX 4u    /* a triangle names the same vertex twice */
+#define HOOD_ERR_UNUSED_VERTEX 5u      /* a garment vertex belongs to no triangle */
+#define HOOD_ERR_EMPTY 6u              /* something that must not be empty is */
+#define HOOD_ERR_SIZE_MISMATCH 7u      /* an array has the wrong length */
+#define HOOD_ERR_OUT_OF_RANGE 8u       /* a value is outside its documented range */
+#define HOOD_ERR_CAPACITY_EXCEEDED 9u  /* a capacity fixed at creation was exceeded */
+#define HOOD_ERR_INCOMPATIBLE_MODEL 10u /* the model cannot run this garment/body/config */
+#define HOOD_ERR_UNSUPPORTED_EFFECT 11u /* an effect the model was not trained with */
+#define HOOD_ERR_CORRUPT_DATA 12u      /* model bytes corrupt, truncated, misaligned, other version */
+#define HOOD_ERR_PARSE 13u             /* a text input could not be parsed */
+#define HOOD_ERR_IO 14u                /* an operating-system I/O failure */
+/* Codes of the C ABI itself. */
+#define HOOD_ERR_NULL_POINTER 100u     /* a required pointer argument is NULL */
+#define HOOD_ERR_INVALID_HANDLE 101u   /* not a live handle of that kind (freed, or never made) */
+#define HOOD_ERR_MODEL_IN_USE 102u     /* hood_model_free on a model that live sims still use */
+#define HOOD_ERR_PANIC 103u            /* an internal error (a bug in hood); the handle may be unusable */
+
+/* The message of the most recent failing call on this thread ("" if none): NUL-terminated, owned
+ * by the library, valid until the next hood_* call on this thread. Successful calls leave it. */
+const char *hood_last_error(void);
+
+/* ---- Model ------------------------------------------------------------------------------- */
+
+/* Required alignment (bytes) of the model buffer given to hood_model_load. */
+#define HOOD_MODEL_ALIGN 16
+
+typedef struct hood_model hood_model;
+
+/* Validates a .hood model file held in memory and views its weights in place (no copy).
+ * `bytes` must be HOOD_MODEL_ALIGN-aligned (else HOOD_ERR_CORRUPT_DATA) and must stay valid and
+ * unmodified until hood_model_free(*out) returns HOOD_OK. */
+hood_status hood_model_load(const uint8_t *bytes, size_t len, hood_model **out);
+/* Frees a model (NULL: nothing to do). HOOD_ERR_MODEL_IN_USE while sims made from it live. */
+hood_status hood_model_free(hood_model *model);
+/* Whether the model file holds bf16 weights too (needed for HOOD_PRECISION_BF16): 1 or 0. */
+hood_status hood_model_has_bf16(const hood_model *model, uint32_t *out);
+
+/* ---- Garment ----------------------------------------------------------------------------- */
+
+/* Material of a cloth vertex, SI units (training ranges in hood::mesh::material::ranges). */
+typedef struct hood_material {
+    float density; /* area density, kg/m^2 */
+    float mu;      /* Lame mu, Pa */
+    float lambda;  /* Lame lambda, Pa */
+    float bending; /* bending stiffness, J */
+} hood_material;
+
+typedef struct hood_garment hood_garment;
+
+/* A garment mesh. `rest`: 3 * n_vertices floats (metres); `indices`: 3 * n_faces vertex
+ * indices, counter-clockwise seen from outside. `materials` (optional, NULL with n_materials 0
+ * for the default material): 1 (for all) or n_vertices entries. `pinned` (optional, NULL for
+ * none): n_vertices flags, nonzero = pinned. */
+hood_status hood_garment_new(const float *rest, size_t n_vertices, const uint32_t *indices, size_t n_faces,
+                             const hood_material *materials, size_t n_materials, const uint8_t *pinned,
+                             hood_garment **out);
+/* Frees a garment (NULL: nothing to do). */
+hood_status hood_garment_free(hood_garment *garment);
+hood_status hood_garment_vertex_count(const hood_garment *garment, size_t *out);
+hood_status hood_garment_face_count(const hood_garment *garment, size_t *out);
+
+/* ---- Simulation -------------------------------------------------------------------------- */
+
+/* Effect flags of hood_sim_config.effects. What is off costs nothing. */
+#define HOOD_EFFECT_BODY_COLLISION 1u /* body nodes and edges (needs a body in hood_sim_new) */
+#define HOOD_EFFECT_PINNING 2u        /* drive pinned vertices to their targets */
+#define HOOD_EFFECT_NORMALS 4u        /* compute vertex normals after each step (hood_sim_normals) */
+#define HOOD_EFFECT_SLEEPING 8u       /* skip steps while body and garment are at rest */
+#define HOOD_EFFECT_STARTUP 16u       /* relaxation step with a static body before the first step */
+#define HOOD_EFFECT_AUTO_TELEPORT 32u /* body jumps beyond teleport_threshold carry the garment along */
+
+#define HOOD_PRECISION_F32 0u  /* f32 weights and activations */
+#define HOOD_PRECISION_BF16 1u /* bf16 weights, f32 accumulation (model with bf16 weights) */
+
+typedef struct hood_sim_config {
+    uint32_t effects;        /* HOOD_EFFECT_* flags */
+    uint32_t precision;      /* HOOD_PRECISION_* */
+    uint32_t threads;        /* worker threads without an executor (0 or 1: the calling thread) */
+    uint32_t sleep_frames;   /* frames at rest before sleeping (HOOD_EFFECT_SLEEPING) */
+    float sleep_threshold;   /* "at rest": body motion and garment speed below this, m/frame */
+    float teleport_threshold; /* HOOD_EFFECT_AUTO_TELEPORT: when some body vertex moves farther than
+                                 this (m) in one frame, hood_sim_step moves the garment by the body's
+                                 best-fit rigid motion instead of simulating the jump */
+} hood_sim_config;
+
+/* The defaults: body collision, pinning, start-up and auto-teleport (0.45 m) on; f32; 1 thread;
+ * sleeping after 3 frames below 1e-5 m/frame (when enabled). A NULL `out` is ignored
+ * (only hood_last_error records it). */
+void hood_sim_config_default(hood_sim_config *out);
+
+/* The body of a scene. `positions`: 3 * n_vertices floats, the body at the first frame (m).
+ * `indices`: 3 * n_faces. `omitted` (optional, NULL for none): n_vertices flags, nonzero = the
+ * vertex never collides (e.g. hands). */
+typedef struct hood_body_desc {
+    const float *positions;
+    size_t n_vertices;
+    const uint32_t *indices;
+    size_t n_faces;
+    const uint8_t *omitted;
+} hood_body_desc;
+
+typedef struct hood_sim hood_sim;
+
+/* A simulation of `garment` (starting at its rest positions) on `body` (optional: NULL for no
+ * body) driven by `model`. `config` NULL means the defaults. The sim keeps copies of the garment
+ * and body; it borrows the model (see hood_model_free). */
+hood_status hood_sim_new(const hood_model *model, const hood_garment *garment, const hood_body_desc *body,
+                         const hood_sim_config *config, hood_sim **out);
+/* Frees a sim (NULL: nothing to do). */
+hood_status hood_sim_free(hood_sim *sim);
+
+/* Garment vertices of the sim. */
+hood_status hood_sim_vertex_count(const hood_sim *sim, size_t *out);
+/* Body vertices the sim expects per step (0 without a body or without HOOD_EFFECT_BODY_COLLISION). */
+hood_status hood_sim_body_vertex_count(const hood_sim *sim, size_t *out);
+
+/* Advances one frame. `body_next`: the body's vertices at the next frame, 3 * n_body_vertices
+ * floats (NULL with 0 when the sim has no body). `garment_out`: receives the garment's new
+ * positions, 3 * n_garment_vertices floats. Wrong counts give HOOD_ERR_SIZE_MISMATCH; a
+ * non-finite body vertex gives HOOD_ERR_NON_FINITE; on any error the state is unchanged and
+ * `garment_out` is not written. */
+hood_status hood_sim_step(hood_sim *sim, const float *body_next, size_t n_body_vertices, float *garment_out,
+                          size_t n_garment_vertices);
+
+/* Copies the current garment positions (3 * n_vertices floats). */
+hood_status hood_sim_positions(const hood_sim *sim, float *out, size_t n_vertices);
+/* Copies the current garment velocities (m/frame, 3 * n_vertices floats). */
+hood_status hood_sim_velocities(const hood_sim *sim, float *out, size_t n_vertices);
+/* Copies the vertex normals of the current positions (needs HOOD_EFFECT_NORMALS, else
+ * HOOD_ERR_UNSUPPORTED_EFFECT). */
+hood_status hood_sim_normals(const hood_sim *sim, float *out, size_t n_vertices);
+
+/* Targets of the pinned vertices at the next frame: 3 * n_vertices floats, one per garment
+ * vertex (only pinned entries are read and must be finite). Without a call pinned vertices keep
+ * their last target (initially the rest position). */
+hood_status hood_sim_set_pin_targets(hood_sim *sim, const float *targets, size_t n_vertices);
+
+/* Restarts from `positions` (3 * n_vertices floats) with zero velocity; the start-up step runs
+ * again if configured. `body_positions` (optional, NULL with 0 to keep the current body): the
+ * body's vertices now, used as both previous and current frame (a body at rest). Pinned
+ * vertices' targets become their given positions. */
+hood_status hood_sim_reset(hood_sim *sim, const float *positions, size_t n_vertices, const float *body_positions,
+                           size_t n_body_vertices);
+
+/* Moves the garment rigidly without simulating (a cut, a respawn, a character teleported):
+ * every garment position and pin target p becomes R p + t, every velocity v becomes R v, so the
+ * garment keeps its shape and motion relative to the body. `rotation`: 9 floats, row-major 3x3,
+ * a proper rotation (orthonormal within 1e-3, determinant +1; else HOOD_ERR_OUT_OF_RANGE), NULL
+ * for the identity. `translation`: 3 floats (m), NULL for none. The body is then at rest at
+ * `body_now` (3 * n_body_vertices floats: its vertices now, as previous and current frame), or,
+ * with NULL and 0, at its current vertices moved by the same motion. Later hood_sim_step calls
+ * pass the body in the moved frame. */
+hood_status hood_sim_teleport(hood_sim *sim, const float *rotation, const float *translation, const float *body_now,
+                              size_t n_body_vertices);
+
+/* ---- Executor (an engine's job system) --------------------------------------------------- */
+
+/* One task of a step: call task(ctx, i). */
+typedef void (*hood_task_fn)(void *ctx, uint32_t index);
+
+/* `run(user, n_tasks, task, ctx)` must call task(ctx, i) exactly once for every i in
+ * [0, n_tasks), from any threads, and return only after every call has returned. Calling a task
+ * twice, or concurrently with itself, is undefined behaviour (the library detects only a wrong
+ * NUMBER of calls, which it reports as HOOD_ERR_PANIC from the step). `parallelism`: how many
+ * tasks are worth splitting work into (0 counts as 1). `user` is passed back unchanged; it must
+ * stay valid while the sim uses the executor and be usable from the thread stepping the sim. */
+typedef struct hood_executor {
+    void *user;
+    uint32_t parallelism;
+    void (*run)(void *user, uint32_t n_tasks, hood_task_fn task, void *ctx);
+} hood_executor;
+
+/* Plugs in an executor for the step's parallel parts (the struct is copied). NULL restores the
+ * sim's own (config.threads). This allocates per-task scratch; steps do not allocate. */
+hood_status hood_sim_set_executor(hood_sim *sim, const hood_executor *executor);
+
+#ifdef __cplusplus
+} /* extern "C" */
+#endif
+
+#endif /* HOOD_H */

@@ -1,0 +1,1103 @@
+//! The C ABI of `hood`: opaque handles for model, garment and sim, status codes, a thread-local
+//! last-error message, and an executor callback for an engine's job system.
+//!
+//! `include/hood.h` is the contract engines compile against; every item here has its twin there
+//! (checked by `tests/header.rs`). The rules the caller must keep (lifetimes of model bytes,
+//! threads) are stated in the header.
+//!
+//! Every export goes through [`guard`], which catches panics; handles are checked against a
+//! registry of live handles, so NULL, freed or mismatched handles give a status code.
+#![deny(unsafe_op_in_unsafe_fn)]
+// The C names of the types are the Rust names (the header check maps them one to one).
+#![allow(non_camel_case_types)]
+
+use glam::{Mat3, Quat, Vec3};
+use hood::body::rigid::RigidMotion;
+use hood::body::BodyMesh;
+use hood::mesh::{Garment, GarmentDesc, Material};
+use hood::model::Model;
+use hood::sim::{BodyDesc, Executor, Precision, Serial, Sim, SimConfig, SimState, Sleeping, ThreadPool};
+use hood::Error;
+use std::cell::RefCell;
+use std::collections::BTreeMap;
+use std::ffi::{c_char, c_void, CStr, CString};
+use std::mem::ManuallyDrop;
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+/// A status code: [`HOOD_OK`] or an error (codes 1-14 are [`Error::code`]).
+pub type hood_status = u32;
+
+/// Success.
+pub const HOOD_OK: hood_status = 0;
+/// [`Error::IndexOutOfRange`].
+pub const HOOD_ERR_INDEX_OUT_OF_RANGE: hood_status = 1;
+/// [`Error::NonFinite`].
+pub const HOOD_ERR_NON_FINITE: hood_status = 2;
+/// [`Error::DegenerateFace`].
+pub const HOOD_ERR_DEGENERATE_FACE: hood_status = 3;
+/// [`Error::RepeatedVertex`].
+pub const HOOD_ERR_REPEATED_VERTEX: hood_status = 4;
+/// [`Error::UnusedVertex`].
+pub const HOOD_ERR_UNUSED_VERTEX: hood_status = 5;
+/// [`Error::Empty`].
+pub const HOOD_ERR_EMPTY: hood_status = 6;
+/// [`Error::SizeMismatch`].
+pub const HOOD_ERR_SIZE_MISMATCH: hood_status = 7;
+/// [`Error::OutOfRange`].
+pub const HOOD_ERR_OUT_OF_RANGE: hood_status = 8;
+/// [`Error::CapacityExceeded`].
+pub const HOOD_ERR_CAPACITY_EXCEEDED: hood_status = 9;
+/// [`Error::IncompatibleModel`].
+pub const HOOD_ERR_INCOMPATIBLE_MODEL: hood_status = 10;
+/// [`Error::UnsupportedEffect`].
+pub const HOOD_ERR_UNSUPPORTED_EFFECT: hood_status = 11;
+/// [`Error::CorruptData`].
+pub const HOOD_ERR_CORRUPT_DATA: hood_status = 12;
+/// [`Error::Parse`].
+pub const HOOD_ERR_PARSE: hood_status = 13;
+/// [`Error::Io`].
+pub const HOOD_ERR_IO: hood_status = 14;
+/// A required pointer argument is NULL.
+pub const HOOD_ERR_NULL_POINTER: hood_status = 100;
+/// Not a live handle of the expected kind.
+pub const HOOD_ERR_INVALID_HANDLE: hood_status = 101;
+/// `hood_model_free` on a model that live sims use.
+pub const HOOD_ERR_MODEL_IN_USE: hood_status = 102;
+/// A panic was caught at the boundary.
+pub const HOOD_ERR_PANIC: hood_status = 103;
+
+/// Required alignment of model bytes (`hood::model::file::ALIGN`).
+pub const HOOD_MODEL_ALIGN: usize = hood::model::file::ALIGN;
+
+/// Effect flag: collision with the body.
+pub const HOOD_EFFECT_BODY_COLLISION: u32 = 1;
+/// Effect flag: pinned vertices follow their targets.
+pub const HOOD_EFFECT_PINNING: u32 = 2;
+/// Effect flag: output vertex normals.
+pub const HOOD_EFFECT_NORMALS: u32 = 4;
+/// Effect flag: sleeping.
+pub const HOOD_EFFECT_SLEEPING: u32 = 8;
+/// Effect flag: start-up (relaxation) step.
+pub const HOOD_EFFECT_STARTUP: u32 = 16;
+/// Effect flag: carry the garment along when the body jumps farther than the threshold.
+pub const HOOD_EFFECT_AUTO_TELEPORT: u32 = 32;
+const ALL_EFFECTS: u32 = 63;
+
+/// f32 arithmetic.
+pub const HOOD_PRECISION_F32: u32 = 0;
+/// bf16 weights and activations.
+pub const HOOD_PRECISION_BF16: u32 = 1;
+
+const fn parse_u32(s: &str) -> u32 {
+    let b = s.as_bytes();
+    let mut v = 0;
+    let mut i = 0;
+    while i < b.len() {
+        v = v * 10 + (b[i] - b'0') as u32;
+        i += 1;
+    }
+    v
+}
+
+/// `HOOD_VERSION_MAJOR`, from Cargo.toml.
+pub const HOOD_VERSION_MAJOR: u32 = parse_u32(env!("CARGO_PKG_VERSION_MAJOR"));
+/// `HOOD_VERSION_MINOR`, from Cargo.toml.
+pub const HOOD_VERSION_MINOR: u32 = parse_u32(env!("CARGO_PKG_VERSION_MINOR"));
+/// `HOOD_VERSION_PATCH`, from Cargo.toml.
+pub const HOOD_VERSION_PATCH: u32 = parse_u32(env!("CARGO_PKG_VERSION_PATCH"));
+
+// ---- Errors ------------------------------------------------------------------------------------
+
+/// Why a call failed.
+enum Failure {
+    Hood(Error),
+    Null(&'static str),
+    Handle(&'static str),
+    InUse(usize),
+}
+
+impl From<Error> for Failure {
+    fn from(e: Error) -> Self {
+        Failure::Hood(e)
+    }
+}
+
+impl Failure {
+    fn code(&self) -> hood_status {
+        match self {
+            Failure::Hood(e) => e.code(),
+            Failure::Null(_) => HOOD_ERR_NULL_POINTER,
+            Failure::Handle(_) => HOOD_ERR_INVALID_HANDLE,
+            Failure::InUse(_) => HOOD_ERR_MODEL_IN_USE,
+        }
+    }
+
+    fn message(&self) -> String {
+        match self {
+            Failure::Hood(e) => e.to_string(),
+            Failure::Null(what) => format!("{what} is NULL"),
+            Failure::Handle(what) => format!("{what} is not a live handle (already freed, or never created)"),
+            Failure::InUse(n) => format!("the model is still used by {n} sim(s); free them first"),
+        }
+    }
+}
+
+type Result<T> = std::result::Result<T, Failure>;
+
+thread_local! {
+    static LAST_ERROR: RefCell<CString> = RefCell::new(CString::default());
+}
+
+fn set_last_error(msg: String) {
+    let c = CString::new(msg.replace('\0', " ")).unwrap_or_default();
+    // Ignore failure during thread teardown: there is nobody left to read the message.
+    let _ = LAST_ERROR.try_with(|s| *s.borrow_mut() = c);
+}
+
+fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    if let Some(s) = payload.downcast_ref::<&str>() {
+        (*s).to_string()
+    } else if let Some(s) = payload.downcast_ref::<String>() {
+        s.clone()
+    } else {
+        "unknown panic payload".to_string()
+    }
+}
+
+/// Runs the body of an export: maps its error to a status code and the last-error message, and
+/// catches any panic (reported as [`HOOD_ERR_PANIC`]).
+fn guard(f: impl FnOnce() -> Result<()>) -> hood_status {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(Ok(())) => HOOD_OK,
+        Ok(Err(e)) => {
+            set_last_error(e.message());
+            e.code()
+        }
+        Err(payload) => {
+            // Formatting the message could itself panic (allocation failure): contain that too.
+            let msg = catch_unwind(AssertUnwindSafe(|| panic_message(&*payload))).unwrap_or_default();
+            let _ = catch_unwind(AssertUnwindSafe(|| set_last_error(format!("internal error (panic): {msg}"))));
+            HOOD_ERR_PANIC
+        }
+    }
+}
+
+// ---- Handle registry ---------------------------------------------------------------------------
+
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Kind {
+    Model,
+    Garment,
+    Sim,
+}
+
+/// Live handles by address. A handle is usable only while registered, which turns use after
+/// free, double free and handles of the wrong kind into [`HOOD_ERR_INVALID_HANDLE`].
+static LIVE: Mutex<BTreeMap<usize, Kind>> = Mutex::new(BTreeMap::new());
+
+fn live() -> std::sync::MutexGuard<'static, BTreeMap<usize, Kind>> {
+    // The map is updated by single inserts/removes, so a poisoned lock still holds a valid map.
+    LIVE.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn register<T>(b: Box<T>, kind: Kind) -> *mut T {
+    let p = Box::into_raw(b);
+    live().insert(p as usize, kind);
+    p
+}
+
+fn check_live<T>(p: *const T, kind: Kind, what: &'static str) -> Result<()> {
+    if p.is_null() {
+        return Err(Failure::Null(what));
+    }
+    match live().get(&(p as usize)) {
+        Some(&k) if k == kind => Ok(()),
+        _ => Err(Failure::Handle(what)),
+    }
+}
+
+/// Removes a handle from the registry (the caller then owns the box); `Ok(None)` for NULL.
+fn unregister<T>(p: *mut T, kind: Kind, what: &'static str) -> Result<Option<Box<T>>> {
+    if p.is_null() {
+        return Ok(None);
+    }
+    let mut reg = live();
+    match reg.get(&(p as usize)) {
+        Some(&k) if k == kind => {
+            reg.remove(&(p as usize));
+            // SAFETY: registered addresses come from `Box::into_raw` of a `T` of this kind (the
+            // kind was checked) and are removed exactly once, here, so the box is still owned.
+            Ok(Some(unsafe { Box::from_raw(p) }))
+        }
+        _ => Err(Failure::Handle(what)),
+    }
+}
+
+// ---- Arrays ------------------------------------------------------------------------------------
+
+fn byte_len_ok<T>(n: usize) -> Result<()> {
+    match n.checked_mul(size_of::<T>()) {
+        Some(b) if b <= isize::MAX as usize => Ok(()),
+        _ => Err(Error::OutOfRange { what: "array length", index: n }.into()),
+    }
+}
+
+/// `n` elements at `p` (NULL allowed when `n == 0`).
+///
+/// # Safety
+/// `p` is NULL or points to `n` readable, initialised `T`s that stay unchanged during the call.
+unsafe fn slice<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a [T]> {
+    if n == 0 {
+        return Ok(&[]);
+    }
+    if p.is_null() {
+        return Err(Failure::Null(what));
+    }
+    byte_len_ok::<T>(n)?;
+    // SAFETY: non-null, `n` elements readable (caller), total size checked above.
+    Ok(unsafe { std::slice::from_raw_parts(p, n) })
+}
+
+/// `n` writable elements at `p` (NULL allowed when `n == 0`).
+///
+/// # Safety
+/// `p` is NULL or points to `n` writable `T`s not aliased during the call.
+unsafe fn slice_mut<'a, T>(p: *mut T, n: usize, what: &'static str) -> Result<&'a mut [T]> {
+    if n == 0 {
+        return Ok(&mut []);
+    }
+    if p.is_null() {
+        return Err(Failure::Null(what));
+    }
+    byte_len_ok::<T>(n)?;
+    // SAFETY: as in `slice`, and not aliased (caller).
+    Ok(unsafe { std::slice::from_raw_parts_mut(p, n) })
+}
+
+/// `n` points (3 floats each) at `p`.
+///
+/// # Safety
+/// As [`slice`] for `3 * n` floats.
+unsafe fn points<'a>(p: *const f32, n: usize, what: &'static str) -> Result<&'a [[f32; 3]]> {
+    // SAFETY: `[f32; 3]` has the alignment of f32 and no padding; caller guarantees 3n floats.
+    unsafe { slice(p as *const [f32; 3], n, what) }
+}
+
+/// # Safety
+/// As [`slice_mut`] for `3 * n` floats.
+unsafe fn points_mut<'a>(p: *mut f32, n: usize, what: &'static str) -> Result<&'a mut [[f32; 3]]> {
+    // SAFETY: as in `points`.
+    unsafe { slice_mut(p as *mut [f32; 3], n, what) }
+}
+
+fn expect_len(what: &'static str, expected: usize, got: usize) -> Result<()> {
+    if expected == got {
+        Ok(())
+    } else {
+        Err(Error::SizeMismatch { what, expected, got }.into())
+    }
+}
+
+/// Writes an out-parameter (after the call's work succeeded).
+///
+/// # Safety
+/// `out` is NULL (checked) or valid for a write of `T`.
+unsafe fn write_out<T>(out: *mut T, v: T) {
+    // SAFETY: callers check `out` for NULL first; validity is the caller's promise.
+    unsafe { out.write(v) }
+}
+
+fn require<T>(p: *const T, what: &'static str) -> Result<()> {
+    if p.is_null() {
+        Err(Failure::Null(what))
+    } else {
+        Ok(())
+    }
+}
+
+// ---- Version and errors ------------------------------------------------------------------------
+
+/// The library version, `(major << 16) | (minor << 8) | patch`.
+#[no_mangle]
+pub extern "C" fn hood_version() -> u32 {
+    (HOOD_VERSION_MAJOR << 16) | (HOOD_VERSION_MINOR << 8) | HOOD_VERSION_PATCH
+}
+
+/// The library version as a NUL-terminated string with static storage.
+#[no_mangle]
+pub extern "C" fn hood_version_string() -> *const c_char {
+    concat!(env!("CARGO_PKG_VERSION"), "\0").as_ptr() as *const c_char
+}
+
+/// The message of the most recent failing call on this thread ("" if none).
+#[no_mangle]
+pub extern "C" fn hood_last_error() -> *const c_char {
+    static EMPTY: &CStr = c"";
+    catch_unwind(|| LAST_ERROR.try_with(|s| s.borrow().as_ptr()).unwrap_or(EMPTY.as_ptr())).unwrap_or(EMPTY.as_ptr())
+}
+
+// ---- Model -------------------------------------------------------------------------------------
+
+/// A loaded model viewing caller-owned bytes.
+pub struct hood_model {
+    /// Borrows the caller's bytes; `'static` stands for "until `hood_model_free`" (the caller's
+    /// promise, documented in the header).
+    model: Model<'static>,
+    /// Live sims borrowing `model`; changed only under the registry lock.
+    sims: AtomicUsize,
+}
+
+/// Validates a `.hood` buffer and views it in place (see the header for the lifetime rules).
+///
+/// # Safety
+/// `bytes` points to `len` readable bytes that stay valid and unmodified until the model is
+/// freed; `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_model_load(bytes: *const u8, len: usize, out: *mut *mut hood_model) -> hood_status {
+    guard(|| {
+        require(out, "out")?;
+        require(bytes, "bytes")?;
+        // SAFETY: non-null; the caller promises `len` readable bytes that outlive the model
+        // handle unmodified, which is what the erased `'static` lifetime stands for.
+        let data: &'static [u8] = unsafe { slice(bytes, len, "bytes")? };
+        let model = Model::from_bytes(data)?;
+        let h = register(Box::new(hood_model { model, sims: AtomicUsize::new(0) }), Kind::Model);
+        // SAFETY: `out` checked non-null above.
+        unsafe { write_out(out, h) };
+        Ok(())
+    })
+}
+
+/// Frees a model; refused with `HOOD_ERR_MODEL_IN_USE` while sims use it.
+///
+/// # Safety
+/// `model` is NULL or a pointer returned by `hood_model_load` (checked against the registry).
+#[no_mangle]
+pub unsafe extern "C" fn hood_model_free(model: *mut hood_model) -> hood_status {
+    guard(|| {
+        if model.is_null() {
+            return Ok(());
+        }
+        let mut reg = live();
+        if reg.get(&(model as usize)) != Some(&Kind::Model) {
+            return Err(Failure::Handle("model"));
+        }
+        // SAFETY: registered as a live model, so the pointer is a valid `hood_model`.
+        let sims = unsafe { &*model }.sims.load(Ordering::SeqCst);
+        if sims > 0 {
+            return Err(Failure::InUse(sims));
+        }
+        reg.remove(&(model as usize));
+        drop(reg);
+        // SAFETY: it was registered (from `Box::into_raw`) and has just been unregistered.
+        drop(unsafe { Box::from_raw(model) });
+        Ok(())
+    })
+}
+
+/// Whether the model holds bf16 weights (1) or not (0).
+///
+/// # Safety
+/// `model` is NULL or a handle (checked); `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_model_has_bf16(model: *const hood_model, out: *mut u32) -> hood_status {
+    guard(|| {
+        check_live(model, Kind::Model, "model")?;
+        require(out, "out")?;
+        // SAFETY: a live model handle.
+        let m = unsafe { &*model };
+        // SAFETY: `out` checked non-null.
+        unsafe { write_out(out, m.model.has_bf16() as u32) };
+        Ok(())
+    })
+}
+
+// ---- Garment -----------------------------------------------------------------------------------
+
+/// Material of a cloth vertex, SI units.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct hood_material {
+    /// Area density, kg/m^2.
+    pub density: f32,
+    /// Lamé mu, Pa.
+    pub mu: f32,
+    /// Lamé lambda, Pa.
+    pub lambda: f32,
+    /// Bending stiffness, J.
+    pub bending: f32,
+}
+
+/// A validated garment.
+pub struct hood_garment {
+    garment: Garment,
+}
+
+/// Builds a garment (see the header).
+///
+/// # Safety
+/// Every non-NULL array holds the documented number of elements; `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_garment_new(
+    rest: *const f32,
+    n_vertices: usize,
+    indices: *const u32,
+    n_faces: usize,
+    materials: *const hood_material,
+    n_materials: usize,
+    pinned: *const u8,
+    out: *mut *mut hood_garment,
+) -> hood_status {
+    guard(|| {
+        require(out, "out")?;
+        require(rest, "rest")?;
+        require(indices, "indices")?;
+        // SAFETY: array sizes are the caller's promise (header).
+        let rest = unsafe { points(rest, n_vertices, "rest")? };
+        // SAFETY: as above; `[u32; 3]` has u32 alignment and no padding.
+        let faces = unsafe { slice(indices as *const [u32; 3], n_faces, "indices")? };
+        // SAFETY: as above.
+        let mats = unsafe { slice(materials, n_materials, "materials")? };
+        let mats: Vec<Material> = mats
+            .iter()
+            .map(|m| Material { density: m.density, mu: m.mu, lambda: m.lambda, bending: m.bending })
+            .collect();
+        let pins: Vec<bool> = if pinned.is_null() {
+            Vec::new()
+        } else {
+            // SAFETY: as above.
+            unsafe { slice(pinned, n_vertices, "pinned")? }.iter().map(|&p| p != 0).collect()
+        };
+        let garment = Garment::new(GarmentDesc::new(rest, faces).materials(&mats).pinned(&pins))?;
+        let h = register(Box::new(hood_garment { garment }), Kind::Garment);
+        // SAFETY: `out` checked non-null.
+        unsafe { write_out(out, h) };
+        Ok(())
+    })
+}
+
+/// Frees a garment.
+///
+/// # Safety
+/// `garment` is NULL or a handle (checked against the registry).
+#[no_mangle]
+pub unsafe extern "C" fn hood_garment_free(garment: *mut hood_garment) -> hood_status {
+    guard(|| unregister(garment, Kind::Garment, "garment").map(drop))
+}
+
+/// Number of garment vertices.
+///
+/// # Safety
+/// `garment` is NULL or a handle (checked); `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_garment_vertex_count(garment: *const hood_garment, out: *mut usize) -> hood_status {
+    guard(|| {
+        check_live(garment, Kind::Garment, "garment")?;
+        require(out, "out")?;
+        // SAFETY: a live garment handle; `out` non-null.
+        unsafe { write_out(out, (*garment).garment.n_vertices()) };
+        Ok(())
+    })
+}
+
+/// Number of garment faces.
+///
+/// # Safety
+/// `garment` is NULL or a handle (checked); `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_garment_face_count(garment: *const hood_garment, out: *mut usize) -> hood_status {
+    guard(|| {
+        check_live(garment, Kind::Garment, "garment")?;
+        require(out, "out")?;
+        // SAFETY: a live garment handle; `out` non-null.
+        unsafe { write_out(out, (*garment).garment.faces().len()) };
+        Ok(())
+    })
+}
+
+// ---- Simulation --------------------------------------------------------------------------------
+
+/// The sim's configuration (see the header).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct hood_sim_config {
+    /// `HOOD_EFFECT_*` flags.
+    pub effects: u32,
+    /// `HOOD_PRECISION_*`.
+    pub precision: u32,
+    /// Worker threads without an executor.
+    pub threads: u32,
+    /// Frames at rest before sleeping.
+    pub sleep_frames: u32,
+    /// "At rest" threshold, m/frame.
+    pub sleep_threshold: f32,
+    /// Auto-teleport threshold: largest body vertex jump per frame still simulated, m.
+    pub teleport_threshold: f32,
+}
+
+/// The body of a scene (see the header).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct hood_body_desc {
+    /// First-frame positions, 3 floats per vertex.
+    pub positions: *const f32,
+    /// Vertex count.
+    pub n_vertices: usize,
+    /// 3 indices per face.
+    pub indices: *const u32,
+    /// Face count.
+    pub n_faces: usize,
+    /// Optional omitted flags (NULL: none).
+    pub omitted: *const u8,
+}
+
+/// One task of a step.
+pub type hood_task_fn = Option<unsafe extern "C" fn(ctx: *mut c_void, index: u32)>;
+
+/// An engine's job system (see the header for the contract of `run`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct hood_executor {
+    /// Passed back to `run`.
+    pub user: *mut c_void,
+    /// Tasks worth splitting into (0 counts as 1).
+    pub parallelism: u32,
+    /// Runs `task(ctx, i)` for every `i < n_tasks`.
+    pub run: Option<unsafe extern "C" fn(user: *mut c_void, n_tasks: u32, task: hood_task_fn, ctx: *mut c_void)>,
+}
+
+/// A simulation borrowing its model.
+pub struct hood_sim {
+    /// Borrows `*model`; `'static` stands for "while registered in `model.sims`", which
+    /// `hood_model_free` enforces.
+    sim: ManuallyDrop<Sim<'static>>,
+    model: *const hood_model,
+}
+
+impl Drop for hood_sim {
+    fn drop(&mut self) {
+        // SAFETY: dropped once, here, and never used afterwards.
+        unsafe { ManuallyDrop::drop(&mut self.sim) };
+        // Only now may the model go.
+        // SAFETY: the model outlives every sim counted in it, and this sim is still counted.
+        unsafe { &*self.model }.sims.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// The defaults.
+///
+/// # Safety
+/// `out` is NULL (ignored) or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
+    // No status to return: a (never expected) panic just leaves `out` unwritten.
+    let _ = guard(|| {
+        require(out, "out")?;
+        let d = SimConfig::default();
+        let s = Sleeping::default();
+        let flag = |on: bool, f: u32| if on { f } else { 0 };
+        let effects = flag(d.body_collision, HOOD_EFFECT_BODY_COLLISION)
+            | flag(d.pinning, HOOD_EFFECT_PINNING)
+            | flag(d.normals, HOOD_EFFECT_NORMALS)
+            | flag(d.sleeping.is_some(), HOOD_EFFECT_SLEEPING)
+            | flag(d.startup, HOOD_EFFECT_STARTUP)
+            | flag(d.teleport.is_some(), HOOD_EFFECT_AUTO_TELEPORT);
+        let c = hood_sim_config {
+            effects,
+            precision: HOOD_PRECISION_F32,
+            threads: d.threads as u32,
+            sleep_frames: s.frames,
+            sleep_threshold: s.threshold,
+            teleport_threshold: d.teleport.unwrap_or(hood::sim::DEFAULT_TELEPORT),
+        };
+        // SAFETY: non-null; writable by the caller's promise.
+        unsafe { write_out(out, c) };
+        Ok(())
+    });
+}
+
+fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
+    if c.effects & !ALL_EFFECTS != 0 {
+        return Err(Error::OutOfRange { what: "config effects (unknown flag)", index: c.effects as usize }.into());
+    }
+    let precision = match c.precision {
+        HOOD_PRECISION_F32 => Precision::F32,
+        HOOD_PRECISION_BF16 => Precision::Bf16,
+        p => return Err(Error::OutOfRange { what: "config precision", index: p as usize }.into()),
+    };
+    let sleeping = if c.effects & HOOD_EFFECT_SLEEPING != 0 {
+        if !(c.sleep_threshold.is_finite() && c.sleep_threshold >= 0.0) {
+            return Err(Error::OutOfRange { what: "config sleep threshold", index: 0 }.into());
+        }
+        Some(Sleeping { threshold: c.sleep_threshold, frames: c.sleep_frames })
+    } else {
+        None
+    };
+    let teleport = if c.effects & HOOD_EFFECT_AUTO_TELEPORT != 0 {
+        if !(c.teleport_threshold.is_finite() && c.teleport_threshold > 0.0) {
+            return Err(Error::OutOfRange { what: "config teleport threshold", index: 0 }.into());
+        }
+        Some(c.teleport_threshold)
+    } else {
+        None
+    };
+    Ok(SimConfig {
+        teleport,
+        body_collision: c.effects & HOOD_EFFECT_BODY_COLLISION != 0,
+        pinning: c.effects & HOOD_EFFECT_PINNING != 0,
+        normals: c.effects & HOOD_EFFECT_NORMALS != 0,
+        sleeping,
+        precision,
+        startup: c.effects & HOOD_EFFECT_STARTUP != 0,
+        tier: None,
+        threads: c.threads.max(1) as usize,
+    })
+}
+
+/// Creates a sim (see the header).
+///
+/// # Safety
+/// Handles are NULL or pointers from this library (checked); `body`'s arrays hold the
+/// documented counts; `config` is NULL or readable; `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_new(
+    model: *const hood_model,
+    garment: *const hood_garment,
+    body: *const hood_body_desc,
+    config: *const hood_sim_config,
+    out: *mut *mut hood_sim,
+) -> hood_status {
+    guard(|| {
+        require(out, "out")?;
+        check_live(garment, Kind::Garment, "garment")?;
+        let cfg = if config.is_null() {
+            SimConfig::default()
+        } else {
+            // SAFETY: non-null and readable (caller).
+            sim_config(unsafe { &*config })?
+        };
+        // SAFETY: a live garment handle (checked above).
+        let garment = &unsafe { &*garment }.garment;
+        let body_parts = if body.is_null() {
+            None
+        } else {
+            // SAFETY: non-null and readable (caller).
+            let b = unsafe { &*body };
+            require(b.positions, "body positions")?;
+            require(b.indices, "body indices")?;
+            // SAFETY: counts are the caller's promise.
+            let pos = unsafe { points(b.positions, b.n_vertices, "body positions")? };
+            // SAFETY: as above.
+            let faces = unsafe { slice(b.indices as *const [u32; 3], b.n_faces, "body indices")? };
+            let mut mesh = BodyMesh::new(b.n_vertices, faces)?;
+            if !b.omitted.is_null() {
+                // SAFETY: as above.
+                let om: Vec<bool> =
+                    unsafe { slice(b.omitted, b.n_vertices, "body omitted")? }.iter().map(|&o| o != 0).collect();
+                mesh = mesh.with_omitted(&om)?;
+            }
+            Some((mesh, pos))
+        };
+        // Count the sim in the model under the registry lock, so that `hood_model_free` on
+        // another thread sees it (or the model is already gone and this fails).
+        {
+            let reg = live();
+            if model.is_null() {
+                return Err(Failure::Null("model"));
+            }
+            if reg.get(&(model as usize)) != Some(&Kind::Model) {
+                return Err(Failure::Handle("model"));
+            }
+            // SAFETY: a live model handle.
+            unsafe { &*model }.sims.fetch_add(1, Ordering::SeqCst);
+        }
+        // SAFETY: the model is live and cannot be freed while its count includes this sim; the
+        // count is released when the sim is dropped (or just below on failure), so the
+        // `'static` borrow never outlives the model.
+        let m: &'static Model<'static> = unsafe { &(*model).model };
+        let bd = body_parts.as_ref().map(|(mesh, pos)| BodyDesc { mesh, positions: pos });
+        match Sim::new(m, garment, bd, cfg) {
+            Ok(sim) => {
+                let h = register(Box::new(hood_sim { sim: ManuallyDrop::new(sim), model }), Kind::Sim);
+                // SAFETY: `out` checked non-null.
+                unsafe { write_out(out, h) };
+                Ok(())
+            }
+            Err(e) => {
+                // SAFETY: the model is live (our count holds it).
+                unsafe { &*model }.sims.fetch_sub(1, Ordering::SeqCst);
+                Err(e.into())
+            }
+        }
+    })
+}
+
+/// Frees a sim.
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked against the registry); no other thread uses it.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_free(sim: *mut hood_sim) -> hood_status {
+    guard(|| unregister(sim, Kind::Sim, "sim").map(drop))
+}
+
+/// # Safety
+/// `sim` is NULL or a pointer from this library; no other thread uses it during the call.
+unsafe fn sim_ref<'a>(sim: *const hood_sim) -> Result<&'a hood_sim> {
+    check_live(sim, Kind::Sim, "sim")?;
+    // SAFETY: a live sim handle.
+    Ok(unsafe { &*sim })
+}
+
+/// # Safety
+/// As [`sim_ref`].
+unsafe fn sim_mut<'a>(sim: *mut hood_sim) -> Result<&'a mut hood_sim> {
+    check_live(sim, Kind::Sim, "sim")?;
+    // SAFETY: a live sim handle, used by one thread at a time (caller's rule).
+    Ok(unsafe { &mut *sim })
+}
+
+/// Garment vertex count.
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_vertex_count(sim: *const hood_sim, out: *mut usize) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_ref`.
+        let s = unsafe { sim_ref(sim)? };
+        require(out, "out")?;
+        // SAFETY: `out` non-null.
+        unsafe { write_out(out, s.sim.garment().n_vertices()) };
+        Ok(())
+    })
+}
+
+/// Body vertex count expected per step (0 without a body).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_body_vertex_count(sim: *const hood_sim, out: *mut usize) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_ref`.
+        let s = unsafe { sim_ref(sim)? };
+        require(out, "out")?;
+        // SAFETY: `out` non-null.
+        unsafe { write_out(out, s.sim.state().body_pos.len()) };
+        Ok(())
+    })
+}
+
+/// Advances one frame (see the header).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); arrays hold the stated counts; `garment_out` does not
+/// overlap `body_next`.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_step(
+    sim: *mut hood_sim,
+    body_next: *const f32,
+    n_body_vertices: usize,
+    garment_out: *mut f32,
+    n_garment_vertices: usize,
+) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_mut`.
+        let s = unsafe { sim_mut(sim)? };
+        expect_len("body vertices", s.sim.state().body_pos.len(), n_body_vertices)?;
+        expect_len("garment output vertices", s.sim.garment().n_vertices(), n_garment_vertices)?;
+        require(garment_out, "garment_out")?;
+        // SAFETY: counts are the caller's promise.
+        let body = unsafe { points(body_next, n_body_vertices, "body_next")? };
+        // SAFETY: as above.
+        let out = unsafe { points_mut(garment_out, n_garment_vertices, "garment_out")? };
+        let pos = s.sim.step(body)?;
+        out.copy_from_slice(pos);
+        Ok(())
+    })
+}
+
+fn copy_out(src: &[[f32; 3]], out: *mut f32, n: usize, what: &'static str) -> Result<()> {
+    expect_len(what, src.len(), n)?;
+    require(out, "out")?;
+    // SAFETY: `out` holds 3n floats (caller).
+    unsafe { points_mut(out, n, "out")? }.copy_from_slice(src);
+    Ok(())
+}
+
+/// Current garment positions.
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `out` holds `3 * n_vertices` floats.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_positions(sim: *const hood_sim, out: *mut f32, n_vertices: usize) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_ref`.
+        let s = unsafe { sim_ref(sim)? };
+        copy_out(s.sim.positions(), out, n_vertices, "position output vertices")
+    })
+}
+
+/// Current garment velocities, m/frame.
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `out` holds `3 * n_vertices` floats.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_velocities(sim: *const hood_sim, out: *mut f32, n_vertices: usize) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_ref`.
+        let s = unsafe { sim_ref(sim)? };
+        copy_out(&s.sim.state().velocity, out, n_vertices, "velocity output vertices")
+    })
+}
+
+/// Vertex normals of the current positions (needs `HOOD_EFFECT_NORMALS`).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `out` holds `3 * n_vertices` floats.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_normals(sim: *const hood_sim, out: *mut f32, n_vertices: usize) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_ref`.
+        let s = unsafe { sim_ref(sim)? };
+        if !s.sim.config().normals {
+            return Err(Error::UnsupportedEffect { effect: "normals (HOOD_EFFECT_NORMALS is off)" }.into());
+        }
+        copy_out(s.sim.normals(), out, n_vertices, "normal output vertices")
+    })
+}
+
+/// Sets the pin targets for the next frame.
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `targets` holds `3 * n_vertices` floats.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_set_pin_targets(
+    sim: *mut hood_sim,
+    targets: *const f32,
+    n_vertices: usize,
+) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_mut`.
+        let s = unsafe { sim_mut(sim)? };
+        expect_len("pin targets", s.sim.garment().n_vertices(), n_vertices)?;
+        require(targets, "targets")?;
+        // SAFETY: count is the caller's promise.
+        let t = unsafe { points(targets, n_vertices, "targets")? };
+        s.sim.set_pin_targets(t)?;
+        Ok(())
+    })
+}
+
+/// Restarts from given positions with zero velocity (see the header).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); arrays hold the stated counts.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_reset(
+    sim: *mut hood_sim,
+    positions: *const f32,
+    n_vertices: usize,
+    body_positions: *const f32,
+    n_body_vertices: usize,
+) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_mut`.
+        let s = unsafe { sim_mut(sim)? };
+        let n = s.sim.garment().n_vertices();
+        expect_len("reset positions", n, n_vertices)?;
+        require(positions, "positions")?;
+        // SAFETY: counts are the caller's promise.
+        let pos = unsafe { points(positions, n_vertices, "positions")? };
+        let old = s.sim.state();
+        let body = if body_positions.is_null() && n_body_vertices == 0 {
+            old.body_pos.clone()
+        } else {
+            expect_len("reset body vertices", old.body_pos.len(), n_body_vertices)?;
+            // SAFETY: as above.
+            unsafe { points(body_positions, n_body_vertices, "body_positions")? }.to_vec()
+        };
+        let state = SimState {
+            pos: pos.to_vec(),
+            velocity: vec![[0.0; 3]; n],
+            body_prev: body.clone(),
+            body_pos: body,
+            started: !s.sim.config().startup,
+        };
+        s.sim.set_state(&state)?;
+        // Pins hold where the garment was placed (always finite: `set_state` checked them).
+        s.sim.set_pin_targets(pos)?;
+        Ok(())
+    })
+}
+
+fn check_rotation(r: &[f32; 9]) -> Result<()> {
+    if let Some(i) = r.iter().position(|v| !v.is_finite()) {
+        return Err(Error::NonFinite { what: "rotation entry", index: i }.into());
+    }
+    // R R^T = I within 1e-3, and det R = +1 (no reflection).
+    for i in 0..3 {
+        for j in 0..3 {
+            let d: f32 = (0..3).map(|k| r[3 * i + k] * r[3 * j + k]).sum();
+            let want = if i == j { 1.0 } else { 0.0 };
+            if (d - want).abs() > 1e-3 {
+                return Err(Error::OutOfRange { what: "rotation (not orthonormal)", index: 3 * i + j }.into());
+            }
+        }
+    }
+    let det =
+        r[0] * (r[4] * r[8] - r[5] * r[7]) - r[1] * (r[3] * r[8] - r[5] * r[6]) + r[2] * (r[3] * r[7] - r[4] * r[6]);
+    if det < 0.0 {
+        return Err(Error::OutOfRange { what: "rotation (a reflection, determinant -1)", index: 0 }.into());
+    }
+    Ok(())
+}
+
+/// Moves the garment rigidly, `p -> R p + t`, `v -> R v`, and puts the body at rest (see the
+/// header).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `rotation` is NULL or 9 floats; `translation` is NULL
+/// or 3 floats; `body_now` is NULL or holds `3 * n_body_vertices` floats.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_teleport(
+    sim: *mut hood_sim,
+    rotation: *const f32,
+    translation: *const f32,
+    body_now: *const f32,
+    n_body_vertices: usize,
+) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_mut`.
+        let s = unsafe { sim_mut(sim)? };
+        let r: [f32; 9] = if rotation.is_null() {
+            [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        } else {
+            // SAFETY: 9 readable floats (caller).
+            unsafe { slice(rotation, 9, "rotation")? }.try_into().unwrap_or([0.0; 9])
+        };
+        let t: [f32; 3] = if translation.is_null() {
+            [0.0; 3]
+        } else {
+            // SAFETY: 3 readable floats (caller).
+            (unsafe { points(translation, 1, "translation")? })[0]
+        };
+        check_rotation(&r)?;
+        if let Some(i) = t.iter().position(|v| !v.is_finite()) {
+            return Err(Error::NonFinite { what: "translation entry", index: i }.into());
+        }
+        // Row-major in, column-major `Mat3`: transpose.
+        let rotation = Quat::from_mat3(&Mat3::from_cols_array(&r).transpose()).normalize();
+        let motion = RigidMotion { rotation, translation: Vec3::from_array(t) };
+        let body: Vec<[f32; 3]> = if body_now.is_null() && n_body_vertices == 0 {
+            s.sim.state().body_pos.iter().map(|p| motion.apply(*p)).collect()
+        } else {
+            expect_len("teleport body vertices", s.sim.state().body_pos.len(), n_body_vertices)?;
+            require(body_now, "body_now")?;
+            // SAFETY: count is the caller's promise.
+            unsafe { points(body_now, n_body_vertices, "body_now")? }.to_vec()
+        };
+        s.sim.teleport(&motion, &body)?;
+        Ok(())
+    })
+}
+
+/// Adapts a C job system to [`Executor`].
+struct CExecutor {
+    raw: hood_executor,
+    run: unsafe extern "C" fn(*mut c_void, u32, hood_task_fn, *mut c_void),
+}
+
+// SAFETY: the header makes `user` and `run` usable from the thread that steps the sim (the
+// caller's promise); the library itself calls `run` only from that thread.
+unsafe impl Send for CExecutor {}
+// SAFETY: as above; `CExecutor` has no interior mutability of its own.
+unsafe impl Sync for CExecutor {}
+
+struct TaskCtx<'a> {
+    task: &'a (dyn Fn(usize) + Sync),
+    n: usize,
+    calls: AtomicUsize,
+    bad: AtomicBool,
+    panicked: AtomicBool,
+}
+
+unsafe extern "C" fn run_task(ctx: *mut c_void, index: u32) {
+    if ctx.is_null() {
+        return;
+    }
+    // SAFETY: `ctx` is the `TaskCtx` that `CExecutor::run` passed to `run`, alive until `run`
+    // returns (the executor contract: all tasks finish before `run` returns).
+    let c = unsafe { &*(ctx as *const TaskCtx<'_>) };
+    let i = index as usize;
+    if i >= c.n {
+        c.bad.store(true, Ordering::SeqCst);
+        return;
+    }
+    c.calls.fetch_add(1, Ordering::SeqCst);
+    // No unwinding through the C job system: remember the panic and re-raise it after `run`.
+    if catch_unwind(AssertUnwindSafe(|| (c.task)(i))).is_err() {
+        c.panicked.store(true, Ordering::SeqCst);
+    }
+}
+
+impl Executor for CExecutor {
+    fn parallelism(&self) -> usize {
+        self.raw.parallelism.max(1) as usize
+    }
+
+    fn run(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
+        if n == 0 {
+            return;
+        }
+        let n32 = u32::try_from(n).expect("more tasks than fit in u32");
+        let ctx = TaskCtx {
+            task,
+            n,
+            calls: AtomicUsize::new(0),
+            bad: AtomicBool::new(false),
+            panicked: AtomicBool::new(false),
+        };
+        // SAFETY: a C function supplied through `hood_sim_set_executor`, called as documented;
+        // `ctx` outlives the call.
+        unsafe { (self.run)(self.raw.user, n32, Some(run_task), &ctx as *const TaskCtx<'_> as *mut c_void) };
+        // Panics here are caught by `guard` at the export.
+        assert!(!ctx.panicked.load(Ordering::SeqCst), "a step task panicked");
+        let calls = ctx.calls.load(Ordering::SeqCst);
+        assert!(
+            !ctx.bad.load(Ordering::SeqCst) && calls == n,
+            "the executor did not run every task exactly once ({calls} calls for {n} tasks)"
+        );
+    }
+}
+
+/// Plugs in (or with NULL removes) an engine executor.
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `executor` is NULL or readable and keeps the contract in
+/// the header.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_set_executor(sim: *mut hood_sim, executor: *const hood_executor) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_mut`.
+        let s = unsafe { sim_mut(sim)? };
+        let exec: Box<dyn Executor> = if executor.is_null() {
+            let threads = s.sim.config().threads;
+            if threads > 1 {
+                Box::new(ThreadPool::new(threads))
+            } else {
+                Box::new(Serial)
+            }
+        } else {
+            // SAFETY: non-null and readable (caller).
+            let raw = unsafe { *executor };
+            let run = raw.run.ok_or(Failure::Null("executor run"))?;
+            Box::new(CExecutor { raw, run })
+        };
+        s.sim.set_executor(exec);
+        Ok(())
+    })
+}

@@ -1,0 +1,703 @@
+//! The C ABI called as C would call it (through the exported functions): every error path gives
+//! its status code and leaves state and out-parameters alone; reset, teleport, executors.
+
+mod common;
+
+use common::random_model_bytes;
+use hood::model::ModelBytes;
+use hood_ffi::*;
+use std::ffi::CStr;
+use std::ptr::{null, null_mut};
+
+fn last_error() -> String {
+    // SAFETY: `hood_last_error` returns a NUL-terminated string valid until the next call.
+    unsafe { CStr::from_ptr(hood_last_error()) }.to_string_lossy().into_owned()
+}
+
+/// Loaded model with its aligned bytes (which must outlive it).
+struct Loaded {
+    _bytes: ModelBytes,
+    model: *mut hood_model,
+}
+
+fn load(h: usize, seed: u64) -> Loaded {
+    let bytes = ModelBytes::new(&random_model_bytes(h, seed));
+    let mut model = null_mut();
+    // SAFETY: aligned bytes that outlive the model (freed in `Drop` order by the tests).
+    let s = unsafe { hood_model_load(bytes.as_bytes().as_ptr(), bytes.as_bytes().len(), &mut model) };
+    assert_eq!(s, HOOD_OK, "{}", last_error());
+    Loaded { _bytes: bytes, model }
+}
+
+impl Drop for Loaded {
+    fn drop(&mut self) {
+        // SAFETY: a model handle (or already freed: then a status, no crash).
+        unsafe { hood_model_free(self.model) };
+    }
+}
+
+/// The examples' scene: an `n x n` cloth pinned at two corners above an ellipsoid.
+struct Scene {
+    rest: Vec<[f32; 3]>,
+    faces: Vec<[u32; 3]>,
+    pinned: Vec<u8>,
+    body: Vec<[f32; 3]>,
+    body_faces: Vec<[u32; 3]>,
+}
+
+fn scene(n: usize) -> Scene {
+    let (rest, faces) = hood::mesh::shapes::grid(n, n, 0.6, 0.6, 0.32);
+    let mut pinned = vec![0u8; rest.len()];
+    pinned[0] = 1;
+    pinned[n - 1] = 1;
+    let (body, body_faces) = hood::body::shapes::ellipsoid(12, 16, [0.25, 0.3, 0.25], [0.0; 3]);
+    Scene { rest, faces, pinned, body, body_faces }
+}
+
+impl Scene {
+    fn garment(&self) -> *mut hood_garment {
+        let mut g = null_mut();
+        // SAFETY: arrays of the stated lengths.
+        let s = unsafe {
+            hood_garment_new(
+                self.rest.as_ptr().cast(),
+                self.rest.len(),
+                self.faces.as_ptr().cast(),
+                self.faces.len(),
+                null(),
+                0,
+                self.pinned.as_ptr(),
+                &mut g,
+            )
+        };
+        assert_eq!(s, HOOD_OK, "{}", last_error());
+        g
+    }
+
+    fn body_desc(&self) -> hood_body_desc {
+        hood_body_desc {
+            positions: self.body.as_ptr().cast(),
+            n_vertices: self.body.len(),
+            indices: self.body_faces.as_ptr().cast(),
+            n_faces: self.body_faces.len(),
+            omitted: null(),
+        }
+    }
+
+    fn sim(&self, model: *const hood_model) -> *mut hood_sim {
+        let g = self.garment();
+        let bd = self.body_desc();
+        let mut sim = null_mut();
+        // SAFETY: live handles, valid descriptors.
+        let s = unsafe { hood_sim_new(model, g, &bd, null(), &mut sim) };
+        assert_eq!(s, HOOD_OK, "{}", last_error());
+        // SAFETY: the sim keeps its own garment copy.
+        assert_eq!(unsafe { hood_garment_free(g) }, HOOD_OK);
+        sim
+    }
+
+    fn body_at(&self, t: usize, offset: [f32; 3]) -> Vec<[f32; 3]> {
+        let dx = 0.01 * (t as f32 * 0.3).sin();
+        self.body.iter().map(|p| [p[0] + dx + offset[0], p[1] + offset[1], p[2] + offset[2]]).collect()
+    }
+}
+
+fn step(sim: *mut hood_sim, body: &[[f32; 3]], out: &mut [[f32; 3]]) -> hood_status {
+    // SAFETY: arrays of the stated lengths.
+    unsafe { hood_sim_step(sim, body.as_ptr().cast(), body.len(), out.as_mut_ptr().cast(), out.len()) }
+}
+
+fn positions(sim: *const hood_sim, n: usize) -> Vec<[f32; 3]> {
+    let mut p = vec![[0.0f32; 3]; n];
+    // SAFETY: `p` holds n points.
+    assert_eq!(unsafe { hood_sim_positions(sim, p.as_mut_ptr().cast(), n) }, HOOD_OK, "{}", last_error());
+    p
+}
+
+fn velocities(sim: *const hood_sim, n: usize) -> Vec<[f32; 3]> {
+    let mut p = vec![[0.0f32; 3]; n];
+    // SAFETY: `p` holds n points.
+    assert_eq!(unsafe { hood_sim_velocities(sim, p.as_mut_ptr().cast(), n) }, HOOD_OK, "{}", last_error());
+    p
+}
+
+fn max_diff(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
+    a.iter().zip(b).flat_map(|(p, q)| (0..3).map(move |k| (p[k] - q[k]).abs())).fold(0.0, f32::max)
+}
+
+#[test]
+fn version_matches_cargo_toml() {
+    let v = hood_version();
+    let want: Vec<u32> = env!("CARGO_PKG_VERSION").split('.').map(|s| s.parse().unwrap()).collect();
+    assert_eq!(v, (want[0] << 16) | (want[1] << 8) | want[2]);
+    // SAFETY: a static NUL-terminated string.
+    let s = unsafe { CStr::from_ptr(hood_version_string()) };
+    assert_eq!(s.to_str().unwrap(), env!("CARGO_PKG_VERSION"));
+}
+
+#[test]
+fn status_codes_mirror_error_codes() {
+    use hood::Error;
+    let cases = [
+        (Error::IndexOutOfRange { what: "", at: 0, index: 0, len: 0 }, HOOD_ERR_INDEX_OUT_OF_RANGE),
+        (Error::NonFinite { what: "", index: 0 }, HOOD_ERR_NON_FINITE),
+        (Error::DegenerateFace { face: 0 }, HOOD_ERR_DEGENERATE_FACE),
+        (Error::RepeatedVertex { face: 0, vertex: 0 }, HOOD_ERR_REPEATED_VERTEX),
+        (Error::UnusedVertex { vertex: 0 }, HOOD_ERR_UNUSED_VERTEX),
+        (Error::Empty { what: "" }, HOOD_ERR_EMPTY),
+        (Error::SizeMismatch { what: "", expected: 0, got: 0 }, HOOD_ERR_SIZE_MISMATCH),
+        (Error::OutOfRange { what: "", index: 0 }, HOOD_ERR_OUT_OF_RANGE),
+        (Error::CapacityExceeded { what: "", capacity: 0, needed: 0 }, HOOD_ERR_CAPACITY_EXCEEDED),
+        (Error::IncompatibleModel { reason: "" }, HOOD_ERR_INCOMPATIBLE_MODEL),
+        (Error::UnsupportedEffect { effect: "" }, HOOD_ERR_UNSUPPORTED_EFFECT),
+        (Error::CorruptData { reason: "" }, HOOD_ERR_CORRUPT_DATA),
+        (Error::parse("", 0, ""), HOOD_ERR_PARSE),
+        (Error::Io { path: String::new(), message: String::new() }, HOOD_ERR_IO),
+    ];
+    let mut seen = std::collections::BTreeSet::new();
+    for (e, code) in cases {
+        assert_eq!(e.code(), code, "{e:?}");
+        assert!(seen.insert(code));
+    }
+    for c in [HOOD_OK, HOOD_ERR_NULL_POINTER, HOOD_ERR_INVALID_HANDLE, HOOD_ERR_MODEL_IN_USE, HOOD_ERR_PANIC] {
+        assert!(seen.insert(c), "code {c} reused");
+    }
+}
+
+#[test]
+fn null_arguments_give_status() {
+    let l = load(8, 1);
+    let sc = scene(6);
+    let mut m = null_mut();
+    let mut out = 0usize;
+    // SAFETY: every call below is given NULL where a pointer is required; none may dereference it.
+    unsafe {
+        assert_eq!(hood_model_load(null(), 10, &mut m), HOOD_ERR_NULL_POINTER);
+        assert!(last_error().contains("bytes"), "{}", last_error());
+        assert!(m.is_null());
+        assert_eq!(
+            hood_model_load(l._bytes.as_bytes().as_ptr(), l._bytes.as_bytes().len(), null_mut()),
+            HOOD_ERR_NULL_POINTER
+        );
+        let mut g = null_mut();
+        assert_eq!(
+            hood_garment_new(null(), 3, sc.faces.as_ptr().cast(), 1, null(), 0, null(), &mut g),
+            HOOD_ERR_NULL_POINTER
+        );
+        assert_eq!(
+            hood_garment_new(sc.rest.as_ptr().cast(), sc.rest.len(), null(), 1, null(), 0, null(), &mut g),
+            HOOD_ERR_NULL_POINTER
+        );
+        // materials NULL with a nonzero count
+        assert_eq!(
+            hood_garment_new(
+                sc.rest.as_ptr().cast(),
+                sc.rest.len(),
+                sc.faces.as_ptr().cast(),
+                sc.faces.len(),
+                null(),
+                1,
+                null(),
+                &mut g
+            ),
+            HOOD_ERR_NULL_POINTER
+        );
+        assert!(g.is_null());
+        let g = sc.garment();
+        let mut sim = null_mut();
+        assert_eq!(hood_sim_new(null(), g, null(), null(), &mut sim), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_sim_new(l.model, null(), null(), null(), &mut sim), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_sim_new(l.model, g, null(), null(), null_mut()), HOOD_ERR_NULL_POINTER);
+        let mut bd = sc.body_desc();
+        bd.positions = null();
+        assert_eq!(hood_sim_new(l.model, g, &bd, null(), &mut sim), HOOD_ERR_NULL_POINTER);
+        assert!(sim.is_null());
+        assert_eq!(hood_garment_vertex_count(g, null_mut()), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_garment_vertex_count(null(), &mut out), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_model_has_bf16(null(), null_mut()), HOOD_ERR_NULL_POINTER);
+        let sim = sc.sim(l.model);
+        let n = sc.rest.len();
+        let mut buf = vec![[0.0f32; 3]; n];
+        let body = sc.body_at(1, [0.0; 3]);
+        assert_eq!(
+            hood_sim_step(null_mut(), body.as_ptr().cast(), body.len(), buf.as_mut_ptr().cast(), n),
+            HOOD_ERR_NULL_POINTER
+        );
+        assert_eq!(hood_sim_step(sim, null(), body.len(), buf.as_mut_ptr().cast(), n), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_sim_step(sim, body.as_ptr().cast(), body.len(), null_mut(), n), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_sim_positions(sim, null_mut(), n), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_sim_set_pin_targets(sim, null(), n), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_sim_reset(sim, null(), n, null(), 0), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_sim_vertex_count(sim, null_mut()), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_sim_teleport(null_mut(), null(), null(), null(), 0), HOOD_ERR_NULL_POINTER);
+        let e = hood_executor { user: null_mut(), parallelism: 2, run: None };
+        assert_eq!(hood_sim_set_executor(sim, &e), HOOD_ERR_NULL_POINTER);
+        hood_sim_config_default(null_mut());
+        // Free functions accept NULL.
+        assert_eq!(hood_sim_free(null_mut()), HOOD_OK);
+        assert_eq!(hood_garment_free(null_mut()), HOOD_OK);
+        assert_eq!(hood_model_free(null_mut()), HOOD_OK);
+        // The sim still works after all that.
+        assert_eq!(step(sim, &body, &mut buf), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        assert_eq!(hood_garment_free(g), HOOD_OK);
+    }
+}
+
+#[test]
+fn wrong_sizes_give_size_mismatch_and_change_nothing() {
+    let l = load(8, 2);
+    let sc = scene(6);
+    let sim = sc.sim(l.model);
+    let n = sc.rest.len();
+    let (mut nv, mut nb) = (0, 0);
+    // SAFETY: live sim, valid out-parameters.
+    unsafe {
+        assert_eq!(hood_sim_vertex_count(sim, &mut nv), HOOD_OK);
+        assert_eq!(hood_sim_body_vertex_count(sim, &mut nb), HOOD_OK);
+    }
+    assert_eq!((nv, nb), (n, sc.body.len()));
+    let before = positions(sim, n);
+    let body = sc.body_at(1, [0.0; 3]);
+    let mut out = vec![[7.0f32; 3]; n];
+    // SAFETY: the counts passed are smaller than the arrays (the library must refuse them).
+    unsafe {
+        let s = hood_sim_step(sim, body.as_ptr().cast(), body.len() - 1, out.as_mut_ptr().cast(), n);
+        assert_eq!(s, HOOD_ERR_SIZE_MISMATCH);
+        assert!(last_error().contains("body vertices"), "{}", last_error());
+        let s = hood_sim_step(sim, body.as_ptr().cast(), body.len(), out.as_mut_ptr().cast(), n - 1);
+        assert_eq!(s, HOOD_ERR_SIZE_MISMATCH);
+        assert_eq!(hood_sim_positions(sim, out.as_mut_ptr().cast(), n - 1), HOOD_ERR_SIZE_MISMATCH);
+        assert_eq!(hood_sim_set_pin_targets(sim, sc.rest.as_ptr().cast(), n - 1), HOOD_ERR_SIZE_MISMATCH);
+        assert_eq!(hood_sim_reset(sim, sc.rest.as_ptr().cast(), n - 1, null(), 0), HOOD_ERR_SIZE_MISMATCH);
+        assert_eq!(hood_sim_reset(sim, sc.rest.as_ptr().cast(), n, sc.body.as_ptr().cast(), 3), HOOD_ERR_SIZE_MISMATCH);
+        // Garment: pinned flags read n_vertices entries; indices past the end; bad materials.
+        let mut g = null_mut();
+        let bad_faces = [[0u32, 1, 99]];
+        let s = hood_garment_new(sc.rest.as_ptr().cast(), 3, bad_faces.as_ptr().cast(), 1, null(), 0, null(), &mut g);
+        assert_eq!(s, HOOD_ERR_INDEX_OUT_OF_RANGE);
+        let mats = [hood_material { density: 0.2, mu: 2e4, lambda: 4e4, bending: 1e-5 }; 2];
+        let s = hood_garment_new(
+            sc.rest.as_ptr().cast(),
+            n,
+            sc.faces.as_ptr().cast(),
+            sc.faces.len(),
+            mats.as_ptr(),
+            2,
+            null(),
+            &mut g,
+        );
+        assert_eq!(s, HOOD_ERR_SIZE_MISMATCH, "{}", last_error());
+        assert!(g.is_null());
+    }
+    assert!(out.iter().all(|p| *p == [7.0; 3]), "out written on error");
+    assert_eq!(positions(sim, n), before);
+    // SAFETY: live sim.
+    assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+}
+
+#[test]
+fn nan_body_input_is_refused_and_state_unchanged() {
+    let l = load(8, 3);
+    let sc = scene(6);
+    let sim = sc.sim(l.model);
+    let n = sc.rest.len();
+    let mut out = vec![[0.0f32; 3]; n];
+    for t in 1..=3 {
+        assert_eq!(step(sim, &sc.body_at(t, [0.0; 3]), &mut out), HOOD_OK, "{}", last_error());
+    }
+    let (p0, v0) = (positions(sim, n), velocities(sim, n));
+    assert!(v0.iter().any(|v| *v != [0.0; 3]), "the garment should move");
+    let mut bad = sc.body_at(4, [0.0; 3]);
+    bad[5][1] = f32::NAN;
+    let mut sentinel = vec![[9.0f32; 3]; n];
+    assert_eq!(step(sim, &bad, &mut sentinel), HOOD_ERR_NON_FINITE);
+    assert!(last_error().contains("body vertex 5"), "{}", last_error());
+    assert!(sentinel.iter().all(|p| *p == [9.0; 3]));
+    assert_eq!(positions(sim, n), p0);
+    assert_eq!(velocities(sim, n), v0);
+    // Stepping on with good input matches a sim that never saw the NaN frame.
+    let twin = sc.sim(l.model);
+    let mut o2 = vec![[0.0f32; 3]; n];
+    for t in 1..=4 {
+        assert_eq!(step(twin, &sc.body_at(t, [0.0; 3]), &mut o2), HOOD_OK);
+    }
+    assert_eq!(step(sim, &sc.body_at(4, [0.0; 3]), &mut out), HOOD_OK);
+    assert_eq!(out, o2);
+    // A NaN pin target is refused too.
+    let mut targets = sc.rest.clone();
+    targets[0][0] = f32::INFINITY;
+    // SAFETY: n targets.
+    assert_eq!(unsafe { hood_sim_set_pin_targets(sim, targets.as_ptr().cast(), n) }, HOOD_ERR_NON_FINITE);
+    // SAFETY: live sims.
+    unsafe {
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        assert_eq!(hood_sim_free(twin), HOOD_OK);
+    }
+}
+
+#[test]
+fn misaligned_and_corrupt_models_are_refused() {
+    let bytes = ModelBytes::new(&random_model_bytes(8, 4));
+    let b = bytes.as_bytes();
+    // An aligned buffer with the model copied one byte in.
+    let mut shifted = ModelBytes::new(&[&[0u8][..], b].concat());
+    // A sentinel that must stay.
+    let mut out: *mut hood_model = std::ptr::dangling_mut::<hood_model>();
+    // SAFETY: readable ranges; `out` is writable.
+    unsafe {
+        let s = hood_model_load(shifted.as_bytes().as_ptr().add(1), b.len(), &mut out);
+        assert_eq!(s, HOOD_ERR_CORRUPT_DATA);
+        assert!(last_error().contains("align"), "{}", last_error());
+        assert_eq!(out, std::ptr::dangling_mut::<hood_model>());
+        // Truncated.
+        assert_eq!(hood_model_load(b.as_ptr(), b.len() / 2, &mut out), HOOD_ERR_CORRUPT_DATA);
+        // Bad magic.
+        let mut v = b.to_vec();
+        v[0] ^= 0xff;
+        shifted = ModelBytes::new(&v);
+        assert_eq!(hood_model_load(shifted.as_bytes().as_ptr(), v.len(), &mut out), HOOD_ERR_CORRUPT_DATA);
+        // Flipped bytes in the middle of the archive.
+        let mut v = b.to_vec();
+        let mid = v.len() / 2;
+        for x in &mut v[mid..mid + 64] {
+            *x ^= 0x5a;
+        }
+        shifted = ModelBytes::new(&v);
+        let s = hood_model_load(shifted.as_bytes().as_ptr(), v.len(), &mut out);
+        // Flipped weight bytes may still validate (floats are floats); structure bytes must not.
+        assert!(s == HOOD_ERR_CORRUPT_DATA || s == HOOD_OK, "status {s}");
+        if s == HOOD_OK {
+            assert_eq!(hood_model_free(out), HOOD_OK);
+            out = std::ptr::dangling_mut::<hood_model>();
+        }
+        assert_eq!(hood_model_load(b.as_ptr(), 0, &mut out), HOOD_ERR_CORRUPT_DATA);
+        assert_eq!(out, std::ptr::dangling_mut::<hood_model>());
+        // The intact bytes load, and the f32-only model refuses bf16.
+        assert_eq!(hood_model_load(b.as_ptr(), b.len(), &mut out), HOOD_OK);
+        let mut bf = 9;
+        assert_eq!(hood_model_has_bf16(out, &mut bf), HOOD_OK);
+        assert_eq!(bf, 0);
+        let sc = scene(5);
+        let g = sc.garment();
+        let mut cfg = std::mem::zeroed();
+        hood_sim_config_default(&mut cfg);
+        cfg.precision = HOOD_PRECISION_BF16;
+        let mut sim = null_mut();
+        assert_eq!(hood_sim_new(out, g, null(), &cfg, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
+        cfg.precision = 7;
+        assert_eq!(hood_sim_new(out, g, null(), &cfg, &mut sim), HOOD_ERR_OUT_OF_RANGE);
+        cfg.precision = HOOD_PRECISION_F32;
+        cfg.effects |= 1 << 20;
+        assert_eq!(hood_sim_new(out, g, null(), &cfg, &mut sim), HOOD_ERR_OUT_OF_RANGE);
+        assert!(sim.is_null());
+        assert_eq!(hood_garment_free(g), HOOD_OK);
+        assert_eq!(hood_model_free(out), HOOD_OK);
+    }
+}
+
+#[test]
+fn double_free_use_after_free_and_mismatched_handles() {
+    let l = load(8, 5);
+    let sc = scene(5);
+    let g = sc.garment();
+    let sim = sc.sim(l.model);
+    let n = sc.rest.len();
+    let mut count = 0;
+    // SAFETY: freed and mismatched handles are exactly what the registry must catch without
+    // dereferencing them.
+    unsafe {
+        // A garment handle where a sim is expected, and the other way round.
+        assert_eq!(hood_sim_vertex_count(g as *const hood_sim, &mut count), HOOD_ERR_INVALID_HANDLE);
+        assert_eq!(hood_garment_vertex_count(sim as *const hood_garment, &mut count), HOOD_ERR_INVALID_HANDLE);
+        assert_eq!(hood_model_free(sim as *mut hood_model), HOOD_ERR_INVALID_HANDLE);
+        assert_eq!(hood_sim_free(l.model as *mut hood_sim), HOOD_ERR_INVALID_HANDLE);
+        let mut bogus = [0u64; 8];
+        assert_eq!(hood_sim_free(bogus.as_mut_ptr() as *mut hood_sim), HOOD_ERR_INVALID_HANDLE);
+        assert_eq!(count, 0);
+        assert_eq!(hood_garment_free(g), HOOD_OK);
+        assert_eq!(hood_garment_free(g), HOOD_ERR_INVALID_HANDLE);
+        assert!(last_error().contains("garment"), "{}", last_error());
+        assert_eq!(hood_garment_vertex_count(g, &mut count), HOOD_ERR_INVALID_HANDLE);
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        assert_eq!(hood_sim_free(sim), HOOD_ERR_INVALID_HANDLE);
+        let mut out = vec![[0.0f32; 3]; n];
+        let body = sc.body_at(1, [0.0; 3]);
+        assert_eq!(step(sim, &body, &mut out), HOOD_ERR_INVALID_HANDLE);
+    }
+}
+
+#[test]
+fn model_freed_while_a_sim_lives_is_refused() {
+    let bytes = ModelBytes::new(&random_model_bytes(8, 6));
+    let mut model = null_mut();
+    let sc = scene(5);
+    // SAFETY: aligned bytes outliving the model; live handles.
+    unsafe {
+        assert_eq!(hood_model_load(bytes.as_bytes().as_ptr(), bytes.as_bytes().len(), &mut model), HOOD_OK);
+        let a = sc.sim(model);
+        let b = sc.sim(model);
+        assert_eq!(hood_model_free(model), HOOD_ERR_MODEL_IN_USE);
+        assert!(last_error().contains("2 sim"), "{}", last_error());
+        assert_eq!(hood_sim_free(a), HOOD_OK);
+        assert_eq!(hood_model_free(model), HOOD_ERR_MODEL_IN_USE);
+        // The refused free left the model usable.
+        let mut out = vec![[0.0f32; 3]; sc.rest.len()];
+        assert_eq!(step(b, &sc.body_at(1, [0.0; 3]), &mut out), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_free(b), HOOD_OK);
+        // A failed sim creation does not leave a count behind.
+        let g = sc.garment();
+        let mut cfg = std::mem::zeroed();
+        hood_sim_config_default(&mut cfg);
+        cfg.precision = HOOD_PRECISION_BF16;
+        let mut sim = null_mut();
+        assert_eq!(hood_sim_new(model, g, null(), &cfg, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
+        assert_eq!(hood_garment_free(g), HOOD_OK);
+        assert_eq!(hood_model_free(model), HOOD_OK);
+        assert_eq!(hood_model_free(model), HOOD_ERR_INVALID_HANDLE);
+    }
+}
+
+#[test]
+fn last_error_is_per_thread() {
+    // SAFETY: NULL arguments only.
+    assert_eq!(unsafe { hood_sim_free(std::ptr::dangling_mut::<hood_sim>()) }, HOOD_ERR_INVALID_HANDLE);
+    assert!(!last_error().is_empty());
+    let other = std::thread::spawn(last_error).join().unwrap();
+    assert_eq!(other, "");
+}
+
+#[test]
+fn reset_replays_a_fresh_sim() {
+    let l = load(8, 7);
+    let sc = scene(6);
+    let n = sc.rest.len();
+    let (a, b) = (sc.sim(l.model), sc.sim(l.model));
+    let mut out_a = vec![[0.0f32; 3]; n];
+    let mut out_b = vec![[0.0f32; 3]; n];
+    for t in 1..=5 {
+        assert_eq!(step(a, &sc.body_at(t + 10, [0.0; 3]), &mut out_a), HOOD_OK);
+    }
+    // SAFETY: arrays of the stated lengths.
+    let s = unsafe { hood_sim_reset(a, sc.rest.as_ptr().cast(), n, sc.body.as_ptr().cast(), sc.body.len()) };
+    assert_eq!(s, HOOD_OK, "{}", last_error());
+    assert!(velocities(a, n).iter().all(|v| *v == [0.0; 3]));
+    assert_eq!(positions(a, n), sc.rest);
+    for t in 1..=3 {
+        assert_eq!(step(a, &sc.body_at(t, [0.0; 3]), &mut out_a), HOOD_OK);
+        assert_eq!(step(b, &sc.body_at(t, [0.0; 3]), &mut out_b), HOOD_OK);
+    }
+    assert_eq!(out_a, out_b);
+    // SAFETY: live sims.
+    unsafe {
+        assert_eq!(hood_sim_free(a), HOOD_OK);
+        assert_eq!(hood_sim_free(b), HOOD_OK);
+    }
+}
+
+#[test]
+fn teleport_moves_state_rigidly_and_translation_commutes_with_steps() {
+    let l = load(8, 8);
+    let sc = scene(6);
+    let n = sc.rest.len();
+    let (a, b) = (sc.sim(l.model), sc.sim(l.model));
+    let mut out_a = vec![[0.0f32; 3]; n];
+    let mut out_b = vec![[0.0f32; 3]; n];
+    for t in 1..=4 {
+        assert_eq!(step(a, &sc.body_at(t, [0.0; 3]), &mut out_a), HOOD_OK);
+        assert_eq!(step(b, &sc.body_at(t, [0.0; 3]), &mut out_b), HOOD_OK);
+    }
+    let (p0, v0) = (positions(b, n), velocities(b, n));
+    // A quarter turn about y, then a shift.
+    let r = [0.0f32, 0.0, 1.0, 0.0, 1.0, 0.0, -1.0, 0.0, 0.0];
+    let t = [1.5f32, -0.25, 2.0];
+    // SAFETY: 9 and 3 floats.
+    assert_eq!(unsafe { hood_sim_teleport(b, r.as_ptr(), t.as_ptr(), null(), 0) }, HOOD_OK, "{}", last_error());
+    let (p1, v1) = (positions(b, n), velocities(b, n));
+    for i in 0..n {
+        let (p, v) = (p0[i], v0[i]);
+        let want_p = [p[2] + t[0], p[1] + t[1], -p[0] + t[2]];
+        let want_v = [v[2], v[1], -v[0]];
+        assert!(max_diff(&[p1[i]], &[want_p]) < 1e-6 && max_diff(&[v1[i]], &[want_v]) < 1e-7, "vertex {i}");
+    }
+    // Undo it: shift by -t, then rotate by R^T.
+    let rt = [0.0f32, 0.0, -1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0];
+    // SAFETY: 9 floats.
+    unsafe {
+        let back = [-t[0], -t[1], -t[2]];
+        assert_eq!(hood_sim_teleport(b, null(), back.as_ptr(), null(), 0), HOOD_OK);
+        assert_eq!(hood_sim_teleport(b, rt.as_ptr(), null(), null(), 0), HOOD_OK);
+    }
+    assert!(max_diff(&positions(b, n), &p0) < 1e-5);
+    // Now a pure translation: the network sees only relative quantities, so stepping the moved
+    // scene equals stepping the original and moving the result. (A teleport leaves the body at
+    // rest: the identity teleport of `a` does the same to it.)
+    let d = [3.0f32, 0.5, -2.0];
+    // SAFETY: 3 floats.
+    unsafe {
+        assert_eq!(hood_sim_teleport(b, null(), d.as_ptr(), null(), 0), HOOD_OK);
+        assert_eq!(hood_sim_teleport(a, null(), null(), null(), 0), HOOD_OK);
+    }
+    for t in 5..=8 {
+        assert_eq!(step(a, &sc.body_at(t, [0.0; 3]), &mut out_a), HOOD_OK);
+        assert_eq!(step(b, &sc.body_at(t, d), &mut out_b), HOOD_OK);
+    }
+    let moved_back: Vec<[f32; 3]> = out_b.iter().map(|p| [p[0] - d[0], p[1] - d[1], p[2] - d[2]]).collect();
+    let err = max_diff(&moved_back, &out_a);
+    assert!(err < 1e-4, "translation changed the result by {err} m");
+    // Not rotations: a scale and a reflection are refused, state unchanged.
+    let before = positions(b, n);
+    let scale = [2.0f32, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 2.0];
+    let mirror = [-1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    let nan_t = [f32::NAN, 0.0, 0.0];
+    // SAFETY: 9 and 3 floats.
+    unsafe {
+        assert_eq!(hood_sim_teleport(b, scale.as_ptr(), null(), null(), 0), HOOD_ERR_OUT_OF_RANGE);
+        assert_eq!(hood_sim_teleport(b, mirror.as_ptr(), null(), null(), 0), HOOD_ERR_OUT_OF_RANGE);
+        assert_eq!(hood_sim_teleport(b, null(), nan_t.as_ptr(), null(), 0), HOOD_ERR_NON_FINITE);
+    }
+    // An explicit body: wrong count or NaN refused, state unchanged.
+    let mut body = sc.body_at(9, d);
+    // SAFETY: the counts passed are at most the array lengths.
+    unsafe {
+        assert_eq!(hood_sim_teleport(b, null(), null(), body.as_ptr().cast(), 3), HOOD_ERR_SIZE_MISMATCH);
+        body[2][2] = f32::NAN;
+        let s = hood_sim_teleport(b, null(), null(), body.as_ptr().cast(), body.len());
+        assert_eq!(s, HOOD_ERR_NON_FINITE);
+    }
+    assert_eq!(positions(b, n), before);
+    // Auto-teleport (on by default): a 2 m jump of the body carries the garment along.
+    let jump = [d[0] + 2.0, d[1], d[2]];
+    assert_eq!(step(b, &sc.body_at(9, jump), &mut out_b), HOOD_OK);
+    let shifted: Vec<[f32; 3]> = before.iter().map(|p| [p[0] + 2.0, p[1], p[2]]).collect();
+    let err = max_diff(&out_b, &shifted);
+    assert!(err < 0.03, "auto-teleport moved the garment {err} m away from the body's jump");
+    // SAFETY: live sims.
+    unsafe {
+        assert_eq!(hood_sim_free(a), HOOD_OK);
+        assert_eq!(hood_sim_free(b), HOOD_OK);
+    }
+}
+
+/// A C-style executor implemented in Rust: runs the tasks in reverse order (any order is allowed),
+/// or misbehaves on request.
+#[repr(C)]
+struct TestExec {
+    mode: u32, // 0: all tasks in reverse; 1: skip the last task; 2: call an index past the end
+    calls: std::sync::atomic::AtomicUsize,
+}
+
+unsafe extern "C" fn test_run(user: *mut std::ffi::c_void, n: u32, task: hood_task_fn, ctx: *mut std::ffi::c_void) {
+    // SAFETY: `user` is the `TestExec` the test registered; `task` is the library's trampoline.
+    let e = unsafe { &*(user as *const TestExec) };
+    let task = task.unwrap();
+    e.calls.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    let upto = if e.mode == 1 { n.saturating_sub(1) } else { n };
+    for i in (0..upto).rev() {
+        // SAFETY: the executor contract.
+        unsafe { task(ctx, i) };
+    }
+    if e.mode == 2 {
+        // SAFETY: the library must ignore (and report) out-of-range indices.
+        unsafe { task(ctx, n + 5) };
+    }
+}
+
+#[test]
+fn executor_callback_runs_the_step_and_misuse_is_caught() {
+    let l = load(8, 9);
+    let sc = scene(8);
+    let n = sc.rest.len();
+    let (a, b) = (sc.sim(l.model), sc.sim(l.model));
+    let good = TestExec { mode: 0, calls: Default::default() };
+    let exec = hood_executor { user: &good as *const TestExec as *mut _, parallelism: 3, run: Some(test_run) };
+    // SAFETY: `good` outlives its use by `b` (restored to NULL below).
+    assert_eq!(unsafe { hood_sim_set_executor(b, &exec) }, HOOD_OK);
+    let mut out_a = vec![[0.0f32; 3]; n];
+    let mut out_b = vec![[0.0f32; 3]; n];
+    for t in 1..=3 {
+        assert_eq!(step(a, &sc.body_at(t, [0.0; 3]), &mut out_a), HOOD_OK);
+        assert_eq!(step(b, &sc.body_at(t, [0.0; 3]), &mut out_b), HOOD_OK, "{}", last_error());
+    }
+    assert!(good.calls.load(std::sync::atomic::Ordering::SeqCst) > 0, "the executor was not used");
+    assert_eq!(out_a, out_b, "task order changed the result");
+    for mode in [1, 2] {
+        let bad = TestExec { mode, calls: Default::default() };
+        let exec = hood_executor { user: &bad as *const TestExec as *mut _, parallelism: 3, run: Some(test_run) };
+        let before = positions(b, n);
+        let mut sentinel = vec![[5.0f32; 3]; n];
+        // SAFETY: `bad` outlives its use (replaced below).
+        unsafe {
+            assert_eq!(hood_sim_set_executor(b, &exec), HOOD_OK);
+            assert_eq!(step(b, &sc.body_at(4, [0.0; 3]), &mut sentinel), HOOD_ERR_PANIC);
+            assert!(last_error().contains("exactly once"), "{}", last_error());
+            assert_eq!(hood_sim_set_executor(b, null()), HOOD_OK);
+        }
+        assert!(sentinel.iter().all(|p| *p == [5.0; 3]));
+        assert_eq!(positions(b, n), before, "a failed step changed the state");
+    }
+    // Back on its own executor, b still follows a.
+    assert_eq!(step(a, &sc.body_at(4, [0.0; 3]), &mut out_a), HOOD_OK);
+    assert_eq!(step(b, &sc.body_at(4, [0.0; 3]), &mut out_b), HOOD_OK);
+    assert_eq!(out_a, out_b);
+    // SAFETY: live sims.
+    unsafe {
+        assert_eq!(hood_sim_free(a), HOOD_OK);
+        assert_eq!(hood_sim_free(b), HOOD_OK);
+    }
+}
+
+#[test]
+fn config_effects_are_honoured() {
+    let l = load(8, 10);
+    let sc = scene(6);
+    let n = sc.rest.len();
+    let g = sc.garment();
+    let bd = sc.body_desc();
+    // SAFETY: live handles, arrays of the stated lengths.
+    unsafe {
+        let mut cfg = std::mem::zeroed();
+        hood_sim_config_default(&mut cfg);
+        assert_eq!(cfg.effects & HOOD_EFFECT_NORMALS, 0);
+        let mut sim = null_mut();
+        assert_eq!(hood_sim_new(l.model, g, &bd, &cfg, &mut sim), HOOD_OK);
+        let mut nrm = vec![[0.0f32; 3]; n];
+        assert_eq!(hood_sim_normals(sim, nrm.as_mut_ptr().cast(), n), HOOD_ERR_UNSUPPORTED_EFFECT);
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        // Normals on, no body collision: the sim wants no body vertices.
+        cfg.effects = (cfg.effects | HOOD_EFFECT_NORMALS) & !HOOD_EFFECT_BODY_COLLISION;
+        cfg.threads = 2;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &cfg, &mut sim), HOOD_OK);
+        let mut nb = 9;
+        assert_eq!(hood_sim_body_vertex_count(sim, &mut nb), HOOD_OK);
+        assert_eq!(nb, 0);
+        let mut out = vec![[0.0f32; 3]; n];
+        assert_eq!(hood_sim_step(sim, null(), 0, out.as_mut_ptr().cast(), n), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_normals(sim, nrm.as_mut_ptr().cast(), n), HOOD_OK);
+        let len = |v: [f32; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        assert!(nrm.iter().all(|v| (len(*v) - 1.0).abs() < 1e-3), "normals are not unit length");
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        assert_eq!(hood_garment_free(g), HOOD_OK);
+    }
+}
+
+#[test]
+fn one_model_shared_by_sims_on_several_threads() {
+    let l = load(8, 12);
+    let model = l.model as usize; // raw pointers are not Send; the header allows this sharing
+    let run = move || {
+        let sc = scene(6);
+        let sim = sc.sim(model as *const hood_model);
+        let mut out = vec![[0.0f32; 3]; sc.rest.len()];
+        for t in 1..=4 {
+            assert_eq!(step(sim, &sc.body_at(t, [0.0; 3]), &mut out), HOOD_OK, "{}", last_error());
+        }
+        // SAFETY: a live sim used by this thread only.
+        assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+        out
+    };
+    let threads: Vec<_> = (0..3).map(|_| std::thread::spawn(run)).collect();
+    let results: Vec<Vec<[f32; 3]>> = threads.into_iter().map(|t| t.join().unwrap()).collect();
+    assert!(results.windows(2).all(|w| w[0] == w[1]), "sims on different threads disagree");
+    assert_eq!(results[0], run());
+}

@@ -1,0 +1,83 @@
+//! Shared by the hood-ffi integration tests: a small random model file, the built libraries, and
+//! compiling C/C++ against the header.
+#![allow(dead_code)]
+
+use hood::model::{write_model, ModelSpec, Params};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The bytes of a small random model (latent width `h`) whose normalisers have seen unit-scale
+/// rows, so that features and outputs stay in a sensible range (as in the main crate's tests).
+pub fn random_model_bytes(h: usize, seed: u64) -> Vec<u8> {
+    let spec = ModelSpec::hood(h);
+    let mut p = Params::init(&spec, seed).unwrap();
+    let mut rng = hood::rng::Rng::new(seed ^ 0x5eed);
+    let mut rows = |w: usize, scale: f64| -> Vec<f32> { (0..64 * w).map(|_| (rng.normal() * scale) as f32).collect() };
+    let n = &mut p.normalisers;
+    n.node.accumulate(&rows(21, 1.0), 21);
+    n.edge.accumulate(&rows(9, 0.05), 9);
+    n.body_edge.accumulate(&rows(9, 0.02), 9);
+    n.output.accumulate(&rows(3, 1e-3), 3);
+    write_model(&p, false, &[("kind", "random hood-ffi test model")]).unwrap()
+}
+
+/// A fresh scratch directory under the target directory.
+pub fn scratch(name: &str) -> PathBuf {
+    let d = target_dir().join("hood-ffi-tests").join(name);
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Writes a random model file into `dir` and returns its path.
+pub fn model_file(dir: &Path, h: usize, seed: u64) -> PathBuf {
+    let p = dir.join(format!("random-h{h}.hood"));
+    std::fs::write(&p, random_model_bytes(h, seed)).unwrap();
+    p
+}
+
+/// `target/<profile>`: the test binary lives in its `deps/`.
+pub fn target_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    exe.parent().and_then(Path::parent).unwrap().to_path_buf()
+}
+
+/// A library artifact of this crate that cargo built for this test run (`libhood_ffi.a`,
+/// `libhood_ffi.so`): it sits beside the test binary in `deps/` (the copies in `target/<profile>`
+/// come from `cargo build` and may be stale or of another profile).
+pub fn artifact(file: &str) -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let p = exe.parent().unwrap().join(file);
+    assert!(p.exists(), "{} is missing: cargo builds it with the crate's lib target", p.display());
+    p
+}
+
+pub fn include_dir() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/include"))
+}
+
+pub fn example(file: &str) -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples")).join(file)
+}
+
+/// Compiles `src` with `compiler` and `flags` against the header and the static library.
+pub fn compile(compiler: &str, flags: &[&str], src: &Path, out: &Path) {
+    let mut cmd = Command::new(compiler);
+    cmd.args(flags).arg("-I").arg(include_dir()).arg(src).arg(artifact("libhood_ffi.a"));
+    cmd.args(["-lpthread", "-ldl", "-lm", "-o"]).arg(out);
+    let o = cmd.output().unwrap_or_else(|e| panic!("cannot run {compiler}: {e}"));
+    assert!(
+        o.status.success(),
+        "{compiler} failed on {}:\n{}{}",
+        src.display(),
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+pub const C_FLAGS: &[&str] = &["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2"];
+pub const CXX_FLAGS: &[&str] = &["-std=c++17", "-Wall", "-Wextra", "-Werror", "-O2"];
+
+pub fn on_path(tool: &str) -> bool {
+    Command::new(tool).arg("--version").output().map(|o| o.status.success()).unwrap_or(false)
+}
