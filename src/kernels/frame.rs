@@ -27,12 +27,30 @@ pub(crate) fn round_bf16(x: f32) -> f32 {
     f32::from_bits(b.wrapping_add(0x7FFF + ((b >> 16) & 1)) & 0xFFFF_0000)
 }
 
+/// `Σ f(y_i)` in 8 interleaved partial sums, so the compiler can keep them in one vector (a
+/// single serial sum would be a latency chain as long as the row).
+#[inline(always)]
+fn lane_sum(y: &[f32], f: impl Fn(f32) -> f32) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let chunks = y.chunks_exact(8);
+    let tail = chunks.remainder();
+    for c in chunks {
+        for (a, v) in acc.iter_mut().zip(c) {
+            *a += f(*v);
+        }
+    }
+    for (a, v) in acc.iter_mut().zip(tail) {
+        *a += f(*v);
+    }
+    ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]))
+}
+
 /// In-place affine LayerNorm of one row (two-pass mean and variance, eps [`LN_EPS`]).
 #[inline(always)]
 pub(crate) fn layer_norm_row(y: &mut [f32], gamma: &[f32], beta: &[f32]) {
     let n = y.len() as f32;
-    let mean = y.iter().sum::<f32>() / n;
-    let var = y.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
+    let mean = lane_sum(y, |v| v) / n;
+    let var = lane_sum(y, |v| (v - mean) * (v - mean)) / n;
     let inv = 1.0 / libm::sqrtf(var + LN_EPS);
     for ((v, g), b) in y.iter_mut().zip(gamma).zip(beta) {
         *v = (*v - mean) * inv * g + b;
@@ -67,6 +85,9 @@ pub(crate) trait Simd: Copy {
 
     /// Loads `LANES` columns × 2 inputs of packed bf16 weights.
     unsafe fn load_w2(self, p: *const u16) -> Self::WP;
+    /// Loads `LANES` columns of the even (`half == 0`) or odd input of packed bf16 weights,
+    /// widened to f32.
+    unsafe fn load_w_half(self, p: *const u16, half: usize) -> Self::V;
     /// Broadcasts the prepared activation pair at `p`.
     unsafe fn bcast_x2(self, p: *const f32) -> Self::XP;
     /// `acc + w_even · x_even + w_odd · x_odd`, f32 accumulation.
@@ -193,12 +214,28 @@ unsafe fn kernel_bf16<S: Simd, const R: usize, const NV: usize>(
                 seg.w.add((p0 + c / PANEL) * PANEL * kp + (c % PANEL) * 2)
             });
             let x: [*const f32; R] = core::array::from_fn(|r| seg.x.add((row0 + r) * seg.ldx));
-            for pr in 0..seg.pairs {
-                let wv: [S::WP; NV] = core::array::from_fn(|v| s.load_w2(w[v].add(pr * 2 * PANEL)));
-                for r in 0..R {
-                    let xp = s.bcast_x2(x[r].add(pr * S::SLOTS_PER_PAIR));
-                    for v in 0..NV {
-                        acc[r][v] = s.dot2(acc[r][v], wv[v], xp);
+            if S::SLOTS_PER_PAIR == 2 {
+                // Widened weights: the even then the odd input of each pair, like two f32 steps
+                // (only NV weight registers live, and the scalar reference's summation order).
+                for pr in 0..seg.pairs {
+                    for half in 0..2 {
+                        let wv: [S::V; NV] = core::array::from_fn(|v| s.load_w_half(w[v].add(pr * 2 * PANEL), half));
+                        for r in 0..R {
+                            let xb = s.splat(*x[r].add(pr * 2 + half));
+                            for v in 0..NV {
+                                acc[r][v] = s.fma(xb, wv[v], acc[r][v]);
+                            }
+                        }
+                    }
+                }
+            } else {
+                for pr in 0..seg.pairs {
+                    let wv: [S::WP; NV] = core::array::from_fn(|v| s.load_w2(w[v].add(pr * 2 * PANEL)));
+                    for r in 0..R {
+                        let xp = s.bcast_x2(x[r].add(pr));
+                        for v in 0..NV {
+                            acc[r][v] = s.dot2(acc[r][v], wv[v], xp);
+                        }
                     }
                 }
             }
@@ -228,7 +265,9 @@ unsafe fn store_tile<S: Simd, const R: usize, const NV: usize>(
         for (r, acc_r) in acc.iter().enumerate() {
             let row = row0 + r;
             let o = out.add(row * ldo);
-            let g = epi.gather.map(|g| (g.pt.add(*g.tgt.add(row) as usize * g.ld), g.ps.add(*g.src.add(row) as usize * g.ld)));
+            let g = epi
+                .gather
+                .map(|g| (g.pt.add(*g.tgt.add(row) as usize * g.ld), g.ps.add(*g.src.add(row) as usize * g.ld)));
             if c0 + width <= n {
                 for (v, &a) in acc_r.iter().enumerate() {
                     let c = c0 + v * S::LANES;
@@ -296,12 +335,50 @@ unsafe fn tile<S: Simd, const R: usize, const NV: usize>(
     }
 }
 
+/// All rows of one column tile (panels `p0..p0 + NV·LANES/PANEL`): the tile's weights stay in L1
+/// while the row block's activations stream past them.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-unsafe fn row_block<S: Simd, const R: usize>(
+unsafe fn column_pass<S: Simd, const NV: usize>(
     s: S,
     segs: Segs<'_>,
-    row0: usize,
+    rows: usize,
+    p0: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    let mut row0 = 0;
+    // SAFETY: forwarded contract of `gemm`; each tile covers rows below `rows`.
+    unsafe {
+        while row0 + MR <= rows {
+            tile::<S, MR, NV>(s, segs, row0, p0, n, out, ldo, epi);
+            row0 += MR;
+        }
+        match rows - row0 {
+            1 => tile::<S, 1, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            2 => tile::<S, 2, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            3 => tile::<S, 3, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            4 => tile::<S, 4, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            5 => tile::<S, 5, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            _ => {}
+        }
+    }
+}
+
+/// `out[rows × n] (+)= epilogue(Σ segs)`, column tiles outside, row tiles inside (callers pass
+/// blocks of at most ~100 rows, so the activations stay in L2 and each weight tile in L1).
+///
+/// # Safety
+/// The CPU supports `S`; every operand has `rows` rows and packed weights with `ceil(n/16)`
+/// panels; `out` has `rows` rows of stride `ldo >= n`; the epilogue's pointers cover `n` columns
+/// (and, for a gather, `rows` valid indices).
+#[inline(always)]
+pub(crate) unsafe fn gemm<S: Simd>(
+    s: S,
+    segs: Segs<'_>,
+    rows: usize,
     n: usize,
     out: *mut f32,
     ldo: usize,
@@ -309,48 +386,22 @@ unsafe fn row_block<S: Simd, const R: usize>(
 ) {
     let panels = n.div_ceil(PANEL);
     let mut p = 0;
-    // SAFETY: forwarded contract of `gemm`; each tile covers existing panels only.
+    // SAFETY: forwarded; each pass covers panels below `panels`.
     unsafe {
         while p < panels {
-            let np = (panels - p).min(S::TILE_PANELS);
             if S::LANES == 8 {
-                tile::<S, R, 2>(s, segs, row0, p, n, out, ldo, epi);
+                column_pass::<S, 2>(s, segs, rows, p, n, out, ldo, epi);
                 p += 1;
                 continue;
             }
+            let np = (panels - p).min(S::TILE_PANELS);
             match np {
-                1 => tile::<S, R, 1>(s, segs, row0, p, n, out, ldo, epi),
-                2 => tile::<S, R, 2>(s, segs, row0, p, n, out, ldo, epi),
-                3 => tile::<S, R, 3>(s, segs, row0, p, n, out, ldo, epi),
-                _ => tile::<S, R, 4>(s, segs, row0, p, n, out, ldo, epi),
+                1 => column_pass::<S, 1>(s, segs, rows, p, n, out, ldo, epi),
+                2 => column_pass::<S, 2>(s, segs, rows, p, n, out, ldo, epi),
+                3 => column_pass::<S, 3>(s, segs, rows, p, n, out, ldo, epi),
+                _ => column_pass::<S, 4>(s, segs, rows, p, n, out, ldo, epi),
             }
             p += np;
-        }
-    }
-}
-
-/// `out[rows × n] (+)= epilogue(Σ segs)`.
-///
-/// # Safety
-/// The CPU supports `S`; every operand has `rows` rows and packed weights with `ceil(n/16)`
-/// panels; `out` has `rows` rows of stride `ldo >= n`; the epilogue's pointers cover `n` columns
-/// (and, for a gather, `rows` valid indices).
-#[inline(always)]
-pub(crate) unsafe fn gemm<S: Simd>(s: S, segs: Segs<'_>, rows: usize, n: usize, out: *mut f32, ldo: usize, epi: &TileEpi) {
-    let mut row0 = 0;
-    // SAFETY: forwarded; each call covers rows below `rows`.
-    unsafe {
-        while row0 + MR <= rows {
-            row_block::<S, MR>(s, segs, row0, n, out, ldo, epi);
-            row0 += MR;
-        }
-        match rows - row0 {
-            1 => row_block::<S, 1>(s, segs, row0, n, out, ldo, epi),
-            2 => row_block::<S, 2>(s, segs, row0, n, out, ldo, epi),
-            3 => row_block::<S, 3>(s, segs, row0, n, out, ldo, epi),
-            4 => row_block::<S, 4>(s, segs, row0, n, out, ldo, epi),
-            5 => row_block::<S, 5>(s, segs, row0, n, out, ldo, epi),
-            _ => {}
         }
     }
 }
@@ -380,7 +431,8 @@ pub(crate) unsafe fn linear<S: Simd>(
     while b0 < rows {
         let br = (rows - b0).min(LINEAR_BLOCK_ROWS);
         let mut f32_segs = [SegF32 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), k: 0 }; super::MAX_OPERANDS];
-        let mut bf_segs = [SegBf16 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), pairs: 0 }; super::MAX_OPERANDS];
+        let mut bf_segs =
+            [SegBf16 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), pairs: 0 }; super::MAX_OPERANDS];
         let mut off = 0;
         for (i, op) in ops.iter().enumerate() {
             let k = op.w.k();
@@ -399,7 +451,8 @@ pub(crate) unsafe fn linear<S: Simd>(
                 }
             }
         }
-        let segs = if ops[0].w.is_bf16() { Segs::Bf16(&bf_segs[..ops.len()]) } else { Segs::F32(&f32_segs[..ops.len()]) };
+        let segs =
+            if ops[0].w.is_bf16() { Segs::Bf16(&bf_segs[..ops.len()]) } else { Segs::F32(&f32_segs[..ops.len()]) };
         let out_blk = &mut out[b0 * n..(b0 + br) * n];
         let tepi = TileEpi { bias: bias_ptr(bias), gather: None, relu: epi.relu, accumulate: false };
         match (&epi.layer_norm, epi.residual) {
@@ -493,6 +546,19 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
             tgt: unsafe { edges.target.as_ptr().add(e0) },
             src: unsafe { edges.source.as_ptr().add(e0) },
         };
+        // The gathered projection rows are random accesses into node arrays that outgrow L2:
+        // request the next block's rows now, so they arrive while this block computes.
+        for e in e0 + br..(e0 + 2 * br).min(n_edges) {
+            let (t, src) = (edges.target[e] as usize * h, edges.source[e] as usize * h);
+            for c in (0..h).step_by(16) {
+                // SAFETY: `t + c` and `src + c` are inside the projection arrays (indices
+                // validated); a prefetch never faults anyway.
+                unsafe {
+                    s.prefetch(edges.p_target.as_ptr().add(t + c) as *const u8);
+                    s.prefetch(edges.p_source.as_ptr().add(src + c) as *const u8);
+                }
+            }
+        }
         let lat = &mut latent[e0 * k_e..(e0 + br) * k_e];
         let epi1 = TileEpi { bias: mlp.b1.as_ptr(), gather: Some(gather), relu: true, accumulate: false };
         let epi2 = TileEpi { bias: mlp.b2.as_ptr(), gather: None, relu: true, accumulate: false };

@@ -307,7 +307,7 @@ impl Kernels {
             return Err(Error::CapacityExceeded { what: "linear operands", capacity: MAX_OPERANDS, needed: ops.len() });
         }
         let n = first.w.n();
-        if out.len() % n != 0 {
+        if !out.len().is_multiple_of(n) {
             return Err(Error::SizeMismatch { what: "linear output (multiple of n)", expected: n, got: out.len() });
         }
         let rows = out.len() / n;
@@ -376,7 +376,7 @@ impl Kernels {
         let n_edges = edges.target.len();
         size_check("edge sources", n_edges, edges.source.len())?;
         size_check("edge latents", n_edges * k_e, latent.len())?;
-        if edges.p_target.len() % h != 0 || edges.p_source.len() % h != 0 {
+        if !edges.p_target.len().is_multiple_of(h) || !edges.p_source.len().is_multiple_of(h) {
             return Err(Error::SizeMismatch { what: "node projections (multiple of h)", expected: h, got: 0 });
         }
         let n_t = edges.p_target.len() / h;
@@ -415,7 +415,7 @@ pub fn aggregate(messages: &[f32], width: usize, offsets: &[u32], out: &mut [f32
     if width == 0 {
         return Ok(());
     }
-    if messages.len() % width != 0 {
+    if !messages.len().is_multiple_of(width) {
         return Err(Error::SizeMismatch { what: "aggregate messages (multiple of width)", expected: width, got: 0 });
     }
     let edges = messages.len() / width;

@@ -93,13 +93,7 @@ fn epilogues<'a>(gamma: &'a [f32], beta: &'a [f32]) -> Vec<Epilogue<'a>> {
     v
 }
 
-fn run_linear(
-    k: &Kernels,
-    ops: &[Operand<'_>],
-    bias: Option<&[f32]>,
-    epi: &Epilogue<'_>,
-    out0: &[f32],
-) -> Vec<f32> {
+fn run_linear(k: &Kernels, ops: &[Operand<'_>], bias: Option<&[f32]>, epi: &Epilogue<'_>, out0: &[f32]) -> Vec<f32> {
     let n = ops[0].w.n();
     let mut out = out0.to_vec();
     let mut scratch = vec![f32::NAN; linear_scratch_len(ops, n)];
@@ -123,8 +117,7 @@ fn check_linear_tiers(bf: bool, test: &str) {
                 let x = rng.vec(rows * k_in, 1.0);
                 let out0 = rng.vec(rows * n, 1.0);
                 let ops = [Operand { x: &x, w: layer.weights(bf) }];
-                let epis: &[Epilogue<'_>] =
-                    if k_in <= 64 || rows == 17 { &all_epi } else { &all_epi[..1] };
+                let epis: &[Epilogue<'_>] = if k_in <= 64 || rows == 17 { &all_epi } else { &all_epi[..1] };
                 for epi in epis {
                     for b in [Some(&bias[..]), None] {
                         let want = run_linear(&Kernels::scalar(), &ops, b, epi, &out0);
@@ -230,7 +223,8 @@ fn kernels_linear_scalar_matches_definition_and_bf16_bound() {
         let x = rng.vec(rows * k_in, 1.0);
         let epi = Epilogue::default();
         let zeros = vec![0.0; rows * n];
-        let f = run_linear(&Kernels::scalar(), &[Operand { x: &x, w: layer.weights(false) }], Some(&bias), &epi, &zeros);
+        let f =
+            run_linear(&Kernels::scalar(), &[Operand { x: &x, w: layer.weights(false) }], Some(&bias), &epi, &zeros);
         let b = run_linear(&Kernels::scalar(), &[Operand { x: &x, w: layer.weights(true) }], Some(&bias), &epi, &zeros);
         for r in 0..rows {
             for o in 0..n {
@@ -435,9 +429,8 @@ fn kernels_split_first_layer_matches_concat() {
         let z1: Vec<f32> = (0..h)
             .map(|o| (case.b1[o] + (0..3 * h).map(|i| cat[i] * w1[o * 3 * h + i]).sum::<f32>()).max(0.0))
             .collect();
-        let z2: Vec<f32> = (0..h)
-            .map(|o| (case.b2[o] + (0..h).map(|i| z1[i] * case.l2.w[o * h + i]).sum::<f32>()).max(0.0))
-            .collect();
+        let z2: Vec<f32> =
+            (0..h).map(|o| (case.b2[o] + (0..h).map(|i| z1[i] * case.l2.w[o * h + i]).sum::<f32>()).max(0.0)).collect();
         let mut m: Vec<f32> =
             (0..h).map(|o| case.b3[o] + (0..h).map(|i| z2[i] * case.l3.w[o * h + i]).sum::<f32>()).collect();
         frame::layer_norm_row(&mut m, &case.gamma, &case.beta);
@@ -518,6 +511,12 @@ fn kernels_reject_bad_shapes() {
 #[test]
 fn kernels_peak_is_positive() {
     let p = peak::measure(Kernels::best(), 2.0);
-    println!("peak on {}: f32 {:.1} GFLOP/s, bf16 {:.1} GFLOP/s (native {})", p.tier.name(), p.f32_gflops, p.bf16_gflops, p.bf16_native);
+    println!(
+        "peak on {}: f32 {:.1} GFLOP/s, bf16 {:.1} GFLOP/s (native {})",
+        p.tier.name(),
+        p.f32_gflops,
+        p.bf16_gflops,
+        p.bf16_native
+    );
     assert!(p.f32_gflops > 0.1 && p.bf16_gflops > 0.1);
 }
