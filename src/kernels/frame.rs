@@ -11,7 +11,10 @@
 //!   loops that the compiler vectorises for the caller's features.
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
-use super::{EdgeInputs, EdgeMlp, Epilogue, Operand, Weights, EDGE_BLOCK, LINEAR_BLOCK_ROWS, LN_EPS, PANEL};
+use super::{
+    packed_len_f32, EdgeInputs, EdgeMlp, Epilogue, Operand, PackedBf16, Weights, EDGE_BLOCK, LINEAR_BLOCK_ROWS, LN_EPS,
+    PANEL,
+};
 
 /// Rows per micro-kernel tile.
 pub(crate) const MR: usize = 6;
@@ -45,15 +48,40 @@ fn lane_sum(y: &[f32], f: impl Fn(f32) -> f32) -> f32 {
     ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]))
 }
 
-/// In-place affine LayerNorm of one row (two-pass mean and variance, eps [`LN_EPS`]).
+/// Mean and inverse standard deviation of one row (two-pass, eps [`LN_EPS`]).
 #[inline(always)]
-pub(crate) fn layer_norm_row(y: &mut [f32], gamma: &[f32], beta: &[f32]) {
+pub(crate) fn layer_norm_stats(y: &[f32]) -> (f32, f32) {
     let n = y.len() as f32;
     let mean = lane_sum(y, |v| v) / n;
     let var = lane_sum(y, |v| (v - mean) * (v - mean)) / n;
-    let inv = 1.0 / libm::sqrtf(var + LN_EPS);
+    (mean, 1.0 / libm::sqrtf(var + LN_EPS))
+}
+
+/// In-place affine LayerNorm of one row (two-pass mean and variance, eps [`LN_EPS`]).
+#[inline(always)]
+pub(crate) fn layer_norm_row(y: &mut [f32], gamma: &[f32], beta: &[f32]) {
+    let (mean, inv) = layer_norm_stats(y);
     for ((v, g), b) in y.iter_mut().zip(gamma).zip(beta) {
         *v = (*v - mean) * inv * g + b;
+    }
+}
+
+/// Widens packed bf16 weights into the f32 panel layout (same `k` and `n`), for tiers without
+/// bf16 dot products: they then run the f32 micro-kernel on bf16-exact weights.
+#[inline(always)]
+pub(crate) fn widen_bf16(w: &PackedBf16<'_>, dst: &mut [f32]) {
+    let k = w.k();
+    let kp = k.next_multiple_of(2);
+    if k == 0 {
+        return;
+    }
+    for (sp, dp) in w.data().chunks_exact(PANEL * kp).zip(dst.chunks_exact_mut(PANEL * k)) {
+        for kk in 0..k {
+            let src = &sp[(kk / 2) * 2 * PANEL + kk % 2..];
+            for j in 0..PANEL {
+                dp[kk * PANEL + j] = f32::from_bits((src[2 * j].to_bits() as u32) << 16);
+            }
+        }
     }
 }
 
@@ -426,7 +454,21 @@ pub(crate) unsafe fn linear<S: Simd>(
     let n = ops[0].w.n();
     let rows = out.len() / n;
     let kps: usize = ops.iter().map(|o| o.w.k().next_multiple_of(2)).sum();
-    let (prep, pre_ln) = scratch.split_at_mut(LINEAR_BLOCK_ROWS * kps);
+    let (prep, rest) = scratch.split_at_mut(LINEAR_BLOCK_ROWS * kps);
+    let (pre_ln, mut wide) = rest.split_at_mut(LINEAR_BLOCK_ROWS * super::padded_cols(n));
+    // Without bf16 dot products, bf16 weights are widened once per call.
+    let emulate = S::SLOTS_PER_PAIR == 2;
+    let mut wide_ptr = [core::ptr::null::<f32>(); super::MAX_OPERANDS];
+    if emulate {
+        for (i, op) in ops.iter().enumerate() {
+            if let Weights::Bf16(w) = op.w {
+                let (this, next) = core::mem::take(&mut wide).split_at_mut(packed_len_f32(w.k(), n));
+                widen_bf16(&w, this);
+                wide_ptr[i] = this.as_ptr();
+                wide = next;
+            }
+        }
+    }
     let mut b0 = 0;
     while b0 < rows {
         let br = (rows - b0).min(LINEAR_BLOCK_ROWS);
@@ -447,12 +489,16 @@ pub(crate) unsafe fn linear<S: Simd>(
                     }
                     bf_segs[i] =
                         SegBf16 { x: area.as_ptr(), ldx: kp, w: w.data().as_ptr() as *const u16, pairs: kp / 2 };
+                    f32_segs[i] = SegF32 { x: area.as_ptr(), ldx: kp, w: wide_ptr[i], k };
                     off += br * kp;
                 }
             }
         }
-        let segs =
-            if ops[0].w.is_bf16() { Segs::Bf16(&bf_segs[..ops.len()]) } else { Segs::F32(&f32_segs[..ops.len()]) };
+        let segs = if ops[0].w.is_bf16() && !emulate {
+            Segs::Bf16(&bf_segs[..ops.len()])
+        } else {
+            Segs::F32(&f32_segs[..ops.len()])
+        };
         let out_blk = &mut out[b0 * n..(b0 + br) * n];
         let tepi = TileEpi { bias: bias_ptr(bias), gather: None, relu: epi.relu, accumulate: false };
         match (&epi.layer_norm, epi.residual) {
@@ -493,6 +539,7 @@ unsafe fn chain_layer<S: Simd>(
     x: &[f32],
     br: usize,
     prep: &mut [f32],
+    wide: &[f32],
     out: &mut [f32],
     epi: &TileEpi,
 ) {
@@ -508,9 +555,16 @@ unsafe fn chain_layer<S: Simd>(
             for (src, dst) in x[..br * k].chunks_exact(k).zip(prep.chunks_exact_mut(kp)) {
                 s.prep_bf16(src, dst);
             }
-            let seg = [SegBf16 { x: prep.as_ptr(), ldx: kp, w: wb.data().as_ptr() as *const u16, pairs: kp / 2 }];
-            // SAFETY: as above with the prepared rows.
-            unsafe { gemm(s, Segs::Bf16(&seg), br, n, out.as_mut_ptr(), n, epi) };
+            if S::SLOTS_PER_PAIR == 2 {
+                // Widened weights (see `widen_bf16`) and bf16-rounded activations.
+                let seg = [SegF32 { x: prep.as_ptr(), ldx: kp, w: wide.as_ptr(), k }];
+                // SAFETY: as above with the prepared rows and the widened weights.
+                unsafe { gemm(s, Segs::F32(&seg), br, n, out.as_mut_ptr(), n, epi) };
+            } else {
+                let seg = [SegBf16 { x: prep.as_ptr(), ldx: kp, w: wb.data().as_ptr() as *const u16, pairs: kp / 2 }];
+                // SAFETY: as above with the prepared rows.
+                unsafe { gemm(s, Segs::Bf16(&seg), br, n, out.as_mut_ptr(), n, epi) };
+            }
         }
     }
 }
@@ -534,7 +588,17 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
     let prep_w = k_e.next_multiple_of(2).max(h.next_multiple_of(2));
     let (prep, rest) = scratch.split_at_mut(EDGE_BLOCK * prep_w);
     let (buf_a, rest) = rest.split_at_mut(EDGE_BLOCK * h.max(k_e));
-    let buf_b = &mut rest[..EDGE_BLOCK * h];
+    let (buf_b, rest) = rest.split_at_mut(EDGE_BLOCK * h);
+    let (wide1, rest) = rest.split_at_mut(packed_len_f32(k_e, h));
+    let (wide2, rest) = rest.split_at_mut(packed_len_f32(h, h));
+    let wide3 = &mut rest[..packed_len_f32(h, k_e)];
+    if S::SLOTS_PER_PAIR == 2 {
+        for (w, dst) in [(&mlp.w1_edge, &mut *wide1), (&mlp.w2, &mut *wide2), (&mlp.w3, &mut *wide3)] {
+            if let Weights::Bf16(wb) = w {
+                widen_bf16(wb, dst);
+            }
+        }
+    }
     let mut e0 = 0;
     while e0 < n_edges {
         let br = (n_edges - e0).min(EDGE_BLOCK);
@@ -566,13 +630,24 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
         // SAFETY: shapes validated by `Kernels::edge_mlp` (indices checked against the projection
         // rows); scratch buffers hold `EDGE_BLOCK` rows of their widths; the CPU supports `S`.
         unsafe {
-            chain_layer(s, &mlp.w1_edge, lat, br, prep, buf_a, &epi1);
-            chain_layer(s, &mlp.w2, buf_a, br, prep, buf_b, &epi2);
-            chain_layer(s, &mlp.w3, buf_b, br, prep, buf_a, &epi3);
+            chain_layer(s, &mlp.w1_edge, lat, br, prep, wide1, buf_a, &epi1);
+            chain_layer(s, &mlp.w2, buf_a, br, prep, wide2, buf_b, &epi2);
+            chain_layer(s, &mlp.w3, buf_b, br, prep, wide3, buf_a, &epi3);
+        }
+        // LayerNorm statistics for all rows first: independent chains the core can overlap
+        // (one row at a time would serialise on each row's sum -> sqrt -> divide latency).
+        let mut stats = [(0.0f32, 0.0f32); EDGE_BLOCK];
+        if mlp.layer_norm.is_some() {
+            for (st, m) in stats.iter_mut().zip(buf_a[..br * k_e].chunks_exact(k_e)) {
+                *st = layer_norm_stats(m);
+            }
         }
         for (i, (m, l)) in buf_a[..br * k_e].chunks_exact_mut(k_e).zip(lat.chunks_exact_mut(k_e)).enumerate() {
             if let Some(ln) = &mlp.layer_norm {
-                layer_norm_row(m, ln.gamma, ln.beta);
+                let (mean, inv) = stats[i];
+                for ((v, g), b) in m.iter_mut().zip(ln.gamma).zip(ln.beta) {
+                    *v = (*v - mean) * inv * g + b;
+                }
             }
             let t = edges.target[e0 + i] as usize;
             for (a, v) in aggregate[t * k_e..(t + 1) * k_e].iter_mut().zip(m.iter()) {
