@@ -93,7 +93,8 @@ fn bench(c: &mut Criterion) {
         let mut scratch = vec![0.0f32; edge_mlp_scratch_len(h, h)];
         let x = rng.vec(EDGES * h, 1.0);
         let mut out = vec![0.0f32; EDGES * h];
-        let ops_f = [Operand { x: &x, w: l2.w(false) }];
+        // bf16 operands need the larger scratch (room to widen weights where needed).
+        let ops_f = [Operand { x: &x, w: l2.w(true) }];
         let mut lscratch = vec![0.0f32; linear_scratch_len(&ops_f, h)];
         for bf in [false, true] {
             let prec = if bf { "bf16" } else { "f32" };
