@@ -11,7 +11,10 @@
 //!   loops that the compiler vectorises for the caller's features.
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
-use super::{EdgeInputs, EdgeMlp, Epilogue, Operand, Weights, EDGE_BLOCK, LINEAR_BLOCK_ROWS, LN_EPS, PANEL};
+use super::{
+    packed_len_f32, EdgeInputs, EdgeMlp, Epilogue, Operand, PackedBf16, Weights, EDGE_BLOCK, LINEAR_BLOCK_ROWS, LN_EPS,
+    PANEL,
+};
 
 /// Rows per micro-kernel tile.
 pub(crate) const MR: usize = 6;
@@ -27,15 +30,58 @@ pub(crate) fn round_bf16(x: f32) -> f32 {
     f32::from_bits(b.wrapping_add(0x7FFF + ((b >> 16) & 1)) & 0xFFFF_0000)
 }
 
+/// `Σ f(y_i)` in 8 interleaved partial sums, so the compiler can keep them in one vector (a
+/// single serial sum would be a latency chain as long as the row).
+#[inline(always)]
+fn lane_sum(y: &[f32], f: impl Fn(f32) -> f32) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let chunks = y.chunks_exact(8);
+    let tail = chunks.remainder();
+    for c in chunks {
+        for (a, v) in acc.iter_mut().zip(c) {
+            *a += f(*v);
+        }
+    }
+    for (a, v) in acc.iter_mut().zip(tail) {
+        *a += f(*v);
+    }
+    ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]))
+}
+
+/// Mean and inverse standard deviation of one row (two-pass, eps [`LN_EPS`]).
+#[inline(always)]
+pub(crate) fn layer_norm_stats(y: &[f32]) -> (f32, f32) {
+    let n = y.len() as f32;
+    let mean = lane_sum(y, |v| v) / n;
+    let var = lane_sum(y, |v| (v - mean) * (v - mean)) / n;
+    (mean, 1.0 / libm::sqrtf(var + LN_EPS))
+}
+
 /// In-place affine LayerNorm of one row (two-pass mean and variance, eps [`LN_EPS`]).
 #[inline(always)]
 pub(crate) fn layer_norm_row(y: &mut [f32], gamma: &[f32], beta: &[f32]) {
-    let n = y.len() as f32;
-    let mean = y.iter().sum::<f32>() / n;
-    let var = y.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
-    let inv = 1.0 / libm::sqrtf(var + LN_EPS);
+    let (mean, inv) = layer_norm_stats(y);
     for ((v, g), b) in y.iter_mut().zip(gamma).zip(beta) {
         *v = (*v - mean) * inv * g + b;
+    }
+}
+
+/// Widens packed bf16 weights into the f32 panel layout (same `k` and `n`), for tiers without
+/// bf16 dot products: they then run the f32 micro-kernel on bf16-exact weights.
+#[inline(always)]
+pub(crate) fn widen_bf16(w: &PackedBf16<'_>, dst: &mut [f32]) {
+    let k = w.k();
+    let kp = k.next_multiple_of(2);
+    if k == 0 {
+        return;
+    }
+    for (sp, dp) in w.data().chunks_exact(PANEL * kp).zip(dst.chunks_exact_mut(PANEL * k)) {
+        for kk in 0..k {
+            let src = &sp[(kk / 2) * 2 * PANEL + kk % 2..];
+            for j in 0..PANEL {
+                dp[kk * PANEL + j] = f32::from_bits((src[2 * j].to_bits() as u32) << 16);
+            }
+        }
     }
 }
 
@@ -67,6 +113,9 @@ pub(crate) trait Simd: Copy {
 
     /// Loads `LANES` columns × 2 inputs of packed bf16 weights.
     unsafe fn load_w2(self, p: *const u16) -> Self::WP;
+    /// Loads `LANES` columns of the even (`half == 0`) or odd input of packed bf16 weights,
+    /// widened to f32.
+    unsafe fn load_w_half(self, p: *const u16, half: usize) -> Self::V;
     /// Broadcasts the prepared activation pair at `p`.
     unsafe fn bcast_x2(self, p: *const f32) -> Self::XP;
     /// `acc + w_even · x_even + w_odd · x_odd`, f32 accumulation.
@@ -193,12 +242,28 @@ unsafe fn kernel_bf16<S: Simd, const R: usize, const NV: usize>(
                 seg.w.add((p0 + c / PANEL) * PANEL * kp + (c % PANEL) * 2)
             });
             let x: [*const f32; R] = core::array::from_fn(|r| seg.x.add((row0 + r) * seg.ldx));
-            for pr in 0..seg.pairs {
-                let wv: [S::WP; NV] = core::array::from_fn(|v| s.load_w2(w[v].add(pr * 2 * PANEL)));
-                for r in 0..R {
-                    let xp = s.bcast_x2(x[r].add(pr * S::SLOTS_PER_PAIR));
-                    for v in 0..NV {
-                        acc[r][v] = s.dot2(acc[r][v], wv[v], xp);
+            if S::SLOTS_PER_PAIR == 2 {
+                // Widened weights: the even then the odd input of each pair, like two f32 steps
+                // (only NV weight registers live, and the scalar reference's summation order).
+                for pr in 0..seg.pairs {
+                    for half in 0..2 {
+                        let wv: [S::V; NV] = core::array::from_fn(|v| s.load_w_half(w[v].add(pr * 2 * PANEL), half));
+                        for r in 0..R {
+                            let xb = s.splat(*x[r].add(pr * 2 + half));
+                            for v in 0..NV {
+                                acc[r][v] = s.fma(xb, wv[v], acc[r][v]);
+                            }
+                        }
+                    }
+                }
+            } else {
+                for pr in 0..seg.pairs {
+                    let wv: [S::WP; NV] = core::array::from_fn(|v| s.load_w2(w[v].add(pr * 2 * PANEL)));
+                    for r in 0..R {
+                        let xp = s.bcast_x2(x[r].add(pr));
+                        for v in 0..NV {
+                            acc[r][v] = s.dot2(acc[r][v], wv[v], xp);
+                        }
                     }
                 }
             }
@@ -298,40 +363,40 @@ unsafe fn tile<S: Simd, const R: usize, const NV: usize>(
     }
 }
 
+/// All rows of one column tile (panels `p0..p0 + NV·LANES/PANEL`): the tile's weights stay in L1
+/// while the row block's activations stream past them.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-unsafe fn row_block<S: Simd, const R: usize>(
+unsafe fn column_pass<S: Simd, const NV: usize>(
     s: S,
     segs: Segs<'_>,
-    row0: usize,
+    rows: usize,
+    p0: usize,
     n: usize,
     out: *mut f32,
     ldo: usize,
     epi: &TileEpi,
 ) {
-    let panels = n.div_ceil(PANEL);
-    let mut p = 0;
-    // SAFETY: forwarded contract of `gemm`; each tile covers existing panels only.
+    let mut row0 = 0;
+    // SAFETY: forwarded contract of `gemm`; each tile covers rows below `rows`.
     unsafe {
-        while p < panels {
-            let np = (panels - p).min(S::TILE_PANELS);
-            if S::LANES == 8 {
-                tile::<S, R, 2>(s, segs, row0, p, n, out, ldo, epi);
-                p += 1;
-                continue;
-            }
-            match np {
-                1 => tile::<S, R, 1>(s, segs, row0, p, n, out, ldo, epi),
-                2 => tile::<S, R, 2>(s, segs, row0, p, n, out, ldo, epi),
-                3 => tile::<S, R, 3>(s, segs, row0, p, n, out, ldo, epi),
-                _ => tile::<S, R, 4>(s, segs, row0, p, n, out, ldo, epi),
-            }
-            p += np;
+        while row0 + MR <= rows {
+            tile::<S, MR, NV>(s, segs, row0, p0, n, out, ldo, epi);
+            row0 += MR;
+        }
+        match rows - row0 {
+            1 => tile::<S, 1, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            2 => tile::<S, 2, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            3 => tile::<S, 3, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            4 => tile::<S, 4, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            5 => tile::<S, 5, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            _ => {}
         }
     }
 }
 
-/// `out[rows × n] (+)= epilogue(Σ segs)`.
+/// `out[rows × n] (+)= epilogue(Σ segs)`, column tiles outside, row tiles inside (callers pass
+/// blocks of at most ~100 rows, so the activations stay in L2 and each weight tile in L1).
 ///
 /// # Safety
 /// The CPU supports `S`; every operand has `rows` rows and packed weights with `ceil(n/16)`
@@ -347,20 +412,24 @@ pub(crate) unsafe fn gemm<S: Simd>(
     ldo: usize,
     epi: &TileEpi,
 ) {
-    let mut row0 = 0;
-    // SAFETY: forwarded; each call covers rows below `rows`.
+    let panels = n.div_ceil(PANEL);
+    let mut p = 0;
+    // SAFETY: forwarded; each pass covers panels below `panels`.
     unsafe {
-        while row0 + MR <= rows {
-            row_block::<S, MR>(s, segs, row0, n, out, ldo, epi);
-            row0 += MR;
-        }
-        match rows - row0 {
-            1 => row_block::<S, 1>(s, segs, row0, n, out, ldo, epi),
-            2 => row_block::<S, 2>(s, segs, row0, n, out, ldo, epi),
-            3 => row_block::<S, 3>(s, segs, row0, n, out, ldo, epi),
-            4 => row_block::<S, 4>(s, segs, row0, n, out, ldo, epi),
-            5 => row_block::<S, 5>(s, segs, row0, n, out, ldo, epi),
-            _ => {}
+        while p < panels {
+            if S::LANES == 8 {
+                column_pass::<S, 2>(s, segs, rows, p, n, out, ldo, epi);
+                p += 1;
+                continue;
+            }
+            let np = (panels - p).min(S::TILE_PANELS);
+            match np {
+                1 => column_pass::<S, 1>(s, segs, rows, p, n, out, ldo, epi),
+                2 => column_pass::<S, 2>(s, segs, rows, p, n, out, ldo, epi),
+                3 => column_pass::<S, 3>(s, segs, rows, p, n, out, ldo, epi),
+                _ => column_pass::<S, 4>(s, segs, rows, p, n, out, ldo, epi),
+            }
+            p += np;
         }
     }
 }
@@ -385,7 +454,21 @@ pub(crate) unsafe fn linear<S: Simd>(
     let n = ops[0].w.n();
     let rows = out.len() / n;
     let kps: usize = ops.iter().map(|o| o.w.k().next_multiple_of(2)).sum();
-    let (prep, pre_ln) = scratch.split_at_mut(LINEAR_BLOCK_ROWS * kps);
+    let (prep, rest) = scratch.split_at_mut(LINEAR_BLOCK_ROWS * kps);
+    let (pre_ln, mut wide) = rest.split_at_mut(LINEAR_BLOCK_ROWS * super::padded_cols(n));
+    // Without bf16 dot products, bf16 weights are widened once per call.
+    let emulate = S::SLOTS_PER_PAIR == 2;
+    let mut wide_ptr = [core::ptr::null::<f32>(); super::MAX_OPERANDS];
+    if emulate {
+        for (i, op) in ops.iter().enumerate() {
+            if let Weights::Bf16(w) = op.w {
+                let (this, next) = core::mem::take(&mut wide).split_at_mut(packed_len_f32(w.k(), n));
+                widen_bf16(&w, this);
+                wide_ptr[i] = this.as_ptr();
+                wide = next;
+            }
+        }
+    }
     let mut b0 = 0;
     while b0 < rows {
         let br = (rows - b0).min(LINEAR_BLOCK_ROWS);
@@ -406,12 +489,16 @@ pub(crate) unsafe fn linear<S: Simd>(
                     }
                     bf_segs[i] =
                         SegBf16 { x: area.as_ptr(), ldx: kp, w: w.data().as_ptr() as *const u16, pairs: kp / 2 };
+                    f32_segs[i] = SegF32 { x: area.as_ptr(), ldx: kp, w: wide_ptr[i], k };
                     off += br * kp;
                 }
             }
         }
-        let segs =
-            if ops[0].w.is_bf16() { Segs::Bf16(&bf_segs[..ops.len()]) } else { Segs::F32(&f32_segs[..ops.len()]) };
+        let segs = if ops[0].w.is_bf16() && !emulate {
+            Segs::Bf16(&bf_segs[..ops.len()])
+        } else {
+            Segs::F32(&f32_segs[..ops.len()])
+        };
         let out_blk = &mut out[b0 * n..(b0 + br) * n];
         let tepi = TileEpi { bias: bias_ptr(bias), gather: None, relu: epi.relu, accumulate: false };
         match (&epi.layer_norm, epi.residual) {
@@ -452,6 +539,7 @@ unsafe fn chain_layer<S: Simd>(
     x: &[f32],
     br: usize,
     prep: &mut [f32],
+    wide: &[f32],
     out: &mut [f32],
     epi: &TileEpi,
 ) {
@@ -467,9 +555,16 @@ unsafe fn chain_layer<S: Simd>(
             for (src, dst) in x[..br * k].chunks_exact(k).zip(prep.chunks_exact_mut(kp)) {
                 s.prep_bf16(src, dst);
             }
-            let seg = [SegBf16 { x: prep.as_ptr(), ldx: kp, w: wb.data().as_ptr() as *const u16, pairs: kp / 2 }];
-            // SAFETY: as above with the prepared rows.
-            unsafe { gemm(s, Segs::Bf16(&seg), br, n, out.as_mut_ptr(), n, epi) };
+            if S::SLOTS_PER_PAIR == 2 {
+                // Widened weights (see `widen_bf16`) and bf16-rounded activations.
+                let seg = [SegF32 { x: prep.as_ptr(), ldx: kp, w: wide.as_ptr(), k }];
+                // SAFETY: as above with the prepared rows and the widened weights.
+                unsafe { gemm(s, Segs::F32(&seg), br, n, out.as_mut_ptr(), n, epi) };
+            } else {
+                let seg = [SegBf16 { x: prep.as_ptr(), ldx: kp, w: wb.data().as_ptr() as *const u16, pairs: kp / 2 }];
+                // SAFETY: as above with the prepared rows.
+                unsafe { gemm(s, Segs::Bf16(&seg), br, n, out.as_mut_ptr(), n, epi) };
+            }
         }
     }
 }
@@ -493,7 +588,17 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
     let prep_w = k_e.next_multiple_of(2).max(h.next_multiple_of(2));
     let (prep, rest) = scratch.split_at_mut(EDGE_BLOCK * prep_w);
     let (buf_a, rest) = rest.split_at_mut(EDGE_BLOCK * h.max(k_e));
-    let buf_b = &mut rest[..EDGE_BLOCK * h];
+    let (buf_b, rest) = rest.split_at_mut(EDGE_BLOCK * h);
+    let (wide1, rest) = rest.split_at_mut(packed_len_f32(k_e, h));
+    let (wide2, rest) = rest.split_at_mut(packed_len_f32(h, h));
+    let wide3 = &mut rest[..packed_len_f32(h, k_e)];
+    if S::SLOTS_PER_PAIR == 2 {
+        for (w, dst) in [(&mlp.w1_edge, &mut *wide1), (&mlp.w2, &mut *wide2), (&mlp.w3, &mut *wide3)] {
+            if let Weights::Bf16(wb) = w {
+                widen_bf16(wb, dst);
+            }
+        }
+    }
     let mut e0 = 0;
     while e0 < n_edges {
         let br = (n_edges - e0).min(EDGE_BLOCK);
@@ -505,6 +610,19 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
             tgt: unsafe { edges.target.as_ptr().add(e0) },
             src: unsafe { edges.source.as_ptr().add(e0) },
         };
+        // The gathered projection rows are random accesses into node arrays that outgrow L2:
+        // request the next block's rows now, so they arrive while this block computes.
+        for e in e0 + br..(e0 + 2 * br).min(n_edges) {
+            let (t, src) = (edges.target[e] as usize * h, edges.source[e] as usize * h);
+            for c in (0..h).step_by(16) {
+                // SAFETY: `t + c` and `src + c` are inside the projection arrays (indices
+                // validated); a prefetch never faults anyway.
+                unsafe {
+                    s.prefetch(edges.p_target.as_ptr().add(t + c) as *const u8);
+                    s.prefetch(edges.p_source.as_ptr().add(src + c) as *const u8);
+                }
+            }
+        }
         let lat = &mut latent[e0 * k_e..(e0 + br) * k_e];
         let epi1 = TileEpi { bias: mlp.b1.as_ptr(), gather: Some(gather), relu: true, accumulate: false };
         let epi2 = TileEpi { bias: mlp.b2.as_ptr(), gather: None, relu: true, accumulate: false };
@@ -512,13 +630,24 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
         // SAFETY: shapes validated by `Kernels::edge_mlp` (indices checked against the projection
         // rows); scratch buffers hold `EDGE_BLOCK` rows of their widths; the CPU supports `S`.
         unsafe {
-            chain_layer(s, &mlp.w1_edge, lat, br, prep, buf_a, &epi1);
-            chain_layer(s, &mlp.w2, buf_a, br, prep, buf_b, &epi2);
-            chain_layer(s, &mlp.w3, buf_b, br, prep, buf_a, &epi3);
+            chain_layer(s, &mlp.w1_edge, lat, br, prep, wide1, buf_a, &epi1);
+            chain_layer(s, &mlp.w2, buf_a, br, prep, wide2, buf_b, &epi2);
+            chain_layer(s, &mlp.w3, buf_b, br, prep, wide3, buf_a, &epi3);
+        }
+        // LayerNorm statistics for all rows first: independent chains the core can overlap
+        // (one row at a time would serialise on each row's sum -> sqrt -> divide latency).
+        let mut stats = [(0.0f32, 0.0f32); EDGE_BLOCK];
+        if mlp.layer_norm.is_some() {
+            for (st, m) in stats.iter_mut().zip(buf_a[..br * k_e].chunks_exact(k_e)) {
+                *st = layer_norm_stats(m);
+            }
         }
         for (i, (m, l)) in buf_a[..br * k_e].chunks_exact_mut(k_e).zip(lat.chunks_exact_mut(k_e)).enumerate() {
             if let Some(ln) = &mlp.layer_norm {
-                layer_norm_row(m, ln.gamma, ln.beta);
+                let (mean, inv) = stats[i];
+                for ((v, g), b) in m.iter_mut().zip(ln.gamma).zip(ln.beta) {
+                    *v = (*v - mean) * inv * g + b;
+                }
             }
             let t = edges.target[e0 + i] as usize;
             for (a, v) in aggregate[t * k_e..(t + 1) * k_e].iter_mut().zip(m.iter()) {

@@ -9,8 +9,8 @@
 //! read once under `std`) caps the tier, and [`Kernels::with_tier`] picks one explicitly, so one
 //! machine can test every path it has.
 //!
-//! bf16 weights on a CPU without AVX-512-BF16 run on f32 FMAs: the weights are widened in
-//! registers and the activations rounded to bf16 first, so every tier computes the same products
+//! bf16 weights on a CPU without AVX-512-BF16 run on f32 FMAs: the weights are widened once
+//! per call into caller scratch and the activations rounded to bf16 first, so every tier computes the same products
 //! (exact in f32) and differs only in summation order.
 //!
 //! All kernels write into caller buffers and never allocate.
@@ -216,15 +216,21 @@ pub struct EdgeInputs<'a> {
     pub source: &'a [u32],
 }
 
-/// Scratch length (in `f32`) [`Kernels::linear`] needs for these operands and `n` outputs.
+/// Scratch length (in `f32`) [`Kernels::linear`] needs for these operands and `n` outputs
+/// (bf16 operands include room to widen their weights on tiers without bf16 dot products).
 pub fn linear_scratch_len(ops: &[Operand<'_>], n: usize) -> usize {
     let kp: usize = ops.iter().map(|o| o.w.k().next_multiple_of(2)).sum();
-    LINEAR_BLOCK_ROWS * (kp + padded_cols(n))
+    let wide: usize = ops.iter().filter(|o| o.w.is_bf16()).map(|o| packed_len_f32(o.w.k(), n)).sum();
+    LINEAR_BLOCK_ROWS * (kp + padded_cols(n)) + wide
 }
 
-/// Scratch length (in `f32`) [`Kernels::edge_mlp`] needs for edge width `k_e` and hidden `h`.
+/// Scratch length (in `f32`) [`Kernels::edge_mlp`] needs for edge width `k_e` and hidden `h`
+/// (three block buffers plus room to widen bf16 weights on tiers without bf16 dot products).
 pub fn edge_mlp_scratch_len(k_e: usize, h: usize) -> usize {
     EDGE_BLOCK * (k_e.next_multiple_of(2).max(h.next_multiple_of(2)) + h.max(k_e) + h)
+        + packed_len_f32(k_e, h)
+        + packed_len_f32(h, h)
+        + packed_len_f32(h, k_e)
 }
 
 fn size_check(what: &'static str, expected: usize, got: usize) -> Result<()> {
@@ -307,7 +313,7 @@ impl Kernels {
             return Err(Error::CapacityExceeded { what: "linear operands", capacity: MAX_OPERANDS, needed: ops.len() });
         }
         let n = first.w.n();
-        if out.len() % n != 0 {
+        if !out.len().is_multiple_of(n) {
             return Err(Error::SizeMismatch { what: "linear output (multiple of n)", expected: n, got: out.len() });
         }
         let rows = out.len() / n;
@@ -376,7 +382,7 @@ impl Kernels {
         let n_edges = edges.target.len();
         size_check("edge sources", n_edges, edges.source.len())?;
         size_check("edge latents", n_edges * k_e, latent.len())?;
-        if edges.p_target.len() % h != 0 || edges.p_source.len() % h != 0 {
+        if !edges.p_target.len().is_multiple_of(h) || !edges.p_source.len().is_multiple_of(h) {
             return Err(Error::SizeMismatch { what: "node projections (multiple of h)", expected: h, got: 0 });
         }
         let n_t = edges.p_target.len() / h;
@@ -415,7 +421,7 @@ pub fn aggregate(messages: &[f32], width: usize, offsets: &[u32], out: &mut [f32
     if width == 0 {
         return Ok(());
     }
-    if messages.len() % width != 0 {
+    if !messages.len().is_multiple_of(width) {
         return Err(Error::SizeMismatch { what: "aggregate messages (multiple of width)", expected: width, got: 0 });
     }
     let edges = messages.len() / width;

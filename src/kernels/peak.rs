@@ -4,7 +4,8 @@
 //! f32: a loop of independent FMA chains (12 accumulators, enough to cover FMA latency × ports
 //! on current x86 cores) on the widest vectors the tier has. bf16: the same with `vdpbf16ps`
 //! where the CPU has AVX-512-BF16; elsewhere the bf16 kernels run on f32 FMAs, so their peak is
-//! the f32 peak. One FLOP is one multiply or one add (an FMA lane counts 2, a `vdpbf16ps` lane 4).
+//! the f32 peak. Runs are timed on thread CPU time where available ([`Stopwatch`]), so other
+//! processes on a shared machine do not count against the loop. One FLOP is one multiply or one add (an FMA lane counts 2, a `vdpbf16ps` lane 4).
 
 use std::time::Instant;
 
@@ -24,15 +25,65 @@ pub struct Peak {
     pub bf16_native: bool,
 }
 
+/// Seconds of CPU time this thread has run (`CLOCK_THREAD_CPUTIME_ID` on 64-bit Linux, which
+/// counts only time on a CPU, so a busy shared machine does not inflate it), or `None` elsewhere.
+pub fn thread_cpu_seconds() -> Option<f64> {
+    #[cfg(all(target_os = "linux", target_pointer_width = "64"))]
+    {
+        #[repr(C)]
+        struct Timespec {
+            tv_sec: i64,
+            tv_nsec: i64,
+        }
+        extern "C" {
+            fn clock_gettime(clock: i32, tp: *mut Timespec) -> i32;
+        }
+        const CLOCK_THREAD_CPUTIME_ID: i32 = 3;
+        let mut ts = Timespec { tv_sec: 0, tv_nsec: 0 };
+        // SAFETY: glibc/musl `clock_gettime` with a valid clock id writes one `timespec`, which on
+        // 64-bit Linux is two 64-bit integers, matching `Timespec`; `ts` is a live local.
+        let rc = unsafe { clock_gettime(CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+        if rc == 0 {
+            return Some(ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9);
+        }
+    }
+    None
+}
+
+/// A stopwatch on thread CPU time where the OS offers it, else on wall time.
+#[derive(Clone, Copy, Debug)]
+pub struct Stopwatch {
+    cpu: Option<f64>,
+    wall: Instant,
+}
+
+impl Stopwatch {
+    /// Starts timing.
+    pub fn start() -> Stopwatch {
+        Stopwatch { cpu: thread_cpu_seconds(), wall: Instant::now() }
+    }
+    /// Seconds since `start` (CPU time of this thread if available).
+    pub fn seconds(&self) -> f64 {
+        match (self.cpu, thread_cpu_seconds()) {
+            (Some(a), Some(b)) => b - a,
+            _ => self.wall.elapsed().as_secs_f64(),
+        }
+    }
+    /// Whether this stopwatch measures thread CPU time (else wall time).
+    pub fn is_cpu_time(&self) -> bool {
+        self.cpu.is_some()
+    }
+}
+
 /// Best of `reps` timed runs of `f(iters)` that performs `flops_per_iter` per iteration, sized to
 /// last about `target_ms` each.
 fn best_gflops(flops_per_iter: f64, target_ms: f64, reps: usize, mut f: impl FnMut(usize) -> f32) -> f64 {
     // Calibrate: grow until a run takes at least 2 ms.
     let mut iters = 1usize << 12;
     loop {
-        let t = Instant::now();
+        let t = Stopwatch::start();
         std::hint::black_box(f(iters));
-        let s = t.elapsed().as_secs_f64();
+        let s = t.seconds();
         if s > 2e-3 || iters > 1 << 30 {
             iters = ((iters as f64) * (target_ms * 1e-3 / s.max(1e-9))).max(1.0) as usize;
             break;
@@ -41,9 +92,9 @@ fn best_gflops(flops_per_iter: f64, target_ms: f64, reps: usize, mut f: impl FnM
     }
     let mut best = 0.0f64;
     for _ in 0..reps {
-        let t = Instant::now();
+        let t = Stopwatch::start();
         std::hint::black_box(f(iters));
-        let s = t.elapsed().as_secs_f64();
+        let s = t.seconds();
         best = best.max(flops_per_iter * iters as f64 / s / 1e9);
     }
     best

@@ -113,6 +113,15 @@ impl Simd for Avx2Fma {
         }
     }
     #[inline(always)]
+    unsafe fn load_w_half(self, p: *const u16, half: usize) -> __m256 {
+        // SAFETY: the caller guarantees 16 readable bf16 at `p`; AVX2 is implied by the token.
+        unsafe {
+            let v = _mm256_loadu_si256(p as *const __m256i);
+            let v = if half == 0 { v } else { _mm256_srli_epi32::<16>(v) };
+            _mm256_castsi256_ps(_mm256_slli_epi32::<16>(v))
+        }
+    }
+    #[inline(always)]
     unsafe fn bcast_x2(self, p: *const f32) -> Self::XP {
         // SAFETY: the caller guarantees 2 readable floats at `p`.
         unsafe { (_mm256_broadcast_ss(&*p), _mm256_broadcast_ss(&*p.add(1))) }
@@ -190,6 +199,15 @@ impl Simd for Avx512 {
         }
     }
     #[inline(always)]
+    unsafe fn load_w_half(self, p: *const u16, half: usize) -> __m512 {
+        // SAFETY: the caller guarantees 32 readable bf16 at `p`; AVX-512F is implied.
+        unsafe {
+            let v = _mm512_loadu_si512(p as *const __m512i);
+            let v = if half == 0 { v } else { _mm512_srli_epi32::<16>(v) };
+            _mm512_castsi512_ps(_mm512_slli_epi32::<16>(v))
+        }
+    }
+    #[inline(always)]
     unsafe fn bcast_x2(self, p: *const f32) -> Self::XP {
         // SAFETY: the caller guarantees 2 readable floats at `p`.
         unsafe { (_mm512_set1_ps(*p), _mm512_set1_ps(*p.add(1))) }
@@ -207,6 +225,15 @@ impl Simd for Avx512Bf16 {
     type WP = __m512bh;
     type XP = __m512bh;
 
+    #[inline(always)]
+    unsafe fn load_w_half(self, p: *const u16, half: usize) -> __m512 {
+        // SAFETY: the caller guarantees 32 readable bf16 at `p`; AVX-512F is implied by the token.
+        unsafe {
+            let v = _mm512_loadu_si512(p as *const __m512i);
+            let v = if half == 0 { v } else { _mm512_srli_epi32::<16>(v) };
+            _mm512_castsi512_ps(_mm512_slli_epi32::<16>(v))
+        }
+    }
     #[inline(always)]
     unsafe fn load_w2(self, p: *const u16) -> __m512bh {
         // SAFETY: the caller guarantees 32 readable bf16 at `p`. `__m512i` and `__m512bh` are
