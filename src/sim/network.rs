@@ -166,7 +166,10 @@ impl Workspace {
         let max_e = coarse_e.iter().copied().max().unwrap_or(0).max(e_mesh);
         let b = if has_body { v } else { 0 };
         let max_in = spec.blocks.iter().map(|b| spec.node_inputs(b) * h).max().unwrap_or(0).max(3 * h).max(NODE_WIDTH);
-        let lin_len = kernels::LINEAR_BLOCK_ROWS * (max_in + 2 * MAX_OPERANDS + kernels::padded_cols(h.max(3)));
+        // The kernels' own bound for the widest layer (the node MLP's first layer), including room to
+        // widen bf16 weights on tiers without bf16 dot products.
+        let lin_len = kernels::LINEAR_BLOCK_ROWS * (max_in + 2 * MAX_OPERANDS + kernels::padded_cols(h.max(3)))
+            + kernels::padded_cols(h.max(3)) * (max_in + MAX_OPERANDS);
         let mut ws = Workspace {
             h,
             v,
