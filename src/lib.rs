@@ -35,5 +35,6 @@ pub mod error;
 pub mod io;
 pub mod math;
 pub mod mesh;
+pub mod rig;
 
 pub use error::{Error, Result};
