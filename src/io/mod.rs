@@ -1,4 +1,5 @@
 //! File formats (feature `std`).
 
 pub mod json;
+pub mod bvh;
 pub mod safetensors;
