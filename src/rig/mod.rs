@@ -10,6 +10,8 @@
 pub mod fit;
 pub mod motion;
 pub mod procedural;
+#[cfg(test)]
+pub(crate) mod testgeom;
 
 use crate::error::{Error, Result};
 use crate::math::finite3;
