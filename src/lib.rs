@@ -30,11 +30,18 @@ extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod body;
 pub mod error;
+pub mod features;
+pub mod hierarchy;
 #[cfg(feature = "std")]
 pub mod io;
+pub mod kernels;
 pub mod math;
 pub mod mesh;
+pub mod model;
+pub mod normaliser;
 pub mod rig;
+pub mod rng;
 
 pub use error::{Error, Result};
