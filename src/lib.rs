@@ -41,6 +41,7 @@ pub mod math;
 pub mod mesh;
 pub mod model;
 pub mod normaliser;
+pub mod render;
 pub mod rig;
 pub mod rng;
 

@@ -3,6 +3,8 @@
 //! [`crate::Error::Io`].
 
 pub mod json;
+pub mod makehuman;
 pub mod bvh;
 pub mod obj;
+pub mod png;
 pub mod safetensors;

@@ -197,6 +197,10 @@ pub struct RetargetOptions<'a> {
     pub leg: [&'a str; 3],
     /// Left and right thigh names: they give the facing direction (left x up).
     pub hips: [&'a str; 2],
+    /// Driven bones whose direction is *not* aligned with the clip's rest: bones inside the
+    /// pelvis whose rest direction reflects the capture skeleton's build rather than a pose
+    /// (aligning CMU's hip joints would drop the MakeHuman legs by 4 cm).
+    pub keep_direction: &'a [&'a str],
 }
 
 impl Default for RetargetOptions<'_> {
@@ -207,6 +211,7 @@ impl Default for RetargetOptions<'_> {
             aliases: &[],
             leg: ["LeftUpLeg", "LeftLeg", "LeftFoot"],
             hips: ["LeftUpLeg", "RightUpLeg"],
+            keep_direction: &["LHipJoint", "RHipJoint"],
         }
     }
 }
@@ -292,6 +297,9 @@ impl Retarget {
             let base = (yaw * init.rotation[b]).normalize();
             align[b] = base;
             let Some(j) = driver[b] else { continue };
+            if opts.keep_direction.contains(&bone.name.as_str()) {
+                continue;
+            }
             // Best direction pair: a rig child driven by a clip child of j, longest rig offset.
             let mut pair: Option<(Vec3, Vec3)> = None;
             for c in skel.children(b) {
