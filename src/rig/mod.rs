@@ -456,4 +456,4 @@ pub fn skin(transforms: &SkinTransforms, weights: &SkinWeights, rest: &[[f32; 3]
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
