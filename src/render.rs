@@ -40,7 +40,12 @@ impl Camera {
     pub fn orthographic(target: [f32; 3], from: [f32; 3], height: f32) -> Camera {
         let t = Vec3::from(target);
         let eye = t + Vec3::from(from).normalize_or(Vec3::Z) * 10.0;
-        Camera { eye: eye.into(), target, up: [0.0, 1.0, 0.0], projection: Projection::Orthographic { half_height: 0.5 * height } }
+        Camera {
+            eye: eye.into(),
+            target,
+            up: [0.0, 1.0, 0.0],
+            projection: Projection::Orthographic { half_height: 0.5 * height },
+        }
     }
 }
 
@@ -130,10 +135,10 @@ impl Image {
         if area.abs() < 1e-12 {
             return;
         }
-        let x0 = a.x.min(b.x).min(c.x).floor().max(0.0) as usize;
-        let x1 = (a.x.max(b.x).max(c.x).ceil() as isize).min(self.width as isize - 1);
-        let y0 = a.y.min(b.y).min(c.y).floor().max(0.0) as usize;
-        let y1 = (a.y.max(b.y).max(c.y).ceil() as isize).min(self.height as isize - 1);
+        let x0 = libm::floorf(a.x.min(b.x).min(c.x)).max(0.0) as usize;
+        let x1 = (libm::ceilf(a.x.max(b.x).max(c.x)) as isize).min(self.width as isize - 1);
+        let y0 = libm::floorf(a.y.min(b.y).min(c.y)).max(0.0) as usize;
+        let y1 = (libm::ceilf(a.y.max(b.y).max(c.y)) as isize).min(self.height as isize - 1);
         if x1 < 0 || y1 < 0 {
             return;
         }

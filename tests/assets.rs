@@ -22,11 +22,8 @@ fn asset(rel: &str) -> Option<PathBuf> {
 }
 
 /// The garments and the vertex counts of their pieces (assets README).
-const GARMENTS: &[(&str, &[usize])] = &[
-    ("female_casualsuit01", &[1311, 886]),
-    ("female_sportsuit01", &[911, 886]),
-    ("male_casualsuit04", &[810, 886]),
-];
+const GARMENTS: &[(&str, &[usize])] =
+    &[("female_casualsuit01", &[1311, 886]), ("female_sportsuit01", &[911, 886]), ("male_casualsuit04", &[810, 886])];
 
 fn body() -> Option<(Vec<[f32; 3]>, Vec<[u32; 3]>)> {
     let path = asset("body/base.obj")?;
@@ -55,7 +52,13 @@ fn garment_base_obj_groups() {
     let skirt = obj.extract_groups(&["helper-skirt"]).unwrap();
     assert_eq!(skirt.rest.len(), 720);
     let joints: Vec<&str> = obj.groups.iter().filter(|g| g.starts_with("joint-")).map(|g| g.as_str()).collect();
-    println!("base.obj: {} groups ({} joint-*), {} polygons, {} triangles", obj.groups.len(), joints.len(), obj.n_polygons, obj.triangles.len());
+    println!(
+        "base.obj: {} groups ({} joint-*), {} polygons, {} triangles",
+        obj.groups.len(),
+        joints.len(),
+        obj.n_polygons,
+        obj.triangles.len()
+    );
     assert!(!joints.is_empty());
     // Body in metres: about 1.7 m tall.
     let ys = body.rest.iter().map(|p| p[1] * DM_TO_M);
@@ -81,15 +84,18 @@ fn garment_assets_split_into_pieces() {
             let (rest, faces) = if repaired.dropped.is_empty() {
                 (part.rest.clone(), part.faces.clone())
             } else {
-                println!("{name} piece {k}: dropped {} degenerate faces {:?}", repaired.dropped.len(), repaired.dropped);
+                println!(
+                    "{name} piece {k}: dropped {} degenerate faces {:?}",
+                    repaired.dropped.len(),
+                    repaired.dropped
+                );
                 let c = drop_unused_vertices(&part.rest, &repaired.faces);
                 if c.rest.len() != part.rest.len() {
                     println!("{name} piece {k}: dropped {} unused vertices", part.rest.len() - c.rest.len());
                 }
                 (c.rest, c.faces)
             };
-            let g = Garment::new(GarmentDesc::new(&rest, &faces))
-                .unwrap_or_else(|e| panic!("{name} piece {k}: {e}"));
+            let g = Garment::new(GarmentDesc::new(&rest, &faces)).unwrap_or_else(|e| panic!("{name} piece {k}: {e}"));
             println!(
                 "{name} piece {k}: {} vertices, {} triangles, {} edges, {} hinges, {} boundary loops, {} component(s), {:.3} m^2",
                 g.n_vertices(),

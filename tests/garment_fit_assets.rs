@@ -4,8 +4,8 @@
 use glam::Vec3;
 use hood::io::makehuman::{MakeHuman, METRES_PER_UNIT};
 use hood::io::obj::{split_components, Obj};
-use hood::rig::fit::{boundary_loop_pins, diffused_weights, LoopChoice, MhcloBinding, DIFFUSION_SAMPLES};
 use hood::mesh::{Garment, GarmentDesc};
+use hood::rig::fit::{boundary_loop_pins, diffused_weights, LoopChoice, MhcloBinding, DIFFUSION_SAMPLES};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -53,7 +53,9 @@ fn fitted(dir: &std::path::Path, mh: &MakeHuman, name: &str, exact: bool) -> (Ve
     let mut dev: Vec<f32> = out
         .iter()
         .zip(&obj.positions)
-        .map(|(a, b)| (Vec3::from(*a) - Vec3::new(b[0], b[1] + mh.floor_shift / METRES_PER_UNIT, b[2]) * METRES_PER_UNIT).length())
+        .map(|(a, b)| {
+            (Vec3::from(*a) - Vec3::new(b[0], b[1] + mh.floor_shift / METRES_PER_UNIT, b[2]) * METRES_PER_UNIT).length()
+        })
         .collect();
     dev.sort_by(f32::total_cmp);
     println!("{name}: fitted vs its own OBJ: median {:.3} m (different body shape)", dev[dev.len() / 2]);
@@ -89,8 +91,10 @@ fn garment_fit_tshirt_diffused_weights_and_waist() {
     let mh = MakeHuman::load(dir.join("body")).unwrap();
     let (pos, tris) = fitted(&dir, &mh, "female_casualsuit01", false);
     let pieces = split_components(&pos, &tris).unwrap();
-    let mean_y = |p: &hood::mesh::repair::CompactedMesh| p.rest.iter().map(|v| v[1] as f64).sum::<f64>() / p.rest.len() as f64;
-    let (shirt, jeans) = if mean_y(&pieces[0]) > mean_y(&pieces[1]) { (&pieces[0], &pieces[1]) } else { (&pieces[1], &pieces[0]) };
+    let mean_y =
+        |p: &hood::mesh::repair::CompactedMesh| p.rest.iter().map(|v| v[1] as f64).sum::<f64>() / p.rest.len() as f64;
+    let (shirt, jeans) =
+        if mean_y(&pieces[0]) > mean_y(&pieces[1]) { (&pieces[0], &pieces[1]) } else { (&pieces[1], &pieces[0]) };
     assert_eq!(shirt.rest.len(), 1311);
     assert_eq!(jeans.rest.len(), 886);
     let t = Instant::now();

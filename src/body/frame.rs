@@ -45,7 +45,11 @@ impl BodyFrame {
     /// (the frame is then not updated).
     pub fn update(&mut self, mesh: &BodyMesh, positions: &[[f32; 3]]) -> Result<()> {
         if mesh.n_vertices() != self.n_vertices || mesh.n_faces() != self.centroids.len() {
-            return Err(Error::SizeMismatch { what: "body frame mesh", expected: self.n_vertices, got: mesh.n_vertices() });
+            return Err(Error::SizeMismatch {
+                what: "body frame mesh",
+                expected: self.n_vertices,
+                got: mesh.n_vertices(),
+            });
         }
         mesh.check_positions(positions)?;
         mesh.face_centroids(positions, &mut self.centroids)?;
@@ -61,7 +65,11 @@ impl BodyFrame {
     /// As [`update`](Self::update).
     pub fn update_grids(&mut self, mesh: &BodyMesh, positions: &[[f32; 3]]) -> Result<()> {
         if mesh.n_vertices() != self.n_vertices || mesh.n_faces() != self.centroids.len() {
-            return Err(Error::SizeMismatch { what: "body frame mesh", expected: self.n_vertices, got: mesh.n_vertices() });
+            return Err(Error::SizeMismatch {
+                what: "body frame mesh",
+                expected: self.n_vertices,
+                got: mesh.n_vertices(),
+            });
         }
         mesh.check_positions(positions)?;
         mesh.face_centroids(positions, &mut self.centroids)?;

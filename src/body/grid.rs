@@ -364,7 +364,15 @@ impl PointGrid {
     }
 
     /// Visits the blocks at Chebyshev distance exactly `k` from `start` inside `[rlo, rhi]`.
-    fn visit_shell(&self, q: [f32; 3], start: [usize; 3], k: usize, rlo: [usize; 3], rhi: [usize; 3], best: &mut (u32, f32)) {
+    fn visit_shell(
+        &self,
+        q: [f32; 3],
+        start: [usize; 3],
+        k: usize,
+        rlo: [usize; 3],
+        rhi: [usize; 3],
+        best: &mut (u32, f32),
+    ) {
         if (0..3).any(|a| rlo[a] > rhi[a]) {
             return;
         }

@@ -70,7 +70,11 @@ impl BodyMesh {
     /// [`Error::SizeMismatch`] when `omitted` does not have one flag per vertex.
     pub fn with_omitted(mut self, omitted: &[bool]) -> Result<BodyMesh> {
         if omitted.len() != self.n_vertices {
-            return Err(Error::SizeMismatch { what: "body omitted flags", expected: self.n_vertices, got: omitted.len() });
+            return Err(Error::SizeMismatch {
+                what: "body omitted flags",
+                expected: self.n_vertices,
+                got: omitted.len(),
+            });
         }
         self.omitted.copy_from_slice(omitted);
         Ok(self)
@@ -99,7 +103,11 @@ impl BodyMesh {
     /// [`Error::SizeMismatch`]; [`Error::NonFinite`] naming the first bad vertex.
     pub fn check_positions(&self, positions: &[[f32; 3]]) -> Result<()> {
         if positions.len() != self.n_vertices {
-            return Err(Error::SizeMismatch { what: "body positions", expected: self.n_vertices, got: positions.len() });
+            return Err(Error::SizeMismatch {
+                what: "body positions",
+                expected: self.n_vertices,
+                got: positions.len(),
+            });
         }
         match positions.iter().position(|p| !finite3(*p)) {
             Some(i) => Err(Error::NonFinite { what: "body vertex", index: i }),
@@ -159,7 +167,11 @@ impl BodyMesh {
 
     fn check_lengths(&self, positions: &[[f32; 3]], out: usize, want: usize, what: &'static str) -> Result<()> {
         if positions.len() != self.n_vertices {
-            return Err(Error::SizeMismatch { what: "body positions", expected: self.n_vertices, got: positions.len() });
+            return Err(Error::SizeMismatch {
+                what: "body positions",
+                expected: self.n_vertices,
+                got: positions.len(),
+            });
         }
         if out != want {
             return Err(Error::SizeMismatch { what, expected: want, got: out });

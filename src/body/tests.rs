@@ -225,8 +225,14 @@ fn body_query_empty_and_errors() {
     let qs = [[0.0; 3], [0.0, f32::INFINITY, 0.0]];
     let mut out2 = [None; 2];
     assert_eq!(grid.nearest_within(&qs, 1.0, &mut out2), Err(Error::NonFinite { what: "query point", index: 1 }));
-    assert_eq!(grid.nearest_within(&qs[..1], -1.0, &mut out2[..1]), Err(Error::OutOfRange { what: "query radius", index: 0 }));
-    assert!(matches!(grid.nearest_within(&qs, 1.0, &mut out2[..1]), Err(Error::SizeMismatch { expected: 2, got: 1, .. })));
+    assert_eq!(
+        grid.nearest_within(&qs[..1], -1.0, &mut out2[..1]),
+        Err(Error::OutOfRange { what: "query radius", index: 0 })
+    );
+    assert!(matches!(
+        grid.nearest_within(&qs, 1.0, &mut out2[..1]),
+        Err(Error::SizeMismatch { expected: 2, got: 1, .. })
+    ));
     assert!(matches!(PointGrid::new(4, 63), Err(Error::OutOfRange { .. })));
 }
 
@@ -257,10 +263,7 @@ fn body_query_mesh_validation_names_the_index() {
     assert!(BodyMesh::new(4, &f).is_ok());
     assert_eq!(BodyMesh::new(0, &f), Err(Error::Empty { what: "body vertices" }));
     assert_eq!(BodyMesh::new(4, &[]), Err(Error::Empty { what: "body faces" }));
-    assert_eq!(
-        BodyMesh::new(3, &f),
-        Err(Error::IndexOutOfRange { what: "body face", at: 1, index: 3, len: 3 })
-    );
+    assert_eq!(BodyMesh::new(3, &f), Err(Error::IndexOutOfRange { what: "body face", at: 1, index: 3, len: 3 }));
     assert_eq!(BodyMesh::new(4, &[[0, 1, 2], [2, 3, 2]]), Err(Error::RepeatedVertex { face: 1, vertex: 2 }));
     assert_eq!(BodyMesh::new(4, &[[1, 1, 2]]), Err(Error::RepeatedVertex { face: 0, vertex: 1 }));
     let m = BodyMesh::new(4, &f).unwrap();
@@ -348,7 +351,10 @@ fn body_query_frame_matches_brute_force_with_omitted_vertices() {
             assert_eq!(*got, want, "step {step} garment point {g:?}");
         }
         assert_eq!(kept, edges.iter().filter(|e| e.is_some()).count());
-        assert!(kept > 0 && n_omitted > 0, "the test must see both kept and omitted edges ({kept}, {n_omitted}, {n_raw})");
+        assert!(
+            kept > 0 && n_omitted > 0,
+            "the test must see both kept and omitted edges ({kept}, {n_omitted}, {n_raw})"
+        );
         frame.nearest_faces(&garment, &mut faces).unwrap();
         for (g, got) in garment.iter().zip(&faces) {
             assert_eq!(Some(*got), brute(frame.centroids(), *g, f32::INFINITY));

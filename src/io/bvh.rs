@@ -190,7 +190,10 @@ pub fn parse(text: &str) -> Result<Clip> {
             values.push(v);
         }
         if values.len() != n_channels {
-            return Err(err(k + 1, format!("frame {f} has {} values, the hierarchy has {n_channels} channels", values.len())));
+            return Err(err(
+                k + 1,
+                format!("frame {f} has {} values, the hierarchy has {n_channels} channels", values.len()),
+            ));
         }
         let mut c = 0;
         for j in 0..nj {
@@ -225,7 +228,8 @@ pub fn parse(text: &str) -> Result<Clip> {
 /// Reads a BVH file (see [`parse`]).
 pub fn read(path: impl AsRef<std::path::Path>) -> Result<Clip> {
     let p = path.as_ref();
-    let text = std::fs::read_to_string(p).map_err(|e| Error::Io { path: p.display().to_string(), message: e.to_string() })?;
+    let text =
+        std::fs::read_to_string(p).map_err(|e| Error::Io { path: p.display().to_string(), message: e.to_string() })?;
     parse(&text)
 }
 

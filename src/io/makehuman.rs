@@ -100,7 +100,10 @@ fn joint_position(j: &Json, obj: &Obj, floor_shift: f32, bone: &str) -> Result<V
     let strategy = j.get("strategy").and_then(Json::as_str).unwrap_or("");
     match strategy {
         "CUBE" => {
-            let cube = j.get("cube_name").and_then(Json::as_str).ok_or_else(|| jerr(format!("{bone}: CUBE without cube_name")))?;
+            let cube = j
+                .get("cube_name")
+                .and_then(Json::as_str)
+                .ok_or_else(|| jerr(format!("{bone}: CUBE without cube_name")))?;
             group_centroid(obj, cube)
         }
         "MEAN" => {
@@ -142,8 +145,10 @@ pub fn parse_rig(text: &str, obj: &Obj, floor_shift: f32) -> Result<Skeleton> {
     let c = blender_to_y_up();
     let mut list = Vec::with_capacity(bones.len());
     for (name, b) in bones {
-        let head = joint_position(b.get("head").ok_or_else(|| jerr(format!("{name}: no head")))?, obj, floor_shift, name)?;
-        let tail = joint_position(b.get("tail").ok_or_else(|| jerr(format!("{name}: no tail")))?, obj, floor_shift, name)?;
+        let head =
+            joint_position(b.get("head").ok_or_else(|| jerr(format!("{name}: no head")))?, obj, floor_shift, name)?;
+        let tail =
+            joint_position(b.get("tail").ok_or_else(|| jerr(format!("{name}: no tail")))?, obj, floor_shift, name)?;
         let roll = b.get("roll").and_then(Json::as_f64).unwrap_or(0.0) as f32;
         let parent = b.get("parent").and_then(Json::as_str).map(str::to_string);
         // Blender's bone matrix (shortest arc from its +y, then roll) expressed in y-up axes.
@@ -165,7 +170,10 @@ pub fn parse_weights(text: &str, skel: &Skeleton, n_vertices: usize) -> Result<S
     for (bone, list) in w {
         let b = skel.find(bone).ok_or_else(|| jerr(format!("weights: unknown bone '{bone}'")))?;
         for pair in list.as_array().ok_or_else(|| jerr(format!("weights of '{bone}' are not a list")))? {
-            let p = pair.as_f64_vec().filter(|p| p.len() == 2).ok_or_else(|| jerr(format!("weights of '{bone}': bad pair")))?;
+            let p = pair
+                .as_f64_vec()
+                .filter(|p| p.len() == 2)
+                .ok_or_else(|| jerr(format!("weights of '{bone}': bad pair")))?;
             if p[0] < 0.0 || p[0].fract() != 0.0 {
                 return Err(jerr(format!("weights of '{bone}': bad vertex index {}", p[0])));
             }
@@ -183,9 +191,12 @@ pub fn parse_pose(text: &str, skel: &Skeleton) -> Result<Vec<Quat>> {
     let rots = doc.get("bone_rotations").and_then(Json::as_object).ok_or_else(|| jerr("pose: no 'bone_rotations'"))?;
     for (bone, e) in rots {
         let b = skel.find(bone).ok_or_else(|| jerr(format!("pose: unknown bone '{bone}'")))?;
-        let e = e.as_f64_vec().filter(|e| e.len() == 3).ok_or_else(|| jerr(format!("pose: bad angles for '{bone}'")))?;
+        let e =
+            e.as_f64_vec().filter(|e| e.len() == 3).ok_or_else(|| jerr(format!("pose: bad angles for '{bone}'")))?;
         // Blender's XYZ Euler mode applies X first: R = Rz * Ry * Rx.
-        local[b] = Quat::from_rotation_z(e[2] as f32) * Quat::from_rotation_y(e[1] as f32) * Quat::from_rotation_x(e[0] as f32);
+        local[b] = Quat::from_rotation_z(e[2] as f32)
+            * Quat::from_rotation_y(e[1] as f32)
+            * Quat::from_rotation_x(e[0] as f32);
     }
     Ok(local)
 }

@@ -149,7 +149,10 @@ impl Obj {
     /// The index of the group entry named exactly `name`, or containing `name` as one of its
     /// space-separated names.
     pub fn group_index(&self, name: &str) -> Option<usize> {
-        self.groups.iter().position(|g| g == name).or_else(|| self.groups.iter().position(|g| g.split(' ').any(|n| n == name)))
+        self.groups
+            .iter()
+            .position(|g| g == name)
+            .or_else(|| self.groups.iter().position(|g| g.split(' ').any(|n| n == name)))
     }
 
     /// Indices of the triangles in any of the groups `names` (each matched as in
@@ -180,8 +183,7 @@ impl Obj {
     /// # Errors
     /// As [`triangles_in_groups`](Self::triangles_in_groups).
     pub fn extract_groups(&self, names: &[&str]) -> Result<CompactedMesh> {
-        let tris: Vec<[u32; 3]> =
-            self.triangles_in_groups(names)?.into_iter().map(|t| self.triangles[t]).collect();
+        let tris: Vec<[u32; 3]> = self.triangles_in_groups(names)?.into_iter().map(|t| self.triangles[t]).collect();
         Ok(drop_unused_vertices(&self.positions, &tris))
     }
 }
@@ -300,7 +302,12 @@ pub fn to_string(positions: &[[f32; 3]], triangles: &[[u32; 3]], normals: Option
 ///
 /// # Errors
 /// As [`to_string`]; [`Error::Io`] when the file cannot be written.
-pub fn write(path: impl AsRef<Path>, positions: &[[f32; 3]], triangles: &[[u32; 3]], normals: Option<&[[f32; 3]]>) -> Result<()> {
+pub fn write(
+    path: impl AsRef<Path>,
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    normals: Option<&[[f32; 3]]>,
+) -> Result<()> {
     let text = to_string(positions, triangles, normals)?;
     let path = path.as_ref();
     std::fs::write(path, text).map_err(|e| io_error(path, e))

@@ -6,7 +6,7 @@
 //! Units: whatever the body is in (metres for everything `hood` builds); the binding's own
 //! lengths are converted by the `unit` given to [`MhcloBinding::parse`].
 
-use super::{skin, Pose, SkinTransforms, SkinWeights, Skeleton};
+use super::{skin, Pose, Skeleton, SkinTransforms, SkinWeights};
 use crate::body::PointGrid;
 use crate::error::{Error, Result};
 use crate::mesh::Garment;
@@ -64,13 +64,17 @@ impl MhcloBinding {
                 continue;
             }
             let tok: Vec<&str> = line.split_whitespace().collect();
-            let num = |t: &str| t.parse::<f32>().ok().filter(|x| x.is_finite()).ok_or_else(|| perr(i + 1, format!("bad number '{t}'")));
+            let num = |t: &str| {
+                t.parse::<f32>().ok().filter(|x| x.is_finite()).ok_or_else(|| perr(i + 1, format!("bad number '{t}'")))
+            };
             let idx = |t: &str| t.parse::<u32>().map_err(|_| perr(i + 1, format!("bad vertex index '{t}'")));
             if in_verts {
                 let first_is_number = tok[0].parse::<f64>().is_ok();
                 if first_is_number {
                     match tok.len() {
-                        1 => vertices.push(VertexBinding { v: [idx(tok[0])?; 3], w: [1.0, 0.0, 0.0], offset: [0.0; 3] }),
+                        1 => {
+                            vertices.push(VertexBinding { v: [idx(tok[0])?; 3], w: [1.0, 0.0, 0.0], offset: [0.0; 3] })
+                        }
                         9 => vertices.push(VertexBinding {
                             v: [idx(tok[0])?, idx(tok[1])?, idx(tok[2])?],
                             w: [num(tok[3])?, num(tok[4])?, num(tok[5])?],
@@ -113,13 +117,23 @@ impl MhcloBinding {
         for (i, b) in self.vertices.iter().enumerate() {
             for &v in &b.v {
                 if v as usize >= n_body {
-                    return Err(Error::IndexOutOfRange { what: "mhclo body vertex", at: i, index: v as usize, len: n_body });
+                    return Err(Error::IndexOutOfRange {
+                        what: "mhclo body vertex",
+                        at: i,
+                        index: v as usize,
+                        len: n_body,
+                    });
                 }
             }
         }
         for &(a, b, _) in &self.scale {
             if a.max(b) as usize >= n_body {
-                return Err(Error::IndexOutOfRange { what: "mhclo scale vertex", at: 0, index: a.max(b) as usize, len: n_body });
+                return Err(Error::IndexOutOfRange {
+                    what: "mhclo scale vertex",
+                    at: 0,
+                    index: a.max(b) as usize,
+                    len: n_body,
+                });
             }
         }
         Ok(())
@@ -155,7 +169,11 @@ impl MhcloBinding {
         out: &mut [[f32; 3]],
     ) -> Result<()> {
         if rest_normals.len() != rest_body.len() {
-            return Err(Error::SizeMismatch { what: "body normals", expected: rest_body.len(), got: rest_normals.len() });
+            return Err(Error::SizeMismatch {
+                what: "body normals",
+                expected: rest_body.len(),
+                got: rest_normals.len(),
+            });
         }
         self.fit_impl(rest_body, Some(rest_normals), posed_body, out)
     }
@@ -193,7 +211,10 @@ impl MhcloBinding {
                     off -= n * inward;
                 }
             }
-            let turned = match (triangle_frame(r(b.v[0]), r(b.v[1]), r(b.v[2])), triangle_frame(p(b.v[0]), p(b.v[1]), p(b.v[2]))) {
+            let turned = match (
+                triangle_frame(r(b.v[0]), r(b.v[1]), r(b.v[2])),
+                triangle_frame(p(b.v[0]), p(b.v[1]), p(b.v[2])),
+            ) {
                 (Some(fr), Some(fp)) if rest_body.as_ptr() != posed_body.as_ptr() => fp * (fr.transpose() * off),
                 _ => off,
             };
@@ -223,7 +244,11 @@ fn body_grid(body: &[[f32; 3]]) -> Result<PointGrid> {
 /// # Errors
 /// [`Error::SizeMismatch`] when `body_weights` does not cover `body`; [`Error::Empty`] for an
 /// empty body; [`Error::NonFinite`] for a NaN position.
-pub fn nearest_vertex_weights(garment: &[[f32; 3]], body: &[[f32; 3]], body_weights: &SkinWeights) -> Result<SkinWeights> {
+pub fn nearest_vertex_weights(
+    garment: &[[f32; 3]],
+    body: &[[f32; 3]],
+    body_weights: &SkinWeights,
+) -> Result<SkinWeights> {
     check_weights(body, body_weights)?;
     let grid = body_grid(body)?;
     let mut triples = Vec::with_capacity(garment.len() * 4);
@@ -296,7 +321,8 @@ pub fn diffused_weights(
     }
     let reach = 3.5 * d.iter().fold(0.0f32, |m, &v| m.max(v));
     let lo = garment.iter().fold(Vec3::splat(f32::INFINITY), |m, p| m.min(Vec3::from(*p))) - Vec3::splat(reach + voxel);
-    let hi = garment.iter().fold(Vec3::splat(f32::NEG_INFINITY), |m, p| m.max(Vec3::from(*p))) + Vec3::splat(reach + voxel);
+    let hi =
+        garment.iter().fold(Vec3::splat(f32::NEG_INFINITY), |m, p| m.max(Vec3::from(*p))) + Vec3::splat(reach + voxel);
     const EMPTY: u32 = u32::MAX;
     // Voxel levels: level k has edge voxel * 2^k; a vertex uses the level whose edge is about
     // d / 2, so that its samples touch a bounded number of voxels whatever its distance.
@@ -329,7 +355,11 @@ pub fn diffused_weights(
                 let dims = ((hi - lo) / edge).ceil().as_ivec3().max(glam::IVec3::ONE);
                 let n = dims.x as u64 * dims.y as u64 * dims.z as u64;
                 if n > 64_000_000 {
-                    return Err(Error::CapacityExceeded { what: "diffusion voxels", capacity: 64_000_000, needed: n as usize });
+                    return Err(Error::CapacityExceeded {
+                        what: "diffusion voxels",
+                        capacity: 64_000_000,
+                        needed: n as usize,
+                    });
                 }
                 slot.insert(Level { edge, dims: dims.into(), cache: vec![EMPTY; n as usize] })
             }
@@ -422,8 +452,12 @@ pub fn boundary_loop_pins(garment: &Garment, choice: LoopChoice) -> Result<Vec<u
     let k = match choice {
         LoopChoice::Index(k) if k < loops.len() => k,
         LoopChoice::Index(k) => return Err(Error::OutOfRange { what: "boundary loop", index: k }),
-        LoopChoice::Highest => (0..loops.len()).max_by(|&a, &b| mean_y(&loops[a]).total_cmp(&mean_y(&loops[b]))).unwrap_or(0),
-        LoopChoice::Lowest => (0..loops.len()).min_by(|&a, &b| mean_y(&loops[a]).total_cmp(&mean_y(&loops[b]))).unwrap_or(0),
+        LoopChoice::Highest => {
+            (0..loops.len()).max_by(|&a, &b| mean_y(&loops[a]).total_cmp(&mean_y(&loops[b]))).unwrap_or(0)
+        }
+        LoopChoice::Lowest => {
+            (0..loops.len()).min_by(|&a, &b| mean_y(&loops[a]).total_cmp(&mean_y(&loops[b]))).unwrap_or(0)
+        }
     };
     let mut v = loops[k].clone();
     v.sort_unstable();
@@ -438,8 +472,12 @@ pub fn boundary_loop_pins(garment: &Garment, choice: LoopChoice) -> Result<Vec<u
 pub fn pinned_flags(n_vertices: usize, pins: &[u32]) -> Result<Vec<bool>> {
     let mut flags = vec![false; n_vertices];
     for (k, &p) in pins.iter().enumerate() {
-        *flags.get_mut(p as usize).ok_or(Error::IndexOutOfRange { what: "pinned vertex", at: k, index: p as usize, len: n_vertices })? =
-            true;
+        *flags.get_mut(p as usize).ok_or(Error::IndexOutOfRange {
+            what: "pinned vertex",
+            at: k,
+            index: p as usize,
+            len: n_vertices,
+        })? = true;
     }
     Ok(flags)
 }

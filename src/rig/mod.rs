@@ -63,7 +63,8 @@ impl Bone {
 /// `reference_y = +y` this is Blender's convention in a y-up world.
 pub fn rest_frame(head: [f32; 3], tail: [f32; 3], roll: f32, reference_y: Vec3) -> Quat {
     let d = Vec3::from(tail) - Vec3::from(head);
-    let arc = if d.length_squared() > 0.0 { Quat::from_rotation_arc(reference_y, d.normalize()) } else { Quat::IDENTITY };
+    let arc =
+        if d.length_squared() > 0.0 { Quat::from_rotation_arc(reference_y, d.normalize()) } else { Quat::IDENTITY };
     (arc * Quat::from_rotation_y(roll)).normalize()
 }
 
@@ -179,10 +180,12 @@ impl Skeleton {
         let t = Vec3::from(root_translation);
         for (i, b) in self.bones.iter().enumerate() {
             // Identity stays exactly identity so that the rest pose reproduces the rest mesh bit for bit.
-            let own = if local[i] == Quat::IDENTITY { Quat::IDENTITY } else { b.frame * local[i] * b.frame.conjugate() };
+            let own =
+                if local[i] == Quat::IDENTITY { Quat::IDENTITY } else { b.frame * local[i] * b.frame.conjugate() };
             match b.parent {
                 Some(p) => {
-                    out.rotation[i] = if own == Quat::IDENTITY { out.rotation[p] } else { (out.rotation[p] * own).normalize() };
+                    out.rotation[i] =
+                        if own == Quat::IDENTITY { out.rotation[p] } else { (out.rotation[p] * own).normalize() };
                     out.head[i] = self.follow_parent(i, p, out);
                 }
                 None => {
@@ -253,10 +256,7 @@ pub struct Pose {
 impl Pose {
     /// The rest pose of `skeleton`.
     pub fn rest(skeleton: &Skeleton) -> Pose {
-        Pose {
-            rotation: vec![Quat::IDENTITY; skeleton.len()],
-            head: skeleton.bones.iter().map(|b| b.head).collect(),
-        }
+        Pose { rotation: vec![Quat::IDENTITY; skeleton.len()], head: skeleton.bones.iter().map(|b| b.head).collect() }
     }
     /// Posed tail of bone `b`.
     pub fn tail(&self, skeleton: &Skeleton, b: usize) -> Vec3 {
@@ -295,10 +295,20 @@ impl SkinWeights {
         let mut sorted: Vec<(u32, u16, f32)> = Vec::with_capacity(triples.len());
         for (k, &(v, b, w)) in triples.iter().enumerate() {
             if v as usize >= n_vertices {
-                return Err(Error::IndexOutOfRange { what: "skin weight vertex", at: k, index: v as usize, len: n_vertices });
+                return Err(Error::IndexOutOfRange {
+                    what: "skin weight vertex",
+                    at: k,
+                    index: v as usize,
+                    len: n_vertices,
+                });
             }
             if b as usize >= n_bones {
-                return Err(Error::IndexOutOfRange { what: "skin weight bone", at: k, index: b as usize, len: n_bones });
+                return Err(Error::IndexOutOfRange {
+                    what: "skin weight bone",
+                    at: k,
+                    index: b as usize,
+                    len: n_bones,
+                });
             }
             if !w.is_finite() {
                 return Err(Error::NonFinite { what: "skin weight", index: k });
@@ -307,7 +317,7 @@ impl SkinWeights {
                 sorted.push((v, b, w));
             }
         }
-        sorted.sort_unstable_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+        sorted.sort_unstable_by_key(|t| (t.0, t.1));
         let mut out = SkinWeights { offsets: Vec::with_capacity(n_vertices + 1), bone: Vec::new(), weight: Vec::new() };
         out.offsets.push(0);
         let mut i = 0;
@@ -329,7 +339,7 @@ impl SkinWeights {
     /// Builds weights from dense rows: `dense[v * n_bones + b]` is the weight of bone `b` at
     /// vertex `v` (then as [`Self::from_triples`]).
     pub fn from_dense(n_bones: usize, dense: &[f32], max_influences: usize) -> Result<SkinWeights> {
-        if n_bones == 0 || dense.len() % n_bones != 0 {
+        if n_bones == 0 || dense.len() / n_bones * n_bones != dense.len() {
             return Err(Error::SizeMismatch { what: "dense skin weights", expected: n_bones, got: dense.len() });
         }
         let n = dense.len() / n_bones;
@@ -438,7 +448,11 @@ pub fn skin(transforms: &SkinTransforms, weights: &SkinWeights, rest: &[[f32; 3]
         return Err(Error::SizeMismatch { what: "skinned vertices", expected: n, got: rest.len().min(out.len()) });
     }
     if weights.bone_bound() > transforms.m.len() {
-        return Err(Error::SizeMismatch { what: "skin bones", expected: weights.bone_bound(), got: transforms.m.len() });
+        return Err(Error::SizeMismatch {
+            what: "skin bones",
+            expected: weights.bone_bound(),
+            got: transforms.m.len(),
+        });
     }
     for v in 0..n {
         let x = Vec3::from(rest[v]);

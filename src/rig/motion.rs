@@ -7,7 +7,7 @@
 //! clip joint's world rotation relative to the clip's rest, applied after that alignment; the
 //! root translation relative to the rest is scaled by the leg-length ratio of rig and clip.
 
-use super::{skin, Pose, SkinTransforms, SkinWeights, Skeleton};
+use super::{skin, Pose, Skeleton, SkinTransforms, SkinWeights};
 use crate::error::{Error, Result};
 use alloc::string::String;
 use alloc::vec;
@@ -68,8 +68,12 @@ impl Clip {
         if rotations.is_empty() {
             return Err(Error::Empty { what: "clip frames" });
         }
-        if rotations.len() % nj != 0 || translations.len() != rotations.len() {
-            return Err(Error::SizeMismatch { what: "clip channels", expected: rotations.len(), got: translations.len() });
+        if rotations.len() / nj * nj != rotations.len() || translations.len() != rotations.len() {
+            return Err(Error::SizeMismatch {
+                what: "clip channels",
+                expected: rotations.len(),
+                got: translations.len(),
+            });
         }
         if let Some(i) = rotations.iter().position(|q| !q.is_finite()) {
             return Err(Error::NonFinite { what: "clip rotation", index: i });
@@ -336,7 +340,7 @@ impl Retarget {
                 + (skel.bones()[ids[2]].head - skel.bones()[ids[1]].head).length()
         };
         let clip_leg = clip.chain_length(&opts.leg[1..]).unwrap_or(0.0);
-        if !(clip_leg > 0.0) {
+        if clip_leg.is_nan() || clip_leg <= 0.0 {
             return Err(Error::OutOfRange { what: "clip leg length", index: 0 });
         }
         Ok(Retarget {
@@ -367,7 +371,11 @@ impl Retarget {
             return Err(Error::OutOfRange { what: "clip frame", index: f });
         }
         if clip.joints.len() != self.scratch_rot.len() || skel.len() != self.world.len() {
-            return Err(Error::SizeMismatch { what: "retarget clip/skeleton", expected: self.world.len(), got: skel.len() });
+            return Err(Error::SizeMismatch {
+                what: "retarget clip/skeleton",
+                expected: self.world.len(),
+                got: skel.len(),
+            });
         }
         clip.world(f, &mut self.scratch_rot, &mut self.scratch_pos);
         for (b, bone) in skel.bones().iter().enumerate() {

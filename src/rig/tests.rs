@@ -46,7 +46,8 @@ fn random_skin(rng: &mut Rng, skel: &Skeleton, n: usize) -> (Vec<[f32; 3]>, Skin
         let b = (rng.next_u64() % skel.len() as u64) as usize;
         let bone = &skel.bones()[b];
         let s = rng.uniform(0.0, 1.0);
-        let p = bone.head.lerp(bone.tail, s) + Vec3::new(rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1));
+        let p = bone.head.lerp(bone.tail, s)
+            + Vec3::new(rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1));
         rest.push(p.into());
         for _ in 0..1 + rng.next_u64() % 4 {
             let b = (rng.next_u64() % skel.len() as u64) as u16;
@@ -152,7 +153,8 @@ fn rig_single_bone_skinning_is_rigid() {
 
 #[test]
 fn rig_rejects_bad_input() {
-    let d = |parent| BoneDesc { name: "x".into(), parent, head: [0.0; 3], tail: [0.0, 1.0, 0.0], frame: Quat::IDENTITY };
+    let d =
+        |parent| BoneDesc { name: "x".into(), parent, head: [0.0; 3], tail: [0.0, 1.0, 0.0], frame: Quat::IDENTITY };
     assert!(matches!(Skeleton::new(vec![d(Some(0))]), Err(Error::IndexOutOfRange { .. })));
     assert!(matches!(Skeleton::new(vec![]), Err(Error::Empty { .. })));
     assert!(SkinWeights::from_triples(2, 1, &[(0, 0, 1.0)], 4).is_err(), "vertex 1 has no weight");

@@ -154,7 +154,8 @@ impl Mannequin {
         }
         let skeleton = build_skeleton();
         let (shape, arm) = build_shape(&skeleton);
-        let (mut rest, faces) = marching_tetrahedra(&shape, Vec3::new(-0.72, -0.04, -0.18), Vec3::new(0.72, 1.84, 0.28), h);
+        let (mut rest, faces) =
+            marching_tetrahedra(&shape, Vec3::new(-0.72, -0.04, -0.18), Vec3::new(0.72, 1.84, 0.28), h);
         smooth_onto_surface(&shape, &mut rest, &faces, 4);
         let weights = diffused_bone_weights(&shape, &skeleton, &rest, &faces, 12)?;
         Ok(Mannequin { skeleton, weights, rest, faces, shape, arm })

@@ -8,7 +8,7 @@
 
 use crate::error::{Error, Result};
 use crate::rig::motion::{BodyMotion, MODEL_FPS};
-use crate::rig::{skin, Pose, SkinTransforms, SkinWeights, Skeleton};
+use crate::rig::{skin, Pose, Skeleton, SkinTransforms, SkinWeights};
 use alloc::vec;
 use alloc::vec::Vec;
 use core::f32::consts::{PI, TAU};
@@ -153,7 +153,8 @@ fn build(skel: &Skeleton, seconds: f32, grounded: bool, mut f: impl FnMut(f32, &
     let n_frames = (seconds * MODEL_FPS) as usize + 1;
     let ground = ground_points(skel)?;
     let rest_low = ground.iter().map(|(_, p)| p.y).fold(f32::INFINITY, f32::min);
-    let mut out = LocalMotion { fps: MODEL_FPS, n_bones: nb, local: Vec::with_capacity(n_frames * nb), root: Vec::new() };
+    let mut out =
+        LocalMotion { fps: MODEL_FPS, n_bones: nb, local: Vec::with_capacity(n_frames * nb), root: Vec::new() };
     let mut frame = Frame { rot: vec![Quat::IDENTITY; nb], root: Vec3::ZERO };
     let mut local = vec![Quat::IDENTITY; nb];
     let mut pose = Pose::rest(skel);
@@ -237,7 +238,7 @@ pub fn jump(skel: &Skeleton, seconds: f32) -> Result<LocalMotion> {
         for (hip, knee, foot, arm, fore, sz) in
             [(L_UPLEG, L_LEG, L_FOOT, L_ARM, L_FOREARM, 1.0f32), (R_UPLEG, R_LEG, R_FOOT, R_ARM, R_FOREARM, -1.0)]
         {
-            fr.rot[b[hip]] = rx(-1.0 * crouch - 0.1 * air);
+            fr.rot[b[hip]] = rx(-crouch - 0.1 * air);
             fr.rot[b[knee]] = rx(1.6 * crouch + 0.2 * air);
             fr.rot[b[foot]] = rx(-0.6 * crouch + 0.3 * air);
             fr.rot[b[arm]] = rx(0.5 * crouch - 2.0 * arms_up) * rz(sz * 0.2 * arms_up);
@@ -255,7 +256,8 @@ pub fn turn_on_the_spot(skel: &Skeleton, seconds: f32) -> Result<LocalMotion> {
         let ph = TAU * 1.0 * t;
         fr.rot[b[HIPS]] = ry(TAU * t / 4.0);
         for (hip, knee, shift) in [(L_UPLEG, L_LEG, 0.0), (R_UPLEG, R_LEG, PI)] {
-            let lift = (0.5 + 0.5 * sinf(ph + shift)).powi(2);
+            let half = 0.5 + 0.5 * sinf(ph + shift);
+            let lift = half * half;
             fr.rot[b[hip]] = rx(-0.35 * lift);
             fr.rot[b[knee]] = rx(0.6 * lift);
         }
@@ -321,7 +323,8 @@ pub fn random_poses(skel: &Skeleton, seconds: f32, seed: u64) -> Result<LocalMot
         ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
     };
     // (bone, axis, lo, hi, [(weight, frequency, phase); 3])
-    let mut channels: Vec<(usize, usize, f32, f32, [(f32, f32, f32); 3])> = Vec::new();
+    type Channel = (usize, usize, f32, f32, [(f32, f32, f32); 3]);
+    let mut channels: Vec<Channel> = Vec::new();
     for &(k, lim) in &LIMITS {
         let mut sides = vec![(b[k], lim)];
         if let Some(r) = mirror(k) {
