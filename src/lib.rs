@@ -44,6 +44,8 @@ pub mod mesh;
 pub mod model;
 pub mod normaliser;
 pub mod physics;
+pub mod render;
+pub mod rig;
 pub mod rng;
 pub mod sim;
 pub mod solve;

@@ -2,6 +2,9 @@
 //! arrays and back. Errors are [`crate::Error::Parse`] (with the 1-based line) and
 //! [`crate::Error::Io`].
 
+pub mod bvh;
 pub mod json;
+pub mod makehuman;
 pub mod obj;
+pub mod png;
 pub mod safetensors;
