@@ -46,8 +46,10 @@ pub mod normaliser;
 pub mod physics;
 pub mod rng;
 pub mod sim;
+pub mod solve;
+#[cfg(feature = "train")]
+pub mod train;
 #[cfg(feature = "std")]
 pub mod workloads;
-pub mod solve;
 
 pub use error::{Error, Result};

@@ -72,7 +72,9 @@ fn random_model(h: usize) -> hood::Result<ModelBytes> {
     // Unit-scale statistics, so that a random model's features and outputs stay sane.
     let mut rng = hood::rng::Rng::new(1);
     let n = &mut p.normalisers;
-    for (norm, w, s) in [(&mut n.node, 21, 1.0), (&mut n.edge, 9, 0.05), (&mut n.body_edge, 9, 0.02), (&mut n.output, 3, 1e-3)] {
+    for (norm, w, s) in
+        [(&mut n.node, 21, 1.0), (&mut n.edge, 9, 0.05), (&mut n.body_edge, 9, 0.02), (&mut n.output, 3, 1e-3)]
+    {
         let rows: Vec<f32> = (0..64 * w).map(|_| (rng.normal() * s) as f32).collect();
         norm.accumulate(&rows, w);
     }
@@ -81,7 +83,8 @@ fn random_model(h: usize) -> hood::Result<ModelBytes> {
 
 fn bench(a: BenchArgs) -> hood::Result<()> {
     let shared = a.shared.clone().unwrap_or_else(default_shared_dir);
-    let names: Vec<String> = if a.workload.is_empty() { NAMES.iter().map(|s| s.to_string()).collect() } else { a.workload.clone() };
+    let names: Vec<String> =
+        if a.workload.is_empty() { NAMES.iter().map(|s| s.to_string()).collect() } else { a.workload.clone() };
     let mut workloads = Vec::new();
     for n in &names {
         match workload(n, &shared) {
