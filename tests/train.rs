@@ -8,7 +8,7 @@ use hood::body::BodyMesh;
 use hood::features::DT;
 use hood::hierarchy::{Hierarchy, HierarchyConfig};
 use hood::mesh::{Garment, GarmentDesc};
-use hood::model::{write_model, ModelBytes, ModelSpec, Params};
+use hood::model::{ModelSpec, Params};
 use hood::physics::{face_frames, Cloth, CollisionInput, CollisionParams, FaceFrame, Objective, StepInputs};
 use hood::rng::Rng;
 use hood::sim::{BodyDesc, Graph, Sim, SimConfig, SimState};
@@ -230,4 +230,110 @@ fn gradient_check_network() {
         worst.0,
         worst.1
     );
+}
+
+/// Times one optimiser step (forward, objective, backward, clipping and Adam) in f32, single
+/// thread, on the fixture t-shirt at h = 32, 64, 128 (run with `--ignored --nocapture`).
+#[test]
+#[ignore]
+fn train_step_timing_tee() {
+    use hood::body::{BodyFrame, Nearest};
+    use hood::train::{clip_global_norm, learning_rate, Adam};
+    use std::time::Instant;
+    let w = match hood::workloads::workload("tee", &hood::workloads::default_shared_dir()) {
+        Ok(w) => w,
+        Err(e) => {
+            println!("train_step_timing_tee: skipped ({e})");
+            return;
+        }
+    };
+    let (mesh, frames) = w.body.as_ref().unwrap();
+    let state = w.fixed_state.clone().unwrap();
+    let graph = w.graph.clone().unwrap();
+    let garment = &w.garment;
+    let n = garment.n_vertices();
+    let reps = 3;
+    let sizes: Vec<usize> = std::env::var("HOOD_TRAIN_SIZES")
+        .map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect())
+        .unwrap_or(vec![32, 64, 128]);
+    for h in sizes {
+        let spec = ModelSpec::hood(h);
+        let mut params = Params::init(&spec, 1).unwrap();
+        // Step inputs and the objective's body data (per-sample preparation, timed apart).
+        let t0 = Instant::now();
+        let gs = GarmentState {
+            pos: &state.pos,
+            velocity: &state.velocity,
+            pinned: garment.pinned(),
+            pin_targets: garment.rest(),
+        };
+        let bf = BodyFrames { mesh, prev: &state.body_prev, pos: &state.body_pos, next: &frames[1] };
+        let step = StepData::build(&spec, garment, &graph, &gs, Some(&bf), DT).unwrap();
+        let mut cur = BodyFrame::new(mesh).unwrap();
+        cur.update(mesh, &state.body_pos).unwrap();
+        let mut nearest = vec![Nearest { index: 0, distance: 0.0 }; n];
+        cur.nearest_faces(&step.pos, &mut nearest).unwrap();
+        let nearest: Vec<u32> = nearest.iter().map(|q| q.index).collect();
+        let nf = mesh.n_faces();
+        let (mut centroids, mut normals) = (vec![[0.0f32; 3]; nf], vec![[0.0f32; 3]; nf]);
+        face_frames(&frames[1], mesh.faces(), &mut centroids, &mut normals).unwrap();
+        let prep = t0.elapsed().as_secs_f64();
+        let nz = &mut params.normalisers;
+        nz.node.accumulate(&step.node_features, 24);
+        nz.edge.accumulate(&step.edge_features[3], 12);
+        nz.body_edge.accumulate(&step.g2b_features, 9);
+        nz.output.accumulate(&vec![1e-3f32; 64 * 3], 3);
+        let net = Network::of(&params).unwrap();
+        let stats = Stats::<f32>::of(&params);
+        let mut theta = net.layout.flatten::<f32>(&params);
+        let mut adam = Adam::new(theta.len());
+        let cloth = Cloth::<f32>::new(garment);
+        let objective = Objective { friction: None, ..Objective::training(5e3) };
+        let inputs = StepInputs {
+            pos: &step.pos,
+            velocity: &step.velocity,
+            dt: DT,
+            collision: Some(CollisionInput {
+                nearest: &nearest,
+                next: FaceFrame { centroids: &centroids, normals: &normals },
+            }),
+            friction: None,
+        };
+        let mut best = [f64::INFINITY; 4];
+        let mut dx = vec![[0.0f32; 3]; n];
+        let mut grad = vec![0.0f32; theta.len()];
+        for _ in 0..reps {
+            let t = Instant::now();
+            let tape = net.forward(&theta, &stats, &graph, &step).unwrap();
+            let t_fwd = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let terms = objective.eval(&cloth, &inputs, &tape.new_pos, Some(&mut dx)).unwrap();
+            let t_loss = t.elapsed().as_secs_f64();
+            assert!(terms.total().is_finite());
+            let t = Instant::now();
+            grad.iter_mut().for_each(|g| *g = 0.0);
+            net.backward(&theta, &stats, &graph, &step, &tape, &dx, &mut grad).unwrap();
+            let t_bwd = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            clip_global_norm(&mut grad, 1.0);
+            adam.step(&mut theta, &grad, learning_rate(adam.t));
+            let t_adam = t.elapsed().as_secs_f64();
+            for (b, x) in best.iter_mut().zip([t_fwd, t_loss, t_bwd, t_adam]) {
+                *b = b.min(x);
+            }
+        }
+        let total: f64 = best.iter().sum();
+        println!(
+            "train step tee h={h}: {:.1} ms (forward {:.1}, losses {:.2}, backward {:.1}, clip+adam {:.2}; \
+             step inputs {:.1} ms, not included), {} body edges, {} params",
+            total * 1e3,
+            best[0] * 1e3,
+            best[1] * 1e3,
+            best[2] * 1e3,
+            best[3] * 1e3,
+            prep * 1e3,
+            step.prefix[0],
+            theta.len()
+        );
+    }
 }

@@ -370,6 +370,7 @@ impl Network {
     ///
     /// # Errors
     /// [`Error::SizeMismatch`] for buffers of the wrong length.
+    #[allow(clippy::too_many_arguments)] // the forward's inputs, its tape, the seed and the output
     pub fn backward<R: Real>(
         &self,
         theta: &[R],

@@ -42,16 +42,24 @@ impl Part {
     }
 }
 
-/// `y += x · Wᵀ` over all rows of `x` (`rows × k`) into `y` (`rows × n`).
+/// `y += x · Wᵀ` over all rows of `x` (`rows × k`) into `y` (`rows × n`). The part is
+/// transposed once so that the inner loop runs over contiguous outputs (and zero inputs, common
+/// after a ReLU, are skipped).
 pub fn matmul_acc<R: Real>(theta: &[R], p: Part, x: &[R], y: &mut [R]) {
+    let mut wt = vec![R::ZERO; p.k * p.n];
+    for o in 0..p.n {
+        for (i, &w) in p.row(theta, o).iter().enumerate() {
+            wt[i * p.n + o] = w;
+        }
+    }
     for (xr, yr) in x.chunks_exact(p.k).zip(y.chunks_exact_mut(p.n)) {
-        for (o, yo) in yr.iter_mut().enumerate() {
-            let w = p.row(theta, o);
-            let mut acc = R::ZERO;
-            for (a, b) in xr.iter().zip(w) {
-                acc += *a * *b;
+        for (&a, wr) in xr.iter().zip(wt.chunks_exact(p.n)) {
+            if a == R::ZERO {
+                continue;
             }
-            *yo += acc;
+            for (yo, &w) in yr.iter_mut().zip(wr) {
+                *yo += a * w;
+            }
         }
     }
 }
