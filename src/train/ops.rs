@@ -44,7 +44,7 @@ impl Part {
 
 /// `y += x · Wᵀ` over all rows of `x` (`rows × k`) into `y` (`rows × n`). The part is
 /// transposed once so that the inner loop runs over contiguous outputs (and zero inputs, common
-/// after a ReLU, are skipped).
+/// after a ReLU, are skipped four at a time).
 pub fn matmul_acc<R: Real>(theta: &[R], p: Part, x: &[R], y: &mut [R]) {
     let mut wt = vec![R::ZERO; p.k * p.n];
     for o in 0..p.n {
@@ -52,13 +52,27 @@ pub fn matmul_acc<R: Real>(theta: &[R], p: Part, x: &[R], y: &mut [R]) {
             wt[i * p.n + o] = w;
         }
     }
-    for (xr, yr) in x.chunks_exact(p.k).zip(y.chunks_exact_mut(p.n)) {
-        for (&a, wr) in xr.iter().zip(wt.chunks_exact(p.n)) {
-            if a == R::ZERO {
-                continue;
+    let n = p.n;
+    for (xr, yr) in x.chunks_exact(p.k).zip(y.chunks_exact_mut(n)) {
+        // Four inputs at a time, so that the output row is loaded and stored once per four.
+        let mut i = 0;
+        while i + 4 <= p.k {
+            let a = [xr[i], xr[i + 1], xr[i + 2], xr[i + 3]];
+            if a.iter().any(|&v| v != R::ZERO) {
+                let w4 = &wt[i * n..(i + 4) * n];
+                let (w0, w1, w2, w3) = (&w4[..n], &w4[n..2 * n], &w4[2 * n..3 * n], &w4[3 * n..]);
+                for (o, yo) in yr.iter_mut().enumerate() {
+                    *yo += (a[0] * w0[o] + a[1] * w1[o]) + (a[2] * w2[o] + a[3] * w3[o]);
+                }
             }
-            for (yo, &w) in yr.iter_mut().zip(wr) {
-                *yo += a * w;
+            i += 4;
+        }
+        for i in i..p.k {
+            let a = xr[i];
+            if a != R::ZERO {
+                for (yo, &w) in yr.iter_mut().zip(&wt[i * n..(i + 1) * n]) {
+                    *yo += a * w;
+                }
             }
         }
     }
@@ -66,7 +80,23 @@ pub fn matmul_acc<R: Real>(theta: &[R], p: Part, x: &[R], y: &mut [R]) {
 
 /// Backward of [`matmul_acc`]: `dW += dyᵀ · x` into `grad`, and `dx += dy · W` when asked.
 pub fn matmul_backward<R: Real>(theta: &[R], grad: &mut [R], p: Part, x: &[R], dy: &[R], dx: Option<&mut [R]>) {
-    for (xr, dyr) in x.chunks_exact(p.k).zip(dy.chunks_exact(p.n)) {
+    // dW: four rows at a time, so that each gradient row is loaded and stored once per four.
+    let (xb, dyb) = (x.chunks_exact(4 * p.k), dy.chunks_exact(4 * p.n));
+    let (xt, dyt) = (xb.remainder(), dyb.remainder());
+    for (x4, dy4) in xb.zip(dyb) {
+        let (x0, x1, x2, x3) = (&x4[..p.k], &x4[p.k..2 * p.k], &x4[2 * p.k..3 * p.k], &x4[3 * p.k..]);
+        for o in 0..p.n {
+            let d = [dy4[o], dy4[p.n + o], dy4[2 * p.n + o], dy4[3 * p.n + o]];
+            if d.iter().all(|&v| v == R::ZERO) {
+                continue;
+            }
+            let s = p.w + o * p.ld + p.col;
+            for (i, g) in grad[s..s + p.k].iter_mut().enumerate() {
+                *g += (d[0] * x0[i] + d[1] * x1[i]) + (d[2] * x2[i] + d[3] * x3[i]);
+            }
+        }
+    }
+    for (xr, dyr) in xt.chunks_exact(p.k).zip(dyt.chunks_exact(p.n)) {
         for (o, &d) in dyr.iter().enumerate() {
             if d == R::ZERO {
                 continue;
@@ -77,14 +107,31 @@ pub fn matmul_backward<R: Real>(theta: &[R], grad: &mut [R], p: Part, x: &[R], d
             }
         }
     }
+    // dx: the part transposed is the forward's layout; sum over outputs four at a time.
     if let Some(dx) = dx {
+        let mut w = vec![R::ZERO; p.n * p.k];
+        for o in 0..p.n {
+            w[o * p.k..(o + 1) * p.k].copy_from_slice(p.row(theta, o));
+        }
         for (dxr, dyr) in dx.chunks_exact_mut(p.k).zip(dy.chunks_exact(p.n)) {
-            for (o, &d) in dyr.iter().enumerate() {
-                if d == R::ZERO {
-                    continue;
+            let mut o = 0;
+            while o + 4 <= p.n {
+                let d = [dyr[o], dyr[o + 1], dyr[o + 2], dyr[o + 3]];
+                if d.iter().any(|&v| v != R::ZERO) {
+                    let w4 = &w[o * p.k..(o + 4) * p.k];
+                    let (w0, w1, w2, w3) = (&w4[..p.k], &w4[p.k..2 * p.k], &w4[2 * p.k..3 * p.k], &w4[3 * p.k..]);
+                    for (i, g) in dxr.iter_mut().enumerate() {
+                        *g += (d[0] * w0[i] + d[1] * w1[i]) + (d[2] * w2[i] + d[3] * w3[i]);
+                    }
                 }
-                for (g, w) in dxr.iter_mut().zip(p.row(theta, o)) {
-                    *g += d * *w;
+                o += 4;
+            }
+            for o in o..p.n {
+                let d = dyr[o];
+                if d != R::ZERO {
+                    for (g, wv) in dxr.iter_mut().zip(&w[o * p.k..(o + 1) * p.k]) {
+                        *g += d * *wv;
+                    }
                 }
             }
         }
