@@ -232,3 +232,38 @@ impl Layout {
         out
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn train_layout_round_trip_and_cover() {
+        let spec = ModelSpec::with_schedule(8, 2, 2, "f,c0 | d:c0,c1 | u:f,c0").unwrap();
+        let p = Params::init(&spec, 9).unwrap();
+        let lay = Layout::new(&p);
+        assert_eq!(lay.len, p.count());
+        let flat = lay.flatten::<f32>(&p);
+        // Every tensor once, no overlap, no gap.
+        let mut ranges: Vec<Range<usize>> = lay.tensors(&spec).into_iter().map(|(_, r)| r).collect();
+        ranges.sort_by_key(|r| r.start);
+        let mut at = 0;
+        for r in &ranges {
+            assert_eq!(r.start, at);
+            at = r.end;
+        }
+        assert_eq!(at, lay.len);
+        // Back into a Params: identical; a changed entry lands in the tensor the layout names.
+        let mut q = Params::init(&spec, 10).unwrap();
+        lay.unflatten(&flat, &mut q);
+        assert_eq!(q.node_encoder, p.node_encoder);
+        assert_eq!(q.blocks, p.blocks);
+        assert_eq!(q.level_embedding, p.level_embedding);
+        let mut f2 = flat.clone();
+        let b = &lay.blocks[1].edges[1].layers[0];
+        f2[b.w + 3 * b.inp + 5] = 42.0;
+        lay.unflatten(&f2, &mut q);
+        assert_eq!(q.blocks[1].edges[1].layers[0].weight[3 * b.inp + 5], 42.0);
+        assert_eq!(lay.flatten::<f32>(&q), f2);
+    }
+}
