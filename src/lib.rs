@@ -49,6 +49,8 @@ pub mod rig;
 pub mod rng;
 pub mod sim;
 pub mod solve;
+#[cfg(feature = "train")]
+pub mod train;
 #[cfg(feature = "std")]
 pub mod workloads;
 

@@ -1,0 +1,269 @@
+//! The trainer's parameter form: every trainable tensor of a [`Params`] laid out in one flat
+//! vector (Adam, clipping and gradients then work on plain slices), with the offsets of each
+//! tensor.
+
+use crate::features::{LEVELS, NODE_TYPES};
+use crate::math::Real;
+use crate::model::{Mlp, ModelSpec, Params};
+use alloc::format;
+use alloc::string::String;
+use alloc::vec::Vec;
+use core::ops::Range;
+
+/// Where one Linear layer lives in the flat vector.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LinearAt {
+    /// Offset of the `[out, in]` row-major weight.
+    pub w: usize,
+    /// Offset of the `[out]` bias.
+    pub b: usize,
+    /// Input width.
+    pub inp: usize,
+    /// Output width.
+    pub out: usize,
+}
+
+/// Where one MLP lives in the flat vector.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct MlpAt {
+    /// Its Linear layers (ReLU between consecutive ones).
+    pub layers: Vec<LinearAt>,
+    /// Offsets of the final LayerNorm's gamma and beta, if any.
+    pub norm: Option<(usize, usize)>,
+}
+
+impl MlpAt {
+    /// Output width.
+    pub fn output(&self) -> usize {
+        self.layers.last().map_or(0, |l| l.out)
+    }
+}
+
+/// One processor block's MLPs.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct BlockAt {
+    /// Edge MLP per garment key of the block (sorted key order).
+    pub edges: Vec<MlpAt>,
+    /// Body-edge MLP, when the model has a body.
+    pub body: Option<MlpAt>,
+    /// Node MLP.
+    pub node: MlpAt,
+}
+
+/// Offsets of every trainable tensor of a model of one [`ModelSpec`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Layout {
+    /// Node encoder.
+    pub node_encoder: MlpAt,
+    /// Edge encoders in [`ModelSpec::encoded_keys`] order.
+    pub edge_encoders: Vec<MlpAt>,
+    /// Body edge encoder.
+    pub body_encoder: Option<MlpAt>,
+    /// Processor blocks.
+    pub blocks: Vec<BlockAt>,
+    /// Decoder.
+    pub decoder: MlpAt,
+    /// Offset of the 9 x 9 node-type embedding.
+    pub node_type_embedding: usize,
+    /// Offset of the 4 x 4 vertex-level embedding.
+    pub level_embedding: usize,
+    /// Total length.
+    pub len: usize,
+}
+
+struct Alloc(usize);
+
+impl Alloc {
+    fn take(&mut self, n: usize) -> usize {
+        let at = self.0;
+        self.0 += n;
+        at
+    }
+
+    fn mlp(&mut self, m: &Mlp) -> MlpAt {
+        let layers = m
+            .layers
+            .iter()
+            .map(|l| LinearAt { w: self.take(l.inp * l.out), b: self.take(l.out), inp: l.inp, out: l.out })
+            .collect();
+        let norm = m.norm.as_ref().map(|n| (self.take(n.gamma.len()), self.take(n.beta.len())));
+        MlpAt { layers, norm }
+    }
+}
+
+impl Layout {
+    /// The layout of `p` (its spec and tensor sizes); the order follows [`Params::mlps`], then
+    /// the two embedding tables.
+    pub fn new(p: &Params) -> Layout {
+        let mut a = Alloc(0);
+        let node_encoder = a.mlp(&p.node_encoder);
+        let edge_encoders = p.edge_encoders.iter().map(|m| a.mlp(m)).collect();
+        let body_encoder = p.body_encoder.as_ref().map(|m| a.mlp(m));
+        let blocks = p
+            .blocks
+            .iter()
+            .map(|b| BlockAt {
+                edges: b.edges.iter().map(|m| a.mlp(m)).collect(),
+                body: b.body.as_ref().map(|m| a.mlp(m)),
+                node: a.mlp(&b.node),
+            })
+            .collect();
+        let decoder = a.mlp(&p.decoder);
+        let node_type_embedding = a.take(NODE_TYPES * NODE_TYPES);
+        let level_embedding = a.take(LEVELS * LEVELS);
+        Layout {
+            node_encoder,
+            edge_encoders,
+            body_encoder,
+            blocks,
+            decoder,
+            node_type_embedding,
+            level_embedding,
+            len: a.0,
+        }
+    }
+
+    /// Every MLP, in [`Params::mlps`] order.
+    pub fn mlps(&self) -> Vec<&MlpAt> {
+        let mut v = alloc::vec![&self.node_encoder];
+        v.extend(self.edge_encoders.iter());
+        v.extend(self.body_encoder.iter());
+        for b in &self.blocks {
+            v.extend(b.edges.iter());
+            v.extend(b.body.iter());
+            v.push(&b.node);
+        }
+        v.push(&self.decoder);
+        v
+    }
+
+    /// The flat vector of `p`'s parameters in precision `R`.
+    pub fn flatten<R: Real>(&self, p: &Params) -> Vec<R> {
+        let mut out = alloc::vec![R::ZERO; self.len];
+        let mut put = |at: usize, src: &[f32]| {
+            for (d, &s) in out[at..at + src.len()].iter_mut().zip(src) {
+                *d = R::from_f32(s);
+            }
+        };
+        for (m, at) in p.mlps().iter().zip(self.mlps()) {
+            for (l, la) in m.layers.iter().zip(&at.layers) {
+                put(la.w, &l.weight);
+                put(la.b, &l.bias);
+            }
+            if let (Some(n), Some((g, b))) = (&m.norm, at.norm) {
+                put(g, &n.gamma);
+                put(b, &n.beta);
+            }
+        }
+        put(self.node_type_embedding, &p.node_type_embedding);
+        put(self.level_embedding, &p.level_embedding);
+        out
+    }
+
+    /// Writes a flat vector (parameters or gradients) back into a `Params` of this layout
+    /// (normalisers untouched).
+    pub fn unflatten<R: Real>(&self, flat: &[R], p: &mut Params) {
+        let get = |at: usize, dst: &mut [f32]| {
+            for (d, s) in dst.iter_mut().zip(&flat[at..]) {
+                *d = s.to_f64() as f32;
+            }
+        };
+        let ats = self.mlps();
+        let mut i = 0;
+        let mut visit = |m: &mut Mlp| {
+            let at = ats[i];
+            i += 1;
+            for (l, la) in m.layers.iter_mut().zip(&at.layers) {
+                get(la.w, &mut l.weight);
+                get(la.b, &mut l.bias);
+            }
+            if let (Some(n), Some((g, b))) = (&mut m.norm, at.norm) {
+                get(g, &mut n.gamma);
+                get(b, &mut n.beta);
+            }
+        };
+        visit(&mut p.node_encoder);
+        p.edge_encoders.iter_mut().for_each(&mut visit);
+        p.body_encoder.iter_mut().for_each(&mut visit);
+        for b in &mut p.blocks {
+            b.edges.iter_mut().for_each(&mut visit);
+            b.body.iter_mut().for_each(&mut visit);
+            visit(&mut b.node);
+        }
+        visit(&mut p.decoder);
+        get(self.node_type_embedding, &mut p.node_type_embedding);
+        get(self.level_embedding, &mut p.level_embedding);
+    }
+
+    /// Every tensor as `(name, range in the flat vector)`, e.g. `block3.edge1.layer0.weight`,
+    /// `block3.body.norm.gamma`, `node_encoder.layer2.bias`, `node_type_embedding`.
+    pub fn tensors(&self, spec: &ModelSpec) -> Vec<(String, Range<usize>)> {
+        let mut out = Vec::new();
+        let mut mlp = |name: String, m: &MlpAt| {
+            for (i, l) in m.layers.iter().enumerate() {
+                out.push((format!("{name}.layer{i}.weight"), l.w..l.w + l.inp * l.out));
+                out.push((format!("{name}.layer{i}.bias"), l.b..l.b + l.out));
+            }
+            if let Some((g, b)) = m.norm {
+                let n = m.output();
+                out.push((format!("{name}.norm.gamma"), g..g + n));
+                out.push((format!("{name}.norm.beta"), b..b + n));
+            }
+        };
+        mlp("node_encoder".into(), &self.node_encoder);
+        for (k, m) in spec.encoded_keys().iter().zip(&self.edge_encoders) {
+            mlp(format!("edge_encoder.{}", k.reference_name()), m);
+        }
+        if let Some(m) = &self.body_encoder {
+            mlp("body_encoder".into(), m);
+        }
+        for (bi, (b, bs)) in self.blocks.iter().zip(&spec.blocks).enumerate() {
+            for (m, k) in b.edges.iter().zip(&bs.keys) {
+                mlp(format!("block{bi}.{}", k.reference_name()), m);
+            }
+            if let Some(m) = &b.body {
+                mlp(format!("block{bi}.body_edge"), m);
+            }
+            mlp(format!("block{bi}.node"), &b.node);
+        }
+        mlp("decoder".into(), &self.decoder);
+        out.push(("node_type_embedding".into(), self.node_type_embedding..self.node_type_embedding + 81));
+        out.push(("level_embedding".into(), self.level_embedding..self.level_embedding + 16));
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn train_layout_round_trip_and_cover() {
+        let spec = ModelSpec::with_schedule(8, 2, 2, "f,c0 | d:c0,c1 | u:f,c0").unwrap();
+        let p = Params::init(&spec, 9).unwrap();
+        let lay = Layout::new(&p);
+        assert_eq!(lay.len, p.count());
+        let flat = lay.flatten::<f32>(&p);
+        // Every tensor once, no overlap, no gap.
+        let mut ranges: Vec<Range<usize>> = lay.tensors(&spec).into_iter().map(|(_, r)| r).collect();
+        ranges.sort_by_key(|r| r.start);
+        let mut at = 0;
+        for r in &ranges {
+            assert_eq!(r.start, at);
+            at = r.end;
+        }
+        assert_eq!(at, lay.len);
+        // Back into a Params: identical; a changed entry lands in the tensor the layout names.
+        let mut q = Params::init(&spec, 10).unwrap();
+        lay.unflatten(&flat, &mut q);
+        assert_eq!(q.node_encoder, p.node_encoder);
+        assert_eq!(q.blocks, p.blocks);
+        assert_eq!(q.level_embedding, p.level_embedding);
+        let mut f2 = flat.clone();
+        let b = &lay.blocks[1].edges[1].layers[0];
+        f2[b.w + 3 * b.inp + 5] = 42.0;
+        lay.unflatten(&f2, &mut q);
+        assert_eq!(q.blocks[1].edges[1].layers[0].weight[3 * b.inp + 5], 42.0);
+        assert_eq!(lay.flatten::<f32>(&q), f2);
+    }
+}

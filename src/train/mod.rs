@@ -1,0 +1,18 @@
+//! The trainer's core (feature `train`): a differentiable forward pass of the whole network
+//! that follows the runtime's data path, its backward pass from the physics objective's
+//! gradient to every parameter, and the optimiser (Adam, learning-rate schedule, clipping).
+//!
+//! Parameters are trained in a flat vector ([`layout::Layout`] maps it to and from
+//! [`crate::model::Params`]); gradients use the same layout. Everything is generic over
+//! [`crate::math::Real`]: f32 to train, f64 for gradient checks.
+
+pub mod inputs;
+pub mod layout;
+pub mod network;
+pub mod ops;
+pub mod optim;
+
+pub use inputs::{BodyFrames, GarmentState, StepData};
+pub use layout::Layout;
+pub use network::{Network, Stats, Tape};
+pub use optim::{clip_global_norm, learning_rate, Adam};
