@@ -1,5 +1,6 @@
 use super::*;
 use crate::mesh::shapes::grid;
+use crate::mesh::topology::directed_csr;
 use crate::mesh::{repair, GarmentDesc};
 use alloc::collections::{BTreeSet, VecDeque};
 use proptest::prelude::*;
