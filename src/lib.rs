@@ -23,14 +23,24 @@
 #![no_std]
 #![deny(unsafe_op_in_unsafe_fn)]
 #![warn(missing_docs, clippy::missing_safety_doc)]
+// Numeric kernels read better with explicit index loops over several parallel arrays.
+#![allow(clippy::needless_range_loop)]
 
 extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod body;
 pub mod error;
+pub mod features;
 pub mod hierarchy;
+#[cfg(feature = "std")]
+pub mod io;
+pub mod kernels;
 pub mod math;
 pub mod mesh;
+pub mod model;
+pub mod normaliser;
+pub mod rng;
 
 pub use error::{Error, Result};

@@ -30,7 +30,7 @@ pub mod ranges {
 impl Default for Material {
     /// The reference implementation's inference material.
     fn default() -> Self {
-        Material { density: 0.20022, mu: 23600.0, lambda: 44400.0, bending: 3.962_577_8e-5 }
+        Material { density: 0.20022, mu: 23600.0, lambda: 44400.0, bending: 3.962_577_8e-5_f64 as f32 }
     }
 }
 

@@ -1,0 +1,123 @@
+//! One frame of the body: centroids, normals and both grids, in buffers sized once.
+
+use super::{BodyMesh, Nearest, PointGrid};
+use crate::error::{Error, Result};
+use alloc::vec;
+use alloc::vec::Vec;
+
+/// The body's geometry at one frame and the two nearest-point grids (body vertices, face
+/// centroids). [`new`](Self::new) sizes everything for one [`BodyMesh`]; [`update`](Self::update)
+/// and the queries then allocate nothing.
+#[derive(Clone, Debug)]
+pub struct BodyFrame {
+    n_vertices: usize,
+    centroids: Vec<[f32; 3]>,
+    face_normals: Vec<[f32; 3]>,
+    vertex_normals: Vec<[f32; 3]>,
+    vertex_grid: PointGrid,
+    centroid_grid: PointGrid,
+}
+
+/// Cells allowed per point: the grids aim for [`super::DEFAULT_CELLS_PER_POINT`], this leaves
+/// room for flat or thin point sets, whose block padding wastes cells.
+const MAX_CELLS_PER_POINT: usize = 8;
+
+impl BodyFrame {
+    /// Buffers and grids for `mesh` (empty until the first [`update`](Self::update)).
+    pub fn new(mesh: &BodyMesh) -> Result<BodyFrame> {
+        let (nv, nf) = (mesh.n_vertices(), mesh.n_faces());
+        Ok(BodyFrame {
+            n_vertices: nv,
+            centroids: vec![[0.0; 3]; nf],
+            face_normals: vec![[0.0; 3]; nf],
+            vertex_normals: vec![[0.0; 3]; nv],
+            vertex_grid: PointGrid::new(nv, (MAX_CELLS_PER_POINT * nv).max(64))?,
+            centroid_grid: PointGrid::new(nf, (MAX_CELLS_PER_POINT * nf).max(64))?,
+        })
+    }
+
+    /// Recomputes centroids, face and vertex normals and both grids at `positions` (metres, one
+    /// per body vertex).
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] when `mesh` is not the mesh of [`new`](Self::new) (by size) or
+    /// `positions` has the wrong length; [`Error::NonFinite`] naming the first NaN/Inf body vertex
+    /// (the frame is then not updated).
+    pub fn update(&mut self, mesh: &BodyMesh, positions: &[[f32; 3]]) -> Result<()> {
+        if mesh.n_vertices() != self.n_vertices || mesh.n_faces() != self.centroids.len() {
+            return Err(Error::SizeMismatch { what: "body frame mesh", expected: self.n_vertices, got: mesh.n_vertices() });
+        }
+        mesh.check_positions(positions)?;
+        mesh.face_centroids(positions, &mut self.centroids)?;
+        mesh.face_normals(positions, &mut self.face_normals)?;
+        mesh.vertex_normals(positions, &mut self.vertex_normals)?;
+        self.rebuild_grids(positions)
+    }
+
+    /// Rebuilds only the two grids at `positions` (for callers that compute normals
+    /// themselves): the face centroids are recomputed first, since the centroid grid needs them.
+    ///
+    /// # Errors
+    /// As [`update`](Self::update).
+    pub fn update_grids(&mut self, mesh: &BodyMesh, positions: &[[f32; 3]]) -> Result<()> {
+        if mesh.n_vertices() != self.n_vertices || mesh.n_faces() != self.centroids.len() {
+            return Err(Error::SizeMismatch { what: "body frame mesh", expected: self.n_vertices, got: mesh.n_vertices() });
+        }
+        mesh.check_positions(positions)?;
+        mesh.face_centroids(positions, &mut self.centroids)?;
+        self.rebuild_grids(positions)
+    }
+
+    fn rebuild_grids(&mut self, positions: &[[f32; 3]]) -> Result<()> {
+        self.vertex_grid.rebuild(positions)?;
+        self.centroid_grid.rebuild(&self.centroids)
+    }
+
+    /// Face centroids of the last update, metres.
+    pub fn centroids(&self) -> &[[f32; 3]] {
+        &self.centroids
+    }
+    /// Unit face normals of the last update.
+    pub fn face_normals(&self) -> &[[f32; 3]] {
+        &self.face_normals
+    }
+    /// Unit vertex normals of the last update.
+    pub fn vertex_normals(&self) -> &[[f32; 3]] {
+        &self.vertex_normals
+    }
+    /// The grid over the body vertices.
+    pub fn vertex_grid(&self) -> &PointGrid {
+        &self.vertex_grid
+    }
+    /// The grid over the face centroids.
+    pub fn centroid_grid(&self) -> &PointGrid {
+        &self.centroid_grid
+    }
+
+    /// Body edges (MODEL.md section 1): for every garment vertex (metres), its nearest body vertex
+    /// if that is within `radius` (inclusive) and not `body_omitted`, else `None`. This is
+    /// [`PointGrid::nearest_within`] followed by [`BodyMesh::keep_not_omitted`]. Returns the number
+    /// of edges.
+    ///
+    /// # Errors
+    /// As [`PointGrid::nearest_within`].
+    pub fn body_edges(
+        &self,
+        mesh: &BodyMesh,
+        garment: &[[f32; 3]],
+        radius: f32,
+        out: &mut [Option<Nearest>],
+    ) -> Result<usize> {
+        self.vertex_grid.nearest_within(garment, radius, out)?;
+        Ok(mesh.keep_not_omitted(out))
+    }
+
+    /// For every garment vertex (metres), the body face whose centroid is nearest (no radius), as
+    /// used by the collision and friction terms.
+    ///
+    /// # Errors
+    /// As [`PointGrid::nearest`].
+    pub fn nearest_faces(&self, garment: &[[f32; 3]], out: &mut [Nearest]) -> Result<()> {
+        self.centroid_grid.nearest(garment, out)
+    }
+}

@@ -1,0 +1,379 @@
+use super::shapes::ellipsoid;
+use super::*;
+use crate::mesh::vertex_normals;
+
+/// splitmix64: a tiny seeded generator.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn unit(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32
+    }
+    fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.unit()
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n as u64) as usize
+    }
+    fn dir(&mut self) -> [f32; 3] {
+        loop {
+            let v = [self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0)];
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if l > 0.1 && l <= 1.0 {
+                return v.map(|c| c / l);
+            }
+        }
+    }
+}
+
+fn d2(p: [f32; 3], q: [f32; 3]) -> f32 {
+    let (dx, dy, dz) = (p[0] - q[0], p[1] - q[1], p[2] - q[2]);
+    dx * dx + dy * dy + dz * dz
+}
+
+/// Brute force with the documented rule: squared f32 distance `<= limit2`, lowest index on ties.
+fn brute(points: &[[f32; 3]], q: [f32; 3], limit2: f32) -> Option<Nearest> {
+    let mut best: Option<(u32, f32)> = None;
+    for (i, p) in points.iter().enumerate() {
+        let d = d2(*p, q);
+        if d <= limit2 && best.is_none_or(|(_, b)| d < b) {
+            best = Some((i as u32, d));
+        }
+    }
+    best.map(|(index, d)| Nearest { index, distance: d.sqrt() })
+}
+
+/// Random point sets of different shapes, around a random offset.
+fn random_cloud(rng: &mut Rng, kind: usize, n: usize) -> Vec<[f32; 3]> {
+    let off = [rng.range(-5.0, 5.0), rng.range(-5.0, 5.0), rng.range(-5.0, 5.0)];
+    let mut pts = Vec::with_capacity(n);
+    for _ in 0..n {
+        let p = match kind {
+            // Filled box.
+            0 => [rng.range(0.0, 0.6), rng.range(0.0, 1.7), rng.range(0.0, 0.3)],
+            // Sphere surface (a body-like 2-manifold).
+            1 => rng.dir().map(|c| 0.4 * c),
+            // Flat: all in one plane.
+            2 => [rng.range(-1.0, 1.0), 0.25, rng.range(-0.5, 0.5)],
+            // A line.
+            3 => [rng.range(-1.0, 1.0), 0.0, 0.0],
+            // A few tight clusters far apart, with exact duplicates.
+            _ => {
+                let c = [[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, -2.0, 1.0]][rng.below(3)];
+                let q = [(rng.below(5) as f32) * 0.01, (rng.below(5) as f32) * 0.01, 0.0];
+                [c[0] + q[0], c[1] + q[1], c[2] + q[2]]
+            }
+        };
+        pts.push([p[0] + off[0], p[1] + off[1], p[2] + off[2]]);
+    }
+    pts
+}
+
+/// Queries inside the bounds, near them and far outside.
+fn random_queries(rng: &mut Rng, points: &[[f32; 3]], n: usize) -> Vec<[f32; 3]> {
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let mut qs = Vec::with_capacity(n);
+    for i in 0..n {
+        let q = match i % 4 {
+            0 => [0, 1, 2].map(|a| rng.range(lo[a], hi[a])),
+            1 => {
+                let p = points[rng.below(points.len())];
+                let d = rng.dir();
+                let r = rng.range(0.0, 0.05);
+                [0, 1, 2].map(|a| p[a] + r * d[a])
+            }
+            2 => [0, 1, 2].map(|a| rng.range(lo[a] - 0.5, hi[a] + 0.5)),
+            _ => {
+                let d = rng.dir();
+                let r = [3.0, 30.0, 1000.0][rng.below(3)];
+                [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]) + r * d[a])
+            }
+        };
+        qs.push(q);
+    }
+    qs
+}
+
+#[test]
+fn body_query_nearest_matches_brute_force() {
+    let mut rng = Rng(1);
+    let mut grid = PointGrid::new(3000, 20_000).unwrap();
+    for round in 0..40 {
+        let kind = round % 5;
+        let n = [1, 2, 7, 300, 3000][rng.below(5)];
+        let pts = random_cloud(&mut rng, kind, n);
+        grid.set_cells_per_point([0.05, 0.5, 2.0, 8.0][round % 4]).unwrap();
+        grid.rebuild(&pts).unwrap();
+        let qs = random_queries(&mut rng, &pts, 400);
+        let mut out = vec![Nearest { index: 0, distance: 0.0 }; qs.len()];
+        grid.nearest(&qs, &mut out).unwrap();
+        for (q, got) in qs.iter().zip(&out) {
+            let want = brute(&pts, *q, f32::INFINITY).unwrap();
+            assert_eq!(got.index, want.index, "round {round} kind {kind} n {n} query {q:?}: {got:?} vs {want:?}");
+            assert_eq!(got.distance, want.distance);
+        }
+    }
+}
+
+#[test]
+fn body_query_within_radius_matches_brute_force() {
+    let mut rng = Rng(2);
+    let mut grid = PointGrid::new(3000, 20_000).unwrap();
+    for round in 0..40 {
+        let kind = round % 5;
+        let n = [1, 5, 300, 3000][rng.below(4)];
+        let pts = random_cloud(&mut rng, kind, n);
+        grid.set_cells_per_point([0.05, 0.5, 2.0, 8.0][round % 4]).unwrap();
+        grid.rebuild(&pts).unwrap();
+        let qs = random_queries(&mut rng, &pts, 400);
+        let mut out = vec![None; qs.len()];
+        for r in [0.0, 0.01, 0.03, 0.2, 2.0] {
+            grid.nearest_within(&qs, r, &mut out).unwrap();
+            let mut found = 0;
+            for (q, got) in qs.iter().zip(&out) {
+                let want = brute(&pts, *q, r * r);
+                assert_eq!(*got, want, "round {round} kind {kind} n {n} r {r} query {q:?}");
+                found += got.is_some() as usize;
+            }
+            if r >= 0.03 && kind != 4 {
+                assert!(found > 0, "round {round}: no query found a point within {r}");
+            }
+        }
+    }
+}
+
+#[test]
+fn body_query_radius_is_inclusive() {
+    let r = 0.03f32;
+    // Points exactly r away along each axis, and one a hair farther.
+    let q = [1.0f32, 2.0, 3.0];
+    let far = f32::from_bits((q[0] + r).to_bits() + 1);
+    let pts = vec![[far, q[1], q[2]], [q[0], q[1] + r, q[2]], [q[0], q[1], q[2] - r], [q[0] - 0.5, q[1], q[2]]];
+    let mut grid = PointGrid::new(8, 64).unwrap();
+    grid.rebuild(&pts).unwrap();
+    let mut out = [None];
+    // Both 1 and 2 are at distance r exactly (in f32); the lower index wins.
+    let exact = d2(pts[1], q);
+    assert_eq!(exact, d2(pts[2], q));
+    assert!(d2(pts[0], q) > exact);
+    grid.nearest_within(&[q], libm::sqrtf(exact), &mut out).unwrap();
+    assert_eq!(out[0].map(|n| n.index), Some(1));
+    // Just below: nothing.
+    grid.nearest_within(&[q], f32::from_bits(libm::sqrtf(exact).to_bits() - 1), &mut out).unwrap();
+    assert_eq!(out[0], None, "a radius below the distance must find nothing");
+    // Without point 1, the equally distant point 2 is found, never the farther point 0.
+    grid.rebuild(&[pts[0], pts[3], pts[2]]).unwrap();
+    grid.nearest_within(&[q], r, &mut out).unwrap();
+    assert_eq!(out[0].map(|n| n.index), (d2(pts[2], q) <= r * r).then_some(2));
+}
+
+#[test]
+fn body_query_ties_take_lowest_index() {
+    // Duplicates and a symmetric configuration; the order of the points is shuffled so that the
+    // winner is not simply the first point sorted into the cell.
+    let mut grid = PointGrid::new(16, 4096).unwrap();
+    let pts = [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 5.0, 0.0], [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]];
+    grid.rebuild(&pts).unwrap();
+    assert_eq!(grid.nearest_one([0.0, 0.0, 0.0]).unwrap().index, 0);
+    assert_eq!(grid.nearest_one([-1.0, 0.0, 0.0]).unwrap().index, 1);
+    assert_eq!(grid.nearest_within_one([0.0, 0.0, 0.0], 1.0).unwrap().index, 0);
+    let rev: Vec<_> = pts.iter().rev().copied().collect();
+    grid.rebuild(&rev).unwrap();
+    assert_eq!(grid.nearest_one([0.0, 0.0, 0.0]).unwrap().index, 0); // (-1,0,0) is index 0 now
+    assert_eq!(grid.nearest_one([1.0, 0.0, 0.0]).unwrap().index, 1);
+    assert_eq!(grid.nearest_one([0.0, 1e6, 0.0]).unwrap().index, 2);
+}
+
+#[test]
+fn body_query_empty_and_errors() {
+    let mut grid = PointGrid::new(4, 64).unwrap();
+    assert!(grid.is_empty());
+    let mut near = [Nearest { index: 0, distance: 0.0 }];
+    assert_eq!(grid.nearest(&[[0.0; 3]], &mut near), Err(Error::Empty { what: "point grid" }));
+    let mut within = [Some(Nearest { index: 0, distance: 0.0 })];
+    grid.nearest_within(&[[0.0; 3]], 1.0, &mut within).unwrap();
+    assert_eq!(within[0], None);
+    // Empty rebuild after a non-empty one empties the grid.
+    grid.rebuild(&[[0.0; 3]]).unwrap();
+    assert_eq!(grid.nearest_one([1.0, 0.0, 0.0]).map(|n| n.distance), Some(1.0));
+    grid.rebuild(&[]).unwrap();
+    assert_eq!(grid.nearest_one([1.0, 0.0, 0.0]), None);
+    // Far beyond the radius: none; everything at one spot: found.
+    grid.rebuild(&[[0.0; 3], [0.0; 3], [0.0; 3]]).unwrap();
+    assert_eq!(grid.nearest_within_one([0.0, 0.0, 0.031], 0.03), None);
+    assert_eq!(grid.nearest_within_one([0.0, 0.0, 0.02], 0.03).map(|n| n.index), Some(0));
+
+    assert_eq!(
+        grid.rebuild(&[[0.0; 3]; 5]),
+        Err(Error::CapacityExceeded { what: "grid points", capacity: 4, needed: 5 })
+    );
+    assert!(grid.is_empty(), "a failed rebuild leaves the grid empty");
+    assert_eq!(grid.rebuild(&[[0.0; 3], [f32::NAN, 0.0, 0.0]]), Err(Error::NonFinite { what: "grid point", index: 1 }));
+    grid.rebuild(&[[0.0; 3]]).unwrap();
+    let qs = [[0.0; 3], [0.0, f32::INFINITY, 0.0]];
+    let mut out2 = [None; 2];
+    assert_eq!(grid.nearest_within(&qs, 1.0, &mut out2), Err(Error::NonFinite { what: "query point", index: 1 }));
+    assert_eq!(grid.nearest_within(&qs[..1], -1.0, &mut out2[..1]), Err(Error::OutOfRange { what: "query radius", index: 0 }));
+    assert!(matches!(grid.nearest_within(&qs, 1.0, &mut out2[..1]), Err(Error::SizeMismatch { expected: 2, got: 1, .. })));
+    assert!(matches!(PointGrid::new(4, 63), Err(Error::OutOfRange { .. })));
+}
+
+#[test]
+fn body_query_grid_respects_max_cells_and_follows_points() {
+    let mut rng = Rng(3);
+    let mut grid = PointGrid::new(5000, 1000).unwrap();
+    let mut pts = random_cloud(&mut rng, 0, 5000);
+    grid.rebuild(&pts).unwrap();
+    let c = grid.cells();
+    assert!(c[0] * c[1] * c[2] <= 1000, "{c:?}");
+    let (lo0, hi0) = grid.bounds();
+    // Move the whole set far away: the bounds follow.
+    for p in &mut pts {
+        p[0] += 100.0;
+    }
+    grid.rebuild(&pts).unwrap();
+    let (lo, hi) = grid.bounds();
+    assert!((lo[0] - lo0[0] - 100.0).abs() < 1e-4 && (hi[0] - hi0[0] - 100.0).abs() < 1e-4, "{lo:?} {hi:?}");
+    assert_eq!((lo[1], hi[2]), (lo0[1], hi0[2]));
+    let q = [lo[0] - 50.0, 0.0, 0.0];
+    assert_eq!(grid.nearest_one(q), brute(&pts, q, f32::INFINITY));
+}
+
+#[test]
+fn body_query_mesh_validation_names_the_index() {
+    let f = [[0, 1, 2], [0, 2, 3]];
+    assert!(BodyMesh::new(4, &f).is_ok());
+    assert_eq!(BodyMesh::new(0, &f), Err(Error::Empty { what: "body vertices" }));
+    assert_eq!(BodyMesh::new(4, &[]), Err(Error::Empty { what: "body faces" }));
+    assert_eq!(
+        BodyMesh::new(3, &f),
+        Err(Error::IndexOutOfRange { what: "body face", at: 1, index: 3, len: 3 })
+    );
+    assert_eq!(BodyMesh::new(4, &[[0, 1, 2], [2, 3, 2]]), Err(Error::RepeatedVertex { face: 1, vertex: 2 }));
+    assert_eq!(BodyMesh::new(4, &[[1, 1, 2]]), Err(Error::RepeatedVertex { face: 0, vertex: 1 }));
+    let m = BodyMesh::new(4, &f).unwrap();
+    assert!(matches!(m.clone().with_omitted(&[false; 3]), Err(Error::SizeMismatch { expected: 4, got: 3, .. })));
+    assert_eq!(m.check_positions(&[[0.0; 3]; 3]).unwrap_err().code(), 7);
+    assert_eq!(
+        m.check_positions(&[[0.0; 3], [0.0; 3], [0.0, 0.0, f32::NAN], [0.0; 3]]),
+        Err(Error::NonFinite { what: "body vertex", index: 2 })
+    );
+}
+
+#[test]
+fn body_query_geometry_of_an_ellipsoid() {
+    let c = [0.1, 1.0, -0.2];
+    let (v, f) = ellipsoid(12, 20, [0.3, 0.5, 0.2], c);
+    assert_eq!(v.len(), 2 + 12 * 20);
+    assert_eq!(f.len(), 2 * 12 * 20);
+    let mesh = BodyMesh::new(v.len(), &f).unwrap();
+    let mut cen = vec![[0.0; 3]; f.len()];
+    let mut fnrm = vec![[0.0; 3]; f.len()];
+    let mut vn = vec![[0.0; 3]; v.len()];
+    mesh.face_centroids(&v, &mut cen).unwrap();
+    mesh.face_normals(&v, &mut fnrm).unwrap();
+    mesh.vertex_normals(&v, &mut vn).unwrap();
+    let mut vol = 0.0f64;
+    for (i, tri) in f.iter().enumerate() {
+        let [a, b, cc] = tri.map(|k| v[k as usize]);
+        for ax in 0..3 {
+            assert!((cen[i][ax] - (a[ax] + b[ax] + cc[ax]) / 3.0).abs() < 1e-6);
+        }
+        let n = fnrm[i];
+        assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() - 1.0).abs() < 1e-5);
+        let out = [cen[i][0] - c[0], cen[i][1] - c[1], cen[i][2] - c[2]];
+        assert!(n[0] * out[0] + n[1] * out[1] + n[2] * out[2] > 0.0, "face {i} normal points inwards");
+        // Signed volume (closed, outward faces: positive).
+        let det = a[0] as f64 * (b[1] as f64 * cc[2] as f64 - b[2] as f64 * cc[1] as f64)
+            - a[1] as f64 * (b[0] as f64 * cc[2] as f64 - b[2] as f64 * cc[0] as f64)
+            + a[2] as f64 * (b[0] as f64 * cc[1] as f64 - b[1] as f64 * cc[0] as f64);
+        vol += det / 6.0;
+    }
+    let exact = 4.0 / 3.0 * core::f64::consts::PI * 0.3 * 0.5 * 0.2;
+    assert!(vol > 0.9 * exact && vol < exact, "volume {vol} vs {exact}");
+    let mut want = vec![[0.0; 3]; v.len()];
+    vertex_normals(&f, &v, &mut want);
+    assert_eq!(vn, want);
+    // A degenerate face gets a zero normal, not NaN.
+    let flat = [[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]];
+    let m = BodyMesh::new(3, &[[0, 1, 2]]).unwrap();
+    let mut n1 = [[9.0; 3]];
+    m.face_normals(&flat, &mut n1).unwrap();
+    assert_eq!(n1, [[0.0; 3]]);
+    assert!(matches!(m.face_normals(&flat, &mut []), Err(Error::SizeMismatch { .. })));
+    assert!(matches!(m.face_centroids(&flat[..2], &mut n1), Err(Error::SizeMismatch { .. })));
+}
+
+#[test]
+fn body_query_frame_matches_brute_force_with_omitted_vertices() {
+    let mut rng = Rng(4);
+    let (v, f) = ellipsoid(40, 60, [0.25, 0.8, 0.15], [0.0, 1.0, 0.0]);
+    // Omit the lower third (a stand-in for the hands).
+    let omitted: Vec<bool> = v.iter().map(|p| p[1] < 0.6).collect();
+    let mesh = BodyMesh::new(v.len(), &f).unwrap().with_omitted(&omitted).unwrap();
+    let mut frame = BodyFrame::new(&mesh).unwrap();
+    let mut positions = v.clone();
+    let n_garment = 2000;
+    let mut edges = vec![None; n_garment];
+    let mut faces = vec![Nearest { index: 0, distance: 0.0 }; n_garment];
+    for step in 0..3 {
+        // Move the body: translate and wobble.
+        for p in positions.iter_mut() {
+            p[0] += 0.3;
+            p[2] += 0.02 * (p[1] * 7.0 + step as f32).sin();
+        }
+        frame.update(&mesh, &positions).unwrap();
+        let garment = random_queries(&mut rng, &positions, n_garment);
+        let r = 0.03;
+        let kept = frame.body_edges(&mesh, &garment, r, &mut edges).unwrap();
+        let (mut n_raw, mut n_omitted) = (0, 0);
+        for (g, got) in garment.iter().zip(&edges) {
+            let raw = brute(&positions, *g, r * r);
+            n_raw += raw.is_some() as usize;
+            // MODEL.md: the nearest vertex overall decides; no fallback to the second nearest.
+            let want = raw.filter(|n| !omitted[n.index as usize]);
+            n_omitted += (raw.is_some() && want.is_none()) as usize;
+            assert_eq!(*got, want, "step {step} garment point {g:?}");
+        }
+        assert_eq!(kept, edges.iter().filter(|e| e.is_some()).count());
+        assert!(kept > 0 && n_omitted > 0, "the test must see both kept and omitted edges ({kept}, {n_omitted}, {n_raw})");
+        frame.nearest_faces(&garment, &mut faces).unwrap();
+        for (g, got) in garment.iter().zip(&faces) {
+            assert_eq!(Some(*got), brute(frame.centroids(), *g, f32::INFINITY));
+        }
+    }
+    assert_eq!(
+        frame.update(&mesh, &positions[1..]),
+        Err(Error::SizeMismatch { what: "body positions", expected: v.len(), got: v.len() - 1 })
+    );
+    positions[7][1] = f32::NAN;
+    assert_eq!(frame.update(&mesh, &positions), Err(Error::NonFinite { what: "body vertex", index: 7 }));
+}
+
+#[test]
+fn body_query_omitted_nearest_has_no_fallback() {
+    // Vertex 0 is nearest and omitted; vertex 1 is also within the radius but must not be used.
+    let v = [[0.0, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let mesh = BodyMesh::new(3, &[[0, 1, 2]]).unwrap().with_omitted(&[true, false, false]).unwrap();
+    let mut frame = BodyFrame::new(&mesh).unwrap();
+    frame.update(&mesh, &v).unwrap();
+    let g = [[0.001, 0.0, 0.0], [0.019, 0.0, 0.0], [0.5, 0.5, 0.0]];
+    let mut raw = [None; 3];
+    frame.vertex_grid().nearest_within(&g, 0.03, &mut raw).unwrap();
+    assert_eq!(raw.map(|n| n.map(|n| n.index)), [Some(0), Some(1), None]);
+    let mut out = [None; 3];
+    assert_eq!(frame.body_edges(&mesh, &g, 0.03, &mut out).unwrap(), 1);
+    assert_eq!(out.map(|n| n.map(|n| n.index)), [None, Some(1), None]);
+}

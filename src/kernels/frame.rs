@@ -1,0 +1,533 @@
+//! The architecture-neutral half of the SIMD paths: micro-kernels and frames written once over a
+//! [`Simd`] vocabulary, instantiated inside each tier's `#[target_feature]` entry point (every
+//! function here is `#[inline(always)]` so it is compiled with the caller's features).
+//!
+//! * The **micro-kernel** computes an `MR × (NV · LANES)` tile of `Σ x · Wᵀ` in registers: per
+//!   input, `NV` weight vectors are loaded from the packed panels and each of the `MR` activation
+//!   rows is broadcast once (`MR · NV` FMAs for `NV + MR` loads).
+//! * The **frame** walks row blocks and column tiles, handles row tails (smaller `MR`) and the
+//!   last partial panel (through a small stack tile), and applies the fused epilogue.
+//! * Row passes (bf16 rounding of activations, LayerNorm, residual and aggregate adds) are plain
+//!   loops that the compiler vectorises for the caller's features.
+#![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+
+use super::{EdgeInputs, EdgeMlp, Epilogue, Operand, Weights, EDGE_BLOCK, LINEAR_BLOCK_ROWS, LN_EPS, PANEL};
+
+/// Rows per micro-kernel tile.
+pub(crate) const MR: usize = 6;
+
+/// Largest tile width in `f32` (stack tile for partial panels).
+const MAX_TILE: usize = 64;
+
+/// Rounds to the nearest bf16 (ties to even) and widens back: the value a bf16 activation has.
+/// Finite inputs only (NaN payloads are not preserved).
+#[inline(always)]
+pub(crate) fn round_bf16(x: f32) -> f32 {
+    let b = x.to_bits();
+    f32::from_bits(b.wrapping_add(0x7FFF + ((b >> 16) & 1)) & 0xFFFF_0000)
+}
+
+/// In-place affine LayerNorm of one row (two-pass mean and variance, eps [`LN_EPS`]).
+#[inline(always)]
+pub(crate) fn layer_norm_row(y: &mut [f32], gamma: &[f32], beta: &[f32]) {
+    let n = y.len() as f32;
+    let mean = y.iter().sum::<f32>() / n;
+    let var = y.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
+    let inv = 1.0 / libm::sqrtf(var + LN_EPS);
+    for ((v, g), b) in y.iter_mut().zip(gamma).zip(beta) {
+        *v = (*v - mean) * inv * g + b;
+    }
+}
+
+/// The vector vocabulary a tier provides. All methods are `unsafe`: they are only sound on a
+/// CPU with the tier's features (which the token type proves) and with in-bounds pointers.
+pub(crate) trait Simd: Copy {
+    /// f32 lanes per vector.
+    const LANES: usize;
+    /// Panels (of [`PANEL`] columns) per widest tile.
+    const TILE_PANELS: usize;
+    /// Prepared-activation `f32` slots per input pair: 2 (bf16-rounded f32 values) or 1 (a
+    /// packed pair of bf16, as `vdpbf16ps` broadcasts it).
+    const SLOTS_PER_PAIR: usize;
+    type V: Copy;
+    /// A loaded weight vector holding `LANES` columns × (even, odd) input.
+    type WP: Copy;
+    /// A broadcast activation pair.
+    type XP: Copy;
+
+    unsafe fn zero(self) -> Self::V;
+    unsafe fn splat(self, v: f32) -> Self::V;
+    unsafe fn load(self, p: *const f32) -> Self::V;
+    unsafe fn store(self, p: *mut f32, v: Self::V);
+    /// `a · b + c`.
+    unsafe fn fma(self, a: Self::V, b: Self::V, c: Self::V) -> Self::V;
+    unsafe fn add(self, a: Self::V, b: Self::V) -> Self::V;
+    unsafe fn max(self, a: Self::V, b: Self::V) -> Self::V;
+    unsafe fn prefetch(self, p: *const u8);
+
+    /// Loads `LANES` columns × 2 inputs of packed bf16 weights.
+    unsafe fn load_w2(self, p: *const u16) -> Self::WP;
+    /// Broadcasts the prepared activation pair at `p`.
+    unsafe fn bcast_x2(self, p: *const f32) -> Self::XP;
+    /// `acc + w_even · x_even + w_odd · x_odd`, f32 accumulation.
+    unsafe fn dot2(self, acc: Self::V, w: Self::WP, x: Self::XP) -> Self::V;
+
+    /// Writes `src` (k values) as prepared bf16 activations (`kp · SLOTS_PER_PAIR / 2` slots).
+    #[inline(always)]
+    fn prep_bf16(self, src: &[f32], dst: &mut [f32]) {
+        if Self::SLOTS_PER_PAIR == 2 {
+            for (d, s) in dst.iter_mut().zip(src) {
+                *d = round_bf16(*s);
+            }
+            if src.len() % 2 == 1 {
+                dst[src.len()] = 0.0;
+            }
+        } else {
+            let pairs = src.len() / 2;
+            for (d, s) in dst[..pairs].iter_mut().zip(src.chunks_exact(2)) {
+                let lo = round_bf16(s[0]).to_bits() >> 16;
+                let hi = round_bf16(s[1]).to_bits() & 0xFFFF_0000;
+                *d = f32::from_bits(hi | lo);
+            }
+            if src.len() % 2 == 1 {
+                dst[pairs] = f32::from_bits(round_bf16(src[src.len() - 1]).to_bits() >> 16);
+            }
+        }
+    }
+}
+
+/// One f32 operand of a tile: activations (row stride `ldx`) and packed weights with `k` inputs.
+#[derive(Clone, Copy)]
+pub(crate) struct SegF32 {
+    pub x: *const f32,
+    pub ldx: usize,
+    pub w: *const f32,
+    pub k: usize,
+}
+
+/// One bf16 operand: prepared activations (row stride `ldx` slots) and packed pair-panels.
+#[derive(Clone, Copy)]
+pub(crate) struct SegBf16 {
+    pub x: *const f32,
+    pub ldx: usize,
+    pub w: *const u16,
+    pub pairs: usize,
+}
+
+/// Operand lists of either precision.
+#[derive(Clone, Copy)]
+pub(crate) enum Segs<'a> {
+    F32(&'a [SegF32]),
+    Bf16(&'a [SegBf16]),
+}
+
+/// Gathered addends for the split first edge layer: rows `tgt[i]` of `pt` and `src[i]` of `ps`
+/// are added to output row `i` (row stride `ld`).
+#[derive(Clone, Copy)]
+pub(crate) struct Gather {
+    pub pt: *const f32,
+    pub ps: *const f32,
+    pub ld: usize,
+    pub tgt: *const u32,
+    pub src: *const u32,
+}
+
+/// The fused epilogue of a tile: `+ bias`, `+ gathered rows`, ReLU, then store or add.
+#[derive(Clone, Copy)]
+pub(crate) struct TileEpi {
+    pub bias: *const f32,
+    pub gather: Option<Gather>,
+    pub relu: bool,
+    pub accumulate: bool,
+}
+
+#[inline(always)]
+unsafe fn kernel_f32<S: Simd, const R: usize, const NV: usize>(
+    s: S,
+    segs: &[SegF32],
+    row0: usize,
+    p0: usize,
+) -> [[S::V; NV]; R] {
+    // SAFETY (whole body): the frame passes rows `row0..row0+R` that exist in every operand and
+    // panels `p0..p0+NV·LANES/PANEL` that exist in every packed matrix.
+    unsafe {
+        let mut acc = [[s.zero(); NV]; R];
+        for seg in segs {
+            let k = seg.k;
+            let w: [*const f32; NV] = core::array::from_fn(|v| {
+                let c = v * S::LANES;
+                seg.w.add((p0 + c / PANEL) * PANEL * k + c % PANEL)
+            });
+            let x: [*const f32; R] = core::array::from_fn(|r| seg.x.add((row0 + r) * seg.ldx));
+            for kk in 0..k {
+                if NV * S::LANES >= 32 {
+                    s.prefetch(w[0].wrapping_add((kk + 8) * PANEL) as *const u8);
+                }
+                let wv: [S::V; NV] = core::array::from_fn(|v| s.load(w[v].add(kk * PANEL)));
+                for r in 0..R {
+                    let xb = s.splat(*x[r].add(kk));
+                    for v in 0..NV {
+                        acc[r][v] = s.fma(xb, wv[v], acc[r][v]);
+                    }
+                }
+            }
+        }
+        acc
+    }
+}
+
+#[inline(always)]
+unsafe fn kernel_bf16<S: Simd, const R: usize, const NV: usize>(
+    s: S,
+    segs: &[SegBf16],
+    row0: usize,
+    p0: usize,
+) -> [[S::V; NV]; R] {
+    // SAFETY (whole body): as in `kernel_f32`, for pairs of inputs.
+    unsafe {
+        let mut acc = [[s.zero(); NV]; R];
+        for seg in segs {
+            let kp = seg.pairs * 2;
+            let w: [*const u16; NV] = core::array::from_fn(|v| {
+                let c = v * S::LANES;
+                seg.w.add((p0 + c / PANEL) * PANEL * kp + (c % PANEL) * 2)
+            });
+            let x: [*const f32; R] = core::array::from_fn(|r| seg.x.add((row0 + r) * seg.ldx));
+            for pr in 0..seg.pairs {
+                let wv: [S::WP; NV] = core::array::from_fn(|v| s.load_w2(w[v].add(pr * 2 * PANEL)));
+                for r in 0..R {
+                    let xp = s.bcast_x2(x[r].add(pr * S::SLOTS_PER_PAIR));
+                    for v in 0..NV {
+                        acc[r][v] = s.dot2(acc[r][v], wv[v], xp);
+                    }
+                }
+            }
+        }
+        acc
+    }
+}
+
+/// Applies the epilogue to a tile and writes output rows `row0..row0+R`, columns from panel `p0`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn store_tile<S: Simd, const R: usize, const NV: usize>(
+    s: S,
+    acc: [[S::V; NV]; R],
+    row0: usize,
+    p0: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    let c0 = p0 * PANEL;
+    let width = NV * S::LANES;
+    // SAFETY (whole body): output rows exist with `ldo >= n`; bias and gathered rows have `n`
+    // columns; vector accesses stay below `n` (full tiles) or go through the stack tile.
+    unsafe {
+        for (r, acc_r) in acc.iter().enumerate() {
+            let row = row0 + r;
+            let o = out.add(row * ldo);
+            let g = epi
+                .gather
+                .map(|g| (g.pt.add(*g.tgt.add(row) as usize * g.ld), g.ps.add(*g.src.add(row) as usize * g.ld)));
+            if c0 + width <= n {
+                for (v, &a) in acc_r.iter().enumerate() {
+                    let c = c0 + v * S::LANES;
+                    let mut y = a;
+                    if !epi.bias.is_null() {
+                        y = s.add(y, s.load(epi.bias.add(c)));
+                    }
+                    if let Some((pt, ps)) = g {
+                        y = s.add(y, s.add(s.load(pt.add(c)), s.load(ps.add(c))));
+                    }
+                    if epi.relu {
+                        y = s.max(y, s.zero());
+                    }
+                    if epi.accumulate {
+                        y = s.add(y, s.load(o.add(c)));
+                    }
+                    s.store(o.add(c), y);
+                }
+            } else {
+                let mut tile = [0.0f32; MAX_TILE];
+                for (v, &a) in acc_r.iter().enumerate() {
+                    s.store(tile.as_mut_ptr().add(v * S::LANES), a);
+                }
+                for (j, &t) in tile.iter().enumerate().take(n.saturating_sub(c0).min(width)) {
+                    let c = c0 + j;
+                    let mut y = t;
+                    if !epi.bias.is_null() {
+                        y += *epi.bias.add(c);
+                    }
+                    if let Some((pt, ps)) = g {
+                        y += *pt.add(c) + *ps.add(c);
+                    }
+                    if epi.relu {
+                        y = y.max(0.0);
+                    }
+                    if epi.accumulate {
+                        y += *o.add(c);
+                    }
+                    *o.add(c) = y;
+                }
+            }
+        }
+    }
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn tile<S: Simd, const R: usize, const NV: usize>(
+    s: S,
+    segs: Segs<'_>,
+    row0: usize,
+    p0: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    // SAFETY: forwarded contract of `gemm`.
+    unsafe {
+        let acc = match segs {
+            Segs::F32(sg) => kernel_f32::<S, R, NV>(s, sg, row0, p0),
+            Segs::Bf16(sg) => kernel_bf16::<S, R, NV>(s, sg, row0, p0),
+        };
+        store_tile::<S, R, NV>(s, acc, row0, p0, n, out, ldo, epi);
+    }
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn row_block<S: Simd, const R: usize>(
+    s: S,
+    segs: Segs<'_>,
+    row0: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    let panels = n.div_ceil(PANEL);
+    let mut p = 0;
+    // SAFETY: forwarded contract of `gemm`; each tile covers existing panels only.
+    unsafe {
+        while p < panels {
+            let np = (panels - p).min(S::TILE_PANELS);
+            if S::LANES == 8 {
+                tile::<S, R, 2>(s, segs, row0, p, n, out, ldo, epi);
+                p += 1;
+                continue;
+            }
+            match np {
+                1 => tile::<S, R, 1>(s, segs, row0, p, n, out, ldo, epi),
+                2 => tile::<S, R, 2>(s, segs, row0, p, n, out, ldo, epi),
+                3 => tile::<S, R, 3>(s, segs, row0, p, n, out, ldo, epi),
+                _ => tile::<S, R, 4>(s, segs, row0, p, n, out, ldo, epi),
+            }
+            p += np;
+        }
+    }
+}
+
+/// `out[rows × n] (+)= epilogue(Σ segs)`.
+///
+/// # Safety
+/// The CPU supports `S`; every operand has `rows` rows and packed weights with `ceil(n/16)`
+/// panels; `out` has `rows` rows of stride `ldo >= n`; the epilogue's pointers cover `n` columns
+/// (and, for a gather, `rows` valid indices).
+#[inline(always)]
+pub(crate) unsafe fn gemm<S: Simd>(
+    s: S,
+    segs: Segs<'_>,
+    rows: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    let mut row0 = 0;
+    // SAFETY: forwarded; each call covers rows below `rows`.
+    unsafe {
+        while row0 + MR <= rows {
+            row_block::<S, MR>(s, segs, row0, n, out, ldo, epi);
+            row0 += MR;
+        }
+        match rows - row0 {
+            1 => row_block::<S, 1>(s, segs, row0, n, out, ldo, epi),
+            2 => row_block::<S, 2>(s, segs, row0, n, out, ldo, epi),
+            3 => row_block::<S, 3>(s, segs, row0, n, out, ldo, epi),
+            4 => row_block::<S, 4>(s, segs, row0, n, out, ldo, epi),
+            5 => row_block::<S, 5>(s, segs, row0, n, out, ldo, epi),
+            _ => {}
+        }
+    }
+}
+
+fn bias_ptr(bias: Option<&[f32]>) -> *const f32 {
+    bias.map_or(core::ptr::null(), |b| b.as_ptr())
+}
+
+/// [`super::Kernels::linear`] on tier `S` (arguments validated by the caller).
+///
+/// # Safety
+/// The CPU supports `S`.
+#[inline(always)]
+pub(crate) unsafe fn linear<S: Simd>(
+    s: S,
+    ops: &[Operand<'_>],
+    bias: Option<&[f32]>,
+    epi: &Epilogue<'_>,
+    out: &mut [f32],
+    scratch: &mut [f32],
+) {
+    let n = ops[0].w.n();
+    let rows = out.len() / n;
+    let kps: usize = ops.iter().map(|o| o.w.k().next_multiple_of(2)).sum();
+    let (prep, pre_ln) = scratch.split_at_mut(LINEAR_BLOCK_ROWS * kps);
+    let mut b0 = 0;
+    while b0 < rows {
+        let br = (rows - b0).min(LINEAR_BLOCK_ROWS);
+        let mut f32_segs = [SegF32 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), k: 0 }; super::MAX_OPERANDS];
+        let mut bf_segs =
+            [SegBf16 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), pairs: 0 }; super::MAX_OPERANDS];
+        let mut off = 0;
+        for (i, op) in ops.iter().enumerate() {
+            let k = op.w.k();
+            let x = &op.x[b0 * k..(b0 + br) * k];
+            match op.w {
+                Weights::F32(w) => f32_segs[i] = SegF32 { x: x.as_ptr(), ldx: k, w: w.data().as_ptr(), k },
+                Weights::Bf16(w) => {
+                    let kp = k.next_multiple_of(2);
+                    let area = &mut prep[off..off + br * kp];
+                    for (src, dst) in x.chunks_exact(k.max(1)).zip(area.chunks_exact_mut(kp.max(1))) {
+                        s.prep_bf16(src, dst);
+                    }
+                    bf_segs[i] =
+                        SegBf16 { x: area.as_ptr(), ldx: kp, w: w.data().as_ptr() as *const u16, pairs: kp / 2 };
+                    off += br * kp;
+                }
+            }
+        }
+        let segs =
+            if ops[0].w.is_bf16() { Segs::Bf16(&bf_segs[..ops.len()]) } else { Segs::F32(&f32_segs[..ops.len()]) };
+        let out_blk = &mut out[b0 * n..(b0 + br) * n];
+        let tepi = TileEpi { bias: bias_ptr(bias), gather: None, relu: epi.relu, accumulate: false };
+        match (&epi.layer_norm, epi.residual) {
+            (None, residual) => {
+                let tepi = TileEpi { accumulate: residual, ..tepi };
+                // SAFETY: shapes validated by `Kernels::linear`; the CPU supports `S`.
+                unsafe { gemm(s, segs, br, n, out_blk.as_mut_ptr(), n, &tepi) };
+            }
+            (Some(ln), false) => {
+                // SAFETY: as above.
+                unsafe { gemm(s, segs, br, n, out_blk.as_mut_ptr(), n, &tepi) };
+                for y in out_blk.chunks_exact_mut(n) {
+                    layer_norm_row(y, ln.gamma, ln.beta);
+                }
+            }
+            (Some(ln), true) => {
+                let tmp = &mut pre_ln[..br * n];
+                // SAFETY: as above, into the scratch rows.
+                unsafe { gemm(s, segs, br, n, tmp.as_mut_ptr(), n, &tepi) };
+                for (y, o) in tmp.chunks_exact_mut(n).zip(out_blk.chunks_exact_mut(n)) {
+                    layer_norm_row(y, ln.gamma, ln.beta);
+                    for (o, v) in o.iter_mut().zip(y.iter()) {
+                        *o += v;
+                    }
+                }
+            }
+        }
+        b0 += br;
+    }
+}
+
+/// Runs one layer of the edge chain on `br` rows: `x` (f32, `k` wide) or its prepared bf16 copy.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn chain_layer<S: Simd>(
+    s: S,
+    w: &Weights<'_>,
+    x: &[f32],
+    br: usize,
+    prep: &mut [f32],
+    out: &mut [f32],
+    epi: &TileEpi,
+) {
+    let (k, n) = (w.k(), w.n());
+    match w {
+        Weights::F32(wf) => {
+            let seg = [SegF32 { x: x.as_ptr(), ldx: k, w: wf.data().as_ptr(), k }];
+            // SAFETY: `x` has `br` rows of `k`, `out` `br` rows of `n`; the CPU supports `S`.
+            unsafe { gemm(s, Segs::F32(&seg), br, n, out.as_mut_ptr(), n, epi) };
+        }
+        Weights::Bf16(wb) => {
+            let kp = k.next_multiple_of(2);
+            for (src, dst) in x[..br * k].chunks_exact(k).zip(prep.chunks_exact_mut(kp)) {
+                s.prep_bf16(src, dst);
+            }
+            let seg = [SegBf16 { x: prep.as_ptr(), ldx: kp, w: wb.data().as_ptr() as *const u16, pairs: kp / 2 }];
+            // SAFETY: as above with the prepared rows.
+            unsafe { gemm(s, Segs::Bf16(&seg), br, n, out.as_mut_ptr(), n, epi) };
+        }
+    }
+}
+
+/// [`super::Kernels::edge_mlp`] on tier `S` (arguments validated by the caller).
+///
+/// # Safety
+/// The CPU supports `S`.
+#[inline(always)]
+pub(crate) unsafe fn edge_mlp<S: Simd>(
+    s: S,
+    mlp: &EdgeMlp<'_>,
+    edges: &EdgeInputs<'_>,
+    latent: &mut [f32],
+    aggregate: &mut [f32],
+    scratch: &mut [f32],
+) {
+    let k_e = mlp.w1_edge.k();
+    let h = mlp.w1_edge.n();
+    let n_edges = edges.target.len();
+    let prep_w = k_e.next_multiple_of(2).max(h.next_multiple_of(2));
+    let (prep, rest) = scratch.split_at_mut(EDGE_BLOCK * prep_w);
+    let (buf_a, rest) = rest.split_at_mut(EDGE_BLOCK * h.max(k_e));
+    let buf_b = &mut rest[..EDGE_BLOCK * h];
+    let mut e0 = 0;
+    while e0 < n_edges {
+        let br = (n_edges - e0).min(EDGE_BLOCK);
+        let gather = Gather {
+            pt: edges.p_target.as_ptr(),
+            ps: edges.p_source.as_ptr(),
+            ld: h,
+            // SAFETY: `e0 < n_edges`, in bounds of both index arrays.
+            tgt: unsafe { edges.target.as_ptr().add(e0) },
+            src: unsafe { edges.source.as_ptr().add(e0) },
+        };
+        let lat = &mut latent[e0 * k_e..(e0 + br) * k_e];
+        let epi1 = TileEpi { bias: mlp.b1.as_ptr(), gather: Some(gather), relu: true, accumulate: false };
+        let epi2 = TileEpi { bias: mlp.b2.as_ptr(), gather: None, relu: true, accumulate: false };
+        let epi3 = TileEpi { bias: mlp.b3.as_ptr(), gather: None, relu: false, accumulate: false };
+        // SAFETY: shapes validated by `Kernels::edge_mlp` (indices checked against the projection
+        // rows); scratch buffers hold `EDGE_BLOCK` rows of their widths; the CPU supports `S`.
+        unsafe {
+            chain_layer(s, &mlp.w1_edge, lat, br, prep, buf_a, &epi1);
+            chain_layer(s, &mlp.w2, buf_a, br, prep, buf_b, &epi2);
+            chain_layer(s, &mlp.w3, buf_b, br, prep, buf_a, &epi3);
+        }
+        for (i, (m, l)) in buf_a[..br * k_e].chunks_exact_mut(k_e).zip(lat.chunks_exact_mut(k_e)).enumerate() {
+            if let Some(ln) = &mlp.layer_norm {
+                layer_norm_row(m, ln.gamma, ln.beta);
+            }
+            let t = edges.target[e0 + i] as usize;
+            for (a, v) in aggregate[t * k_e..(t + 1) * k_e].iter_mut().zip(m.iter()) {
+                *a += v;
+            }
+            for (l, v) in l.iter_mut().zip(m.iter()) {
+                *l += v;
+            }
+        }
+        e0 += br;
+    }
+}

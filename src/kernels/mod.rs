@@ -1,0 +1,439 @@
+//! Dense kernels of the inference runtime: packed linear layers with fused epilogues, the fused
+//! edge MLP (split first layer: gathered node projections + edge product), and aggregation over
+//! edges sorted by target.
+//!
+//! Paths ([`Tier`]): a scalar reference, AVX2+FMA, AVX-512F and AVX-512-BF16 (bf16 weights and
+//! activations, f32 accumulation with `vdpbf16ps`). The CPU is probed once ([`detected_tier`]);
+//! a [`Kernels`] value carries the chosen path as a capability token, so hot code never probes.
+//! [`force_tier`] (or the environment variable `HOOD_KERNEL_TIER=scalar|avx2|avx512|avx512bf16`,
+//! read once under `std`) caps the tier, and [`Kernels::with_tier`] picks one explicitly, so one
+//! machine can test every path it has.
+//!
+//! bf16 weights on a CPU without AVX-512-BF16 run on f32 FMAs: the weights are widened in
+//! registers and the activations rounded to bf16 first, so every tier computes the same products
+//! (exact in f32) and differs only in summation order.
+//!
+//! All kernels write into caller buffers and never allocate.
+
+mod frame;
+mod pack;
+#[cfg(feature = "std")]
+pub mod peak;
+mod scalar;
+#[cfg(test)]
+mod tests;
+#[cfg(target_arch = "x86_64")]
+mod x86;
+
+use core::sync::atomic::{AtomicU8, Ordering};
+
+pub use pack::{
+    pack_bf16, pack_f32, packed_len_bf16, packed_len_f32, padded_cols, PackedBf16, PackedF32, Weights, PANEL,
+};
+
+use crate::{Error, Result};
+
+/// LayerNorm epsilon (PyTorch's default).
+pub const LN_EPS: f32 = 1e-5;
+
+/// Rows processed per block by [`Kernels::linear`] (sizes its scratch).
+pub const LINEAR_BLOCK_ROWS: usize = 96;
+
+/// Edges processed per block by [`Kernels::edge_mlp`] (sizes its scratch).
+pub const EDGE_BLOCK: usize = 96;
+
+/// Most operands one [`Kernels::linear`] call sums.
+pub const MAX_OPERANDS: usize = 6;
+
+/// An instruction-set path, ordered from least to most capable.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[repr(u8)]
+pub enum Tier {
+    /// Portable scalar code: the reference every other path is tested against.
+    Scalar = 1,
+    /// AVX2 + FMA (256-bit).
+    Avx2Fma = 2,
+    /// AVX-512F (512-bit); bf16 weights are widened to f32 in registers.
+    Avx512 = 3,
+    /// AVX-512F + AVX-512-BF16: bf16 products with `vdpbf16ps`.
+    Avx512Bf16 = 4,
+}
+
+impl Tier {
+    /// Every tier, lowest first.
+    pub const ALL: [Tier; 4] = [Tier::Scalar, Tier::Avx2Fma, Tier::Avx512, Tier::Avx512Bf16];
+
+    /// Short lowercase name (`scalar`, `avx2`, `avx512`, `avx512bf16`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Tier::Scalar => "scalar",
+            Tier::Avx2Fma => "avx2",
+            Tier::Avx512 => "avx512",
+            Tier::Avx512Bf16 => "avx512bf16",
+        }
+    }
+
+    /// Parses a [`Tier::name`].
+    pub fn from_name(name: &str) -> Option<Tier> {
+        Tier::ALL.into_iter().find(|t| t.name().eq_ignore_ascii_case(name.trim()))
+    }
+
+    fn from_u8(v: u8) -> Option<Tier> {
+        Tier::ALL.into_iter().find(|t| *t as u8 == v)
+    }
+}
+
+/// Probed tier (0 = not yet probed).
+static DETECTED: AtomicU8 = AtomicU8::new(0);
+/// Cap set by [`force_tier`] or the environment (0 = probe the environment, 255 = no cap).
+static CAP: AtomicU8 = AtomicU8::new(0);
+
+/// The most capable tier this CPU supports (probed once, then cached).
+pub fn detected_tier() -> Tier {
+    if let Some(t) = Tier::from_u8(DETECTED.load(Ordering::Relaxed)) {
+        return t;
+    }
+    let t = probe();
+    DETECTED.store(t as u8, Ordering::Relaxed);
+    t
+}
+
+fn probe() -> Tier {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if x86::Avx512Bf16::new().is_some() {
+            return Tier::Avx512Bf16;
+        }
+        if x86::Avx512::new().is_some() {
+            return Tier::Avx512;
+        }
+        if x86::Avx2Fma::new().is_some() {
+            return Tier::Avx2Fma;
+        }
+    }
+    Tier::Scalar
+}
+
+/// Caps the tier [`Kernels::best`] returns (`None` lifts the cap). Overrides
+/// `HOOD_KERNEL_TIER`. Affects only `Kernels` values made afterwards.
+pub fn force_tier(cap: Option<Tier>) {
+    CAP.store(cap.map_or(255, |t| t as u8), Ordering::Relaxed);
+}
+
+fn tier_cap() -> Option<Tier> {
+    let v = CAP.load(Ordering::Relaxed);
+    if v == 0 {
+        #[cfg(feature = "std")]
+        let from_env = std::env::var("HOOD_KERNEL_TIER").ok().and_then(|s| Tier::from_name(&s));
+        #[cfg(not(feature = "std"))]
+        let from_env: Option<Tier> = None;
+        // A racing force_tier wins over the environment.
+        let _ = CAP.compare_exchange(0, from_env.map_or(255, |t| t as u8), Ordering::Relaxed, Ordering::Relaxed);
+        return Tier::from_u8(CAP.load(Ordering::Relaxed));
+    }
+    Tier::from_u8(v)
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Backend {
+    Scalar,
+    #[cfg(target_arch = "x86_64")]
+    Avx2(x86::Avx2Fma),
+    #[cfg(target_arch = "x86_64")]
+    Avx512(x86::Avx512),
+    #[cfg(target_arch = "x86_64")]
+    Avx512Bf16(x86::Avx512Bf16),
+}
+
+/// A chosen kernel path. Holding one proves the CPU supports it (its SIMD variants are made only
+/// by checked constructors); copy it into the hot code once.
+#[derive(Clone, Copy, Debug)]
+pub struct Kernels {
+    backend: Backend,
+}
+
+/// One `x · Wᵀ` term of a [`Kernels::linear`] call: `x` is `rows × w.k()` row-major.
+#[derive(Clone, Copy, Debug)]
+pub struct Operand<'a> {
+    /// Activations, `rows × k`.
+    pub x: &'a [f32],
+    /// Packed weights (`k` inputs, `n` outputs).
+    pub w: Weights<'a>,
+}
+
+/// Affine LayerNorm parameters over an output row (eps [`LN_EPS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct LayerNorm<'a> {
+    /// Scale, one per output.
+    pub gamma: &'a [f32],
+    /// Shift, one per output.
+    pub beta: &'a [f32],
+}
+
+/// What happens to `y = Σ x·Wᵀ + b` before it is written, in this order: ReLU, LayerNorm, then
+/// either `out = y` or (residual) `out += y`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Epilogue<'a> {
+    /// Apply `max(y, 0)`.
+    pub relu: bool,
+    /// Normalise each output row.
+    pub layer_norm: Option<LayerNorm<'a>>,
+    /// Add into `out` instead of overwriting it.
+    pub residual: bool,
+}
+
+/// Weights of one edge MLP with its first layer split (MODEL.md section 4):
+/// `z1 = P_t[target] + P_s[source] + e · W_eᵀ + b1`, `z2 = ReLU(z1) · W2ᵀ + b2`,
+/// `m = LayerNorm(ReLU(z2) · W3ᵀ + b3)`. All three matrices must share one precision.
+#[derive(Clone, Copy, Debug)]
+pub struct EdgeMlp<'a> {
+    /// Edge-latent part of the first layer (`k_e` inputs, `h` outputs).
+    pub w1_edge: Weights<'a>,
+    /// First-layer bias (`h`).
+    pub b1: &'a [f32],
+    /// Second layer (`h` → `h`).
+    pub w2: Weights<'a>,
+    /// Second-layer bias (`h`).
+    pub b2: &'a [f32],
+    /// Third layer (`h` → `k_e`, so the message can be added to the edge latent).
+    pub w3: Weights<'a>,
+    /// Third-layer bias (`k_e`).
+    pub b3: &'a [f32],
+    /// Final LayerNorm (`k_e`), if any.
+    pub layer_norm: Option<LayerNorm<'a>>,
+}
+
+/// Per-edge inputs of [`Kernels::edge_mlp`].
+#[derive(Clone, Copy, Debug)]
+pub struct EdgeInputs<'a> {
+    /// Target-node projections `P_t = H_t · W_tᵀ`, `n_targets × h`.
+    pub p_target: &'a [f32],
+    /// Source-node projections `P_s = H_s · W_sᵀ`, `n_sources × h`.
+    pub p_source: &'a [f32],
+    /// Target node of each edge (sorted ascending for a deterministic, streaming aggregate).
+    pub target: &'a [u32],
+    /// Source node of each edge.
+    pub source: &'a [u32],
+}
+
+/// Scratch length (in `f32`) [`Kernels::linear`] needs for these operands and `n` outputs.
+pub fn linear_scratch_len(ops: &[Operand<'_>], n: usize) -> usize {
+    let kp: usize = ops.iter().map(|o| o.w.k().next_multiple_of(2)).sum();
+    LINEAR_BLOCK_ROWS * (kp + padded_cols(n))
+}
+
+/// Scratch length (in `f32`) [`Kernels::edge_mlp`] needs for edge width `k_e` and hidden `h`.
+pub fn edge_mlp_scratch_len(k_e: usize, h: usize) -> usize {
+    EDGE_BLOCK * (k_e.next_multiple_of(2).max(h.next_multiple_of(2)) + h.max(k_e) + h)
+}
+
+fn size_check(what: &'static str, expected: usize, got: usize) -> Result<()> {
+    if expected != got {
+        return Err(Error::SizeMismatch { what, expected, got });
+    }
+    Ok(())
+}
+
+fn at_least(what: &'static str, expected: usize, got: usize) -> Result<()> {
+    if got < expected {
+        return Err(Error::SizeMismatch { what, expected, got });
+    }
+    Ok(())
+}
+
+impl Kernels {
+    /// The best path for this CPU, capped by [`force_tier`] / `HOOD_KERNEL_TIER`.
+    pub fn best() -> Kernels {
+        let mut t = detected_tier();
+        if let Some(cap) = tier_cap() {
+            t = t.min(cap);
+        }
+        // Every tier at or below the detected one is available.
+        Kernels::with_tier(t).unwrap_or(Kernels::scalar())
+    }
+
+    /// The scalar reference path (always available).
+    pub fn scalar() -> Kernels {
+        Kernels { backend: Backend::Scalar }
+    }
+
+    /// The given path, or `None` if this CPU (or build) lacks it.
+    pub fn with_tier(tier: Tier) -> Option<Kernels> {
+        let backend = match tier {
+            Tier::Scalar => Backend::Scalar,
+            #[cfg(target_arch = "x86_64")]
+            Tier::Avx2Fma => Backend::Avx2(x86::Avx2Fma::new()?),
+            #[cfg(target_arch = "x86_64")]
+            Tier::Avx512 => Backend::Avx512(x86::Avx512::new()?),
+            #[cfg(target_arch = "x86_64")]
+            Tier::Avx512Bf16 => Backend::Avx512Bf16(x86::Avx512Bf16::new()?),
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => return None,
+        };
+        Some(Kernels { backend })
+    }
+
+    /// The path this value runs.
+    pub fn tier(&self) -> Tier {
+        match self.backend {
+            Backend::Scalar => Tier::Scalar,
+            #[cfg(target_arch = "x86_64")]
+            Backend::Avx2(_) => Tier::Avx2Fma,
+            #[cfg(target_arch = "x86_64")]
+            Backend::Avx512(_) => Tier::Avx512,
+            #[cfg(target_arch = "x86_64")]
+            Backend::Avx512Bf16(_) => Tier::Avx512Bf16,
+        }
+    }
+
+    /// `out (+)= epilogue(Σ_i ops[i].x · ops[i].wᵀ + bias)`, row by row. The operands are the
+    /// parts of a concatenated input (never materialised); all must have the same `n` and
+    /// precision. `rows = out.len() / n`.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] for inconsistent lengths (operands, bias, LayerNorm parameters,
+    /// `out`, or `scratch` shorter than [`linear_scratch_len`]); [`Error::IncompatibleModel`] for
+    /// mixed precisions or widths; [`Error::CapacityExceeded`] for more than [`MAX_OPERANDS`].
+    pub fn linear(
+        &self,
+        ops: &[Operand<'_>],
+        bias: Option<&[f32]>,
+        epilogue: &Epilogue<'_>,
+        out: &mut [f32],
+        scratch: &mut [f32],
+    ) -> Result<()> {
+        let first = ops.first().ok_or(Error::Empty { what: "linear operands" })?;
+        if ops.len() > MAX_OPERANDS {
+            return Err(Error::CapacityExceeded { what: "linear operands", capacity: MAX_OPERANDS, needed: ops.len() });
+        }
+        let n = first.w.n();
+        if out.len() % n != 0 {
+            return Err(Error::SizeMismatch { what: "linear output (multiple of n)", expected: n, got: out.len() });
+        }
+        let rows = out.len() / n;
+        for op in ops {
+            if op.w.n() != n || op.w.is_bf16() != first.w.is_bf16() {
+                return Err(Error::IncompatibleModel { reason: "linear operands differ in width or precision" });
+            }
+            size_check("linear input", rows * op.w.k(), op.x.len())?;
+        }
+        if let Some(b) = bias {
+            size_check("linear bias", n, b.len())?;
+        }
+        if let Some(ln) = &epilogue.layer_norm {
+            size_check("layer norm gamma", n, ln.gamma.len())?;
+            size_check("layer norm beta", n, ln.beta.len())?;
+        }
+        at_least("linear scratch", linear_scratch_len(ops, n), scratch.len())?;
+        match self.backend {
+            Backend::Scalar => scalar::linear(ops, bias, epilogue, out, scratch),
+            #[cfg(target_arch = "x86_64")]
+            Backend::Avx2(t) => t.linear(ops, bias, epilogue, out, scratch),
+            #[cfg(target_arch = "x86_64")]
+            Backend::Avx512(t) => t.linear(ops, bias, epilogue, out, scratch),
+            #[cfg(target_arch = "x86_64")]
+            Backend::Avx512Bf16(t) => t.linear(ops, bias, epilogue, out, scratch),
+        }
+        Ok(())
+    }
+
+    /// The fused edge MLP over all edges: for each edge `e` (target `r`, source `s`), computes
+    /// the message `m_e` of [`EdgeMlp`], then `latent[e] += m_e` and `aggregate[r] += m_e` (the
+    /// caller zeroes `aggregate` when it starts a new sum). Edges are processed in order, in
+    /// blocks of [`EDGE_BLOCK`], so the aggregate sum order is the edge order: deterministic.
+    ///
+    /// Shapes: `latent` is `edges × k_e`, `aggregate` is `n_targets × k_e`, projections are
+    /// `n × h`.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] for inconsistent shapes or short scratch
+    /// ([`edge_mlp_scratch_len`]); [`Error::IndexOutOfRange`] for a node index past its
+    /// projections; [`Error::IncompatibleModel`] for mixed precisions or widths.
+    pub fn edge_mlp(
+        &self,
+        mlp: &EdgeMlp<'_>,
+        edges: &EdgeInputs<'_>,
+        latent: &mut [f32],
+        aggregate: &mut [f32],
+        scratch: &mut [f32],
+    ) -> Result<()> {
+        let k_e = mlp.w1_edge.k();
+        let h = mlp.w1_edge.n();
+        let bf = mlp.w1_edge.is_bf16();
+        if mlp.w2.k() != h || mlp.w2.n() != h || mlp.w3.k() != h || mlp.w3.n() != k_e {
+            return Err(Error::IncompatibleModel { reason: "edge MLP layer widths do not chain" });
+        }
+        if mlp.w2.is_bf16() != bf || mlp.w3.is_bf16() != bf {
+            return Err(Error::IncompatibleModel { reason: "edge MLP layers differ in precision" });
+        }
+        size_check("edge MLP bias 1", h, mlp.b1.len())?;
+        size_check("edge MLP bias 2", h, mlp.b2.len())?;
+        size_check("edge MLP bias 3", k_e, mlp.b3.len())?;
+        if let Some(ln) = &mlp.layer_norm {
+            size_check("edge MLP layer norm gamma", k_e, ln.gamma.len())?;
+            size_check("edge MLP layer norm beta", k_e, ln.beta.len())?;
+        }
+        let n_edges = edges.target.len();
+        size_check("edge sources", n_edges, edges.source.len())?;
+        size_check("edge latents", n_edges * k_e, latent.len())?;
+        if edges.p_target.len() % h != 0 || edges.p_source.len() % h != 0 {
+            return Err(Error::SizeMismatch { what: "node projections (multiple of h)", expected: h, got: 0 });
+        }
+        let n_t = edges.p_target.len() / h;
+        let n_s = edges.p_source.len() / h;
+        size_check("edge aggregate", n_t * k_e, aggregate.len())?;
+        for (what, idx, len) in [("edge target", edges.target, n_t), ("edge source", edges.source, n_s)] {
+            if let Some((at, &i)) = idx.iter().enumerate().find(|(_, &i)| i as usize >= len) {
+                return Err(Error::IndexOutOfRange { what, at, index: i as usize, len });
+            }
+        }
+        at_least("edge MLP scratch", edge_mlp_scratch_len(k_e, h), scratch.len())?;
+        match self.backend {
+            Backend::Scalar => scalar::edge_mlp(mlp, edges, latent, aggregate, scratch),
+            #[cfg(target_arch = "x86_64")]
+            Backend::Avx2(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
+            #[cfg(target_arch = "x86_64")]
+            Backend::Avx512(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
+            #[cfg(target_arch = "x86_64")]
+            Backend::Avx512Bf16(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
+        }
+        Ok(())
+    }
+}
+
+/// Sums per-edge messages into their target nodes: `out[r] (+)= Σ messages[e]` for `e` in
+/// `offsets[r]..offsets[r+1]` (edges sorted by target, CSR offsets, `offsets.len() = nodes + 1`).
+/// A streaming sum in edge order: deterministic, no atomics. With `accumulate == false` rows
+/// without edges become zero.
+///
+/// # Errors
+/// [`Error::SizeMismatch`] for inconsistent lengths; [`Error::OutOfRange`] for offsets that
+/// decrease or pass the last message.
+pub fn aggregate(messages: &[f32], width: usize, offsets: &[u32], out: &mut [f32], accumulate: bool) -> Result<()> {
+    let nodes = offsets.len().checked_sub(1).ok_or(Error::Empty { what: "aggregate offsets" })?;
+    size_check("aggregate output", nodes * width, out.len())?;
+    if width == 0 {
+        return Ok(());
+    }
+    if messages.len() % width != 0 {
+        return Err(Error::SizeMismatch { what: "aggregate messages (multiple of width)", expected: width, got: 0 });
+    }
+    let edges = messages.len() / width;
+    for (r, w) in offsets.windows(2).enumerate() {
+        if w[0] > w[1] || w[1] as usize > edges {
+            return Err(Error::OutOfRange { what: "aggregate offsets", index: r });
+        }
+    }
+    for (r, row) in out.chunks_exact_mut(width).enumerate() {
+        if !accumulate {
+            row.fill(0.0);
+        }
+        let (a, b) = (offsets[r] as usize, offsets[r + 1] as usize);
+        for m in messages[a * width..b * width].chunks_exact(width) {
+            for (o, v) in row.iter_mut().zip(m) {
+                *o += v;
+            }
+        }
+    }
+    Ok(())
+}

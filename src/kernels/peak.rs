@@ -1,0 +1,96 @@
+//! Single-core peak arithmetic throughput, measured (not looked up): the denominator of every
+//! efficiency figure in the benches and `hood bench`.
+//!
+//! f32: a loop of independent FMA chains (12 accumulators, enough to cover FMA latency × ports
+//! on current x86 cores) on the widest vectors the tier has. bf16: the same with `vdpbf16ps`
+//! where the CPU has AVX-512-BF16; elsewhere the bf16 kernels run on f32 FMAs, so their peak is
+//! the f32 peak. One FLOP is one multiply or one add (an FMA lane counts 2, a `vdpbf16ps` lane 4).
+
+use std::time::Instant;
+
+use super::{Kernels, Tier};
+
+/// Measured single-core peaks, GFLOP/s.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Peak {
+    /// The tier the loops ran on.
+    pub tier: Tier,
+    /// f32 multiply-add throughput.
+    pub f32_gflops: f64,
+    /// bf16 dot-product throughput (f32 accumulation); equal to `f32_gflops` when the tier has
+    /// no native bf16 instruction.
+    pub bf16_gflops: f64,
+    /// Whether `bf16_gflops` was measured with a native bf16 instruction.
+    pub bf16_native: bool,
+}
+
+/// Best of `reps` timed runs of `f(iters)` that performs `flops_per_iter` per iteration, sized to
+/// last about `target_ms` each.
+fn best_gflops(flops_per_iter: f64, target_ms: f64, reps: usize, mut f: impl FnMut(usize) -> f32) -> f64 {
+    // Calibrate: grow until a run takes at least 2 ms.
+    let mut iters = 1usize << 12;
+    loop {
+        let t = Instant::now();
+        std::hint::black_box(f(iters));
+        let s = t.elapsed().as_secs_f64();
+        if s > 2e-3 || iters > 1 << 30 {
+            iters = ((iters as f64) * (target_ms * 1e-3 / s.max(1e-9))).max(1.0) as usize;
+            break;
+        }
+        iters *= 4;
+    }
+    let mut best = 0.0f64;
+    for _ in 0..reps {
+        let t = Instant::now();
+        std::hint::black_box(f(iters));
+        let s = t.elapsed().as_secs_f64();
+        best = best.max(flops_per_iter * iters as f64 / s / 1e9);
+    }
+    best
+}
+
+/// Scalar multiply-add chains (the scalar tier's peak): `iters · 8 · 2` FLOPs.
+fn scalar_loop(iters: usize, a: f32, b: f32) -> f32 {
+    let mut acc: [f32; 8] = core::array::from_fn(|i| i as f32);
+    for _ in 0..iters {
+        for c in acc.iter_mut() {
+            *c = *c * a + b;
+        }
+        acc = std::hint::black_box(acc);
+    }
+    acc.iter().sum()
+}
+
+/// Measures the single-core peak of the path `k` runs (about `5 · target_ms` per precision).
+pub fn measure(k: Kernels, target_ms: f64) -> Peak {
+    let (a, b) = (std::hint::black_box(0.999_f32), std::hint::black_box(1e-3_f32));
+    let reps = 5;
+    let tier = k.tier();
+    #[cfg(target_arch = "x86_64")]
+    {
+        use super::x86::{peak_loops, Avx2Fma, Avx512, Avx512Bf16};
+        let f32_gflops = match tier {
+            Tier::Scalar => None,
+            Tier::Avx2Fma => Avx2Fma::new()
+                .map(|t| best_gflops(12.0 * 8.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx2(t, n, a, b))),
+            Tier::Avx512 | Tier::Avx512Bf16 => Avx512::new()
+                .map(|t| best_gflops(12.0 * 16.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx512(t, n, a, b))),
+        };
+        if let Some(f32_gflops) = f32_gflops {
+            let native = if tier == Tier::Avx512Bf16 {
+                Avx512Bf16::new()
+                    .map(|t| best_gflops(12.0 * 16.0 * 4.0, target_ms, reps, |n| peak_loops::dpbf16(t, n, a, b)))
+            } else {
+                None
+            };
+            return Peak { tier, f32_gflops, bf16_gflops: native.unwrap_or(f32_gflops), bf16_native: native.is_some() };
+        }
+    }
+    let f = best_gflops(8.0 * 2.0, target_ms, reps, |n| scalar_loop(n, a, b));
+    Peak { tier, f32_gflops: f, bf16_gflops: f, bf16_native: false }
+}
+
+/// Measures the peak of [`Kernels::best`] with ~20 ms runs.
+pub fn peak() -> Peak {
+    measure(Kernels::best(), 20.0)
+}

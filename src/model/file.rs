@@ -1,0 +1,558 @@
+//! The `.hood` model file: a 16-byte header (magic `HOODMDL\0`, format version, reserved) and
+//! an rkyv archive of the model with every layer already packed for the kernels, in f32 and
+//! (optionally) bf16, plus the shape, the normalisers and provenance.
+//!
+//! Loading ([`Model::from_bytes`]) validates the header, the archive (bounds, pointers, UTF-8)
+//! and every array size against the spec, then reads the weights **in place**: no copy, no
+//! repacking, so a buffer the engine memory-maps can be used directly. It must be 16-byte
+//! aligned and outlive the [`Model`]. Files are little-endian; a big-endian CPU is refused.
+//!
+//! Layers: the first layer of every processor MLP is stored in parts of `h` input columns (edge
+//! MLPs: target, source, edge; node MLPs: the node latent, then one part per aggregate), so the
+//! kernels can apply the split first layer and the never-materialised concatenation; all other
+//! layers are one part.
+
+use super::params::{BlockParams, LayerNorm, Linear, Mlp, Normalisers, Params};
+use super::spec::{parse_schedule, ModelEffects, ModelSpec};
+use crate::error::{Error, Result};
+use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, EDGE_WIDTH, LEVELS, NODE_NORMALISED, NODE_TYPES, NODE_WIDTH};
+use crate::kernels::{self, PackedBf16, PackedF32, Weights};
+use crate::normaliser::{NormStats, Normaliser};
+use alloc::string::{String, ToString};
+use alloc::vec;
+use alloc::vec::Vec;
+use half::bf16;
+use rkyv::{Archive, Deserialize, Serialize};
+
+/// First eight bytes of every `.hood` file.
+pub const MAGIC: [u8; 8] = *b"HOODMDL\0";
+/// The format version this build writes and reads.
+pub const FORMAT_VERSION: u32 = 1;
+/// Bytes before the archive.
+pub const HEADER_LEN: usize = 16;
+/// Required alignment of a model buffer.
+pub const ALIGN: usize = 16;
+
+#[derive(Archive, Serialize, Deserialize, Debug)]
+#[rkyv(derive(Debug))]
+struct PartRec {
+    /// First input column of `W` in this part.
+    col: u32,
+    /// Input columns in this part.
+    k: u32,
+    f32: Vec<f32>,
+    /// bf16 bit patterns (empty when the file has no bf16 weights).
+    bf16: Vec<u16>,
+}
+
+#[derive(Archive, Serialize, Deserialize, Debug)]
+#[rkyv(derive(Debug))]
+struct LinearRec {
+    inp: u32,
+    out: u32,
+    bias: Vec<f32>,
+    parts: Vec<PartRec>,
+}
+
+#[derive(Archive, Serialize, Deserialize, Debug)]
+#[rkyv(derive(Debug))]
+struct MlpRec {
+    layers: Vec<LinearRec>,
+    /// LayerNorm scale and shift; empty without LayerNorm.
+    gamma: Vec<f32>,
+    beta: Vec<f32>,
+}
+
+#[derive(Archive, Serialize, Deserialize, Debug)]
+#[rkyv(derive(Debug))]
+struct BlockRec {
+    edges: Vec<MlpRec>,
+    body: Option<MlpRec>,
+    node: MlpRec,
+}
+
+#[derive(Archive, Serialize, Deserialize, Debug)]
+#[rkyv(derive(Debug))]
+struct NormRec {
+    sum: Vec<f64>,
+    sum_sq: Vec<f64>,
+    count: f64,
+    mean: Vec<f32>,
+    std: Vec<f32>,
+}
+
+#[derive(Archive, Serialize, Deserialize, Debug)]
+#[rkyv(derive(Debug))]
+struct ModelRec {
+    latent: u32,
+    hidden_layers: u32,
+    levels: u32,
+    schedule: String,
+    /// Bit 0 body, bit 1 pinning, bit 2 local materials.
+    effects: u8,
+    has_bf16: bool,
+    node_encoder: MlpRec,
+    edge_encoders: Vec<MlpRec>,
+    body_encoder: Option<MlpRec>,
+    blocks: Vec<BlockRec>,
+    decoder: MlpRec,
+    node_type_embedding: Vec<f32>,
+    level_embedding: Vec<f32>,
+    /// node, edge, body edge, output.
+    normalisers: Vec<NormRec>,
+    provenance: Vec<(String, String)>,
+}
+
+fn rkyv_err<E>(_: E) -> Error {
+    Error::CorruptData { reason: "model file: the archive failed validation" }
+}
+
+/// The column parts of layer `index` of an MLP (see the module docs).
+fn split_of(first_layer_parts: Option<usize>, index: usize, inp: usize) -> Vec<(usize, usize)> {
+    match first_layer_parts {
+        Some(n) if index == 0 && n > 1 && inp % n == 0 => (0..n).map(|i| (i * inp / n, inp / n)).collect(),
+        _ => vec![(0, inp)],
+    }
+}
+
+fn pack_linear(l: &Linear, parts: &[(usize, usize)], with_bf16: bool) -> Result<LinearRec> {
+    let mut recs = Vec::with_capacity(parts.len());
+    for &(col, k) in parts {
+        let mut f = vec![0.0f32; kernels::packed_len_f32(k, l.out)];
+        kernels::pack_f32(&l.weight, l.out, l.inp, col..col + k, &mut f)?;
+        let b = if with_bf16 {
+            let mut b = vec![bf16::ZERO; kernels::packed_len_bf16(k, l.out)];
+            kernels::pack_bf16(&l.weight, l.out, l.inp, col..col + k, &mut b)?;
+            b.iter().map(|x| x.to_bits()).collect()
+        } else {
+            Vec::new()
+        };
+        recs.push(PartRec { col: col as u32, k: k as u32, f32: f, bf16: b });
+    }
+    Ok(LinearRec { inp: l.inp as u32, out: l.out as u32, bias: l.bias.clone(), parts: recs })
+}
+
+fn pack_mlp(m: &Mlp, first_layer_parts: Option<usize>, with_bf16: bool) -> Result<MlpRec> {
+    let layers = m
+        .layers
+        .iter()
+        .enumerate()
+        .map(|(i, l)| pack_linear(l, &split_of(first_layer_parts, i, l.inp), with_bf16))
+        .collect::<Result<Vec<_>>>()?;
+    let (gamma, beta) = m.norm.as_ref().map_or((Vec::new(), Vec::new()), |n| (n.gamma.clone(), n.beta.clone()));
+    Ok(MlpRec { layers, gamma, beta })
+}
+
+fn norm_rec(n: &Normaliser) -> NormRec {
+    let (sum, sum_sq, count) = n.accumulators();
+    let NormStats { mean, std } = n.stats();
+    NormRec { sum: sum.to_vec(), sum_sq: sum_sq.to_vec(), count, mean, std }
+}
+
+/// Serialises `params` into `.hood` bytes (header + archive), with bf16 copies of every layer
+/// when `with_bf16`. `provenance` is free-form key/value text (training config, data,
+/// iterations, metrics, commit).
+///
+/// # Errors
+/// [`Error::IncompatibleModel`] if `params` is inconsistent.
+pub fn write_model(params: &Params, with_bf16: bool, provenance: &[(&str, &str)]) -> Result<Vec<u8>> {
+    params.validate()?;
+    let spec = &params.spec;
+    let effects = u8::from(spec.effects.body)
+        | (u8::from(spec.effects.pinning) << 1)
+        | (u8::from(spec.effects.local_materials) << 2);
+    let mut blocks = Vec::with_capacity(params.blocks.len());
+    for (b, s) in params.blocks.iter().zip(&spec.blocks) {
+        blocks.push(BlockRec {
+            edges: b.edges.iter().map(|m| pack_mlp(m, Some(3), with_bf16)).collect::<Result<_>>()?,
+            body: b.body.as_ref().map(|m| pack_mlp(m, Some(3), with_bf16)).transpose()?,
+            node: pack_mlp(&b.node, Some(spec.node_inputs(s)), with_bf16)?,
+        });
+    }
+    let n = &params.normalisers;
+    let rec = ModelRec {
+        latent: spec.latent as u32,
+        hidden_layers: spec.hidden_layers as u32,
+        levels: spec.levels as u32,
+        schedule: super::spec::format_schedule(&spec.blocks),
+        effects,
+        has_bf16: with_bf16,
+        node_encoder: pack_mlp(&params.node_encoder, None, with_bf16)?,
+        edge_encoders: params.edge_encoders.iter().map(|m| pack_mlp(m, None, with_bf16)).collect::<Result<_>>()?,
+        body_encoder: params.body_encoder.as_ref().map(|m| pack_mlp(m, None, with_bf16)).transpose()?,
+        blocks,
+        decoder: pack_mlp(&params.decoder, None, with_bf16)?,
+        node_type_embedding: params.node_type_embedding.clone(),
+        level_embedding: params.level_embedding.clone(),
+        normalisers: vec![norm_rec(&n.node), norm_rec(&n.edge), norm_rec(&n.body_edge), norm_rec(&n.output)],
+        provenance: provenance.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect(),
+    };
+    let archive = rkyv::to_bytes::<rkyv::rancor::Error>(&rec).map_err(rkyv_err)?;
+    let mut out = Vec::with_capacity(HEADER_LEN + archive.len());
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes());
+    out.extend_from_slice(&archive);
+    Ok(out)
+}
+
+/// One layer of a loaded model: bias and the packed parts of `W`, in f32 and (if present) bf16,
+/// all borrowed from the model buffer.
+#[derive(Clone, Debug)]
+pub struct LinearView<'a> {
+    /// Input width.
+    pub inp: usize,
+    /// Output width.
+    pub out: usize,
+    /// Bias, `out`.
+    pub bias: &'a [f32],
+    /// Column parts in f32, in input order.
+    pub f32: Vec<Weights<'a>>,
+    /// Column parts in bf16 (empty when the file has none).
+    pub bf16: Vec<Weights<'a>>,
+}
+
+impl<'a> LinearView<'a> {
+    /// The parts in the requested precision.
+    pub fn parts(&self, bf16: bool) -> &[Weights<'a>] {
+        if bf16 {
+            &self.bf16
+        } else {
+            &self.f32
+        }
+    }
+}
+
+/// One MLP of a loaded model.
+#[derive(Clone, Debug)]
+pub struct MlpView<'a> {
+    /// Linear layers (ReLU between consecutive ones).
+    pub layers: Vec<LinearView<'a>>,
+    /// Final LayerNorm, if any.
+    pub layer_norm: Option<kernels::LayerNorm<'a>>,
+}
+
+/// One processor block of a loaded model.
+#[derive(Clone, Debug)]
+pub struct BlockView<'a> {
+    /// Edge MLPs, one per key of the block spec.
+    pub edges: Vec<MlpView<'a>>,
+    /// Body-edge MLP.
+    pub body: Option<MlpView<'a>>,
+    /// Node MLP.
+    pub node: MlpView<'a>,
+}
+
+/// A loaded, validated model whose weights live in the caller's buffer.
+#[derive(Clone, Debug)]
+pub struct Model<'a> {
+    spec: ModelSpec,
+    has_bf16: bool,
+    /// Node encoder.
+    pub node_encoder: MlpView<'a>,
+    /// Edge encoders in [`ModelSpec::encoded_keys`] order.
+    pub edge_encoders: Vec<MlpView<'a>>,
+    /// Body edge encoder.
+    pub body_encoder: Option<MlpView<'a>>,
+    /// Processor blocks.
+    pub blocks: Vec<BlockView<'a>>,
+    /// Decoder.
+    pub decoder: MlpView<'a>,
+    /// Node-type embedding, 9 x 9.
+    pub node_type_embedding: &'a [f32],
+    /// Vertex-level embedding, 4 x 4.
+    pub level_embedding: &'a [f32],
+    norm: [(&'a [f32], &'a [f32]); 4],
+    rec: &'a ArchivedModelRec,
+}
+
+fn floats(v: &rkyv::vec::ArchivedVec<rend::f32_le>) -> &[f32] {
+    bytemuck::cast_slice(v.as_slice())
+}
+
+fn corrupt(reason: &'static str) -> Error {
+    Error::CorruptData { reason }
+}
+
+fn view_mlp<'a>(
+    m: &'a ArchivedMlpRec,
+    spec: &ModelSpec,
+    input: usize,
+    output: usize,
+    norm: bool,
+    first_layer_parts: Option<usize>,
+    has_bf16: bool,
+) -> Result<MlpView<'a>> {
+    let dims = spec.mlp_dims(input, output);
+    if m.layers.len() != dims.len() {
+        return Err(corrupt("model file: an MLP has the wrong number of layers"));
+    }
+    let mut layers = Vec::with_capacity(dims.len());
+    for (i, (l, &(inp, out))) in m.layers.iter().zip(&dims).enumerate() {
+        if l.inp.to_native() as usize != inp || l.out.to_native() as usize != out || l.bias.len() != out {
+            return Err(corrupt("model file: a layer's width disagrees with the spec"));
+        }
+        let split = split_of(first_layer_parts, i, inp);
+        if l.parts.len() != split.len() {
+            return Err(corrupt("model file: a layer has the wrong number of parts"));
+        }
+        let mut f = Vec::with_capacity(split.len());
+        let mut b = Vec::with_capacity(split.len());
+        for (p, &(col, k)) in l.parts.iter().zip(&split) {
+            if p.col.to_native() as usize != col || p.k.to_native() as usize != k {
+                return Err(corrupt("model file: a layer part has the wrong columns"));
+            }
+            let w = PackedF32::new(floats(&p.f32), k, out).map_err(|_| corrupt("model file: packed f32 size"))?;
+            f.push(Weights::F32(w));
+            if has_bf16 {
+                let bits: &[u16] = bytemuck::cast_slice(p.bf16.as_slice());
+                let data: &[bf16] = bytemuck::cast_slice(bits);
+                let w = PackedBf16::new(data, k, out).map_err(|_| corrupt("model file: packed bf16 size"))?;
+                b.push(Weights::Bf16(w));
+            }
+        }
+        layers.push(LinearView { inp, out, bias: floats(&l.bias), f32: f, bf16: b });
+    }
+    let layer_norm = match (norm, m.gamma.len(), m.beta.len()) {
+        (true, g, b) if g == output && b == output => {
+            Some(kernels::LayerNorm { gamma: floats(&m.gamma), beta: floats(&m.beta) })
+        }
+        (false, 0, 0) => None,
+        _ => return Err(corrupt("model file: LayerNorm parameters disagree with the spec")),
+    };
+    Ok(MlpView { layers, layer_norm })
+}
+
+impl<'a> Model<'a> {
+    /// Validates `bytes` and views the model in place.
+    ///
+    /// # Errors
+    /// [`Error::CorruptData`] for a wrong magic, another format version, a misaligned buffer
+    /// (see [`ALIGN`]), a truncated or corrupt archive, or arrays that disagree with the spec;
+    /// [`Error::IncompatibleModel`] for an invalid spec.
+    pub fn from_bytes(bytes: &'a [u8]) -> Result<Model<'a>> {
+        if cfg!(target_endian = "big") {
+            return Err(corrupt("model files are little-endian; this CPU is big-endian"));
+        }
+        if bytes.len() < HEADER_LEN || bytes[..8] != MAGIC {
+            return Err(corrupt("not a .hood model file (bad magic)"));
+        }
+        let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+        if version != FORMAT_VERSION {
+            return Err(corrupt("unsupported .hood format version"));
+        }
+        if bytes.as_ptr() as usize % ALIGN != 0 {
+            return Err(corrupt("model buffer is not 16-byte aligned"));
+        }
+        let rec = rkyv::access::<ArchivedModelRec, rkyv::rancor::Error>(&bytes[HEADER_LEN..]).map_err(rkyv_err)?;
+        let e = rec.effects;
+        let spec = ModelSpec {
+            latent: rec.latent.to_native() as usize,
+            hidden_layers: rec.hidden_layers.to_native() as usize,
+            blocks: parse_schedule(rec.schedule.as_str())?,
+            levels: rec.levels.to_native() as usize,
+            effects: ModelEffects { body: e & 1 != 0, pinning: e & 2 != 0, local_materials: e & 4 != 0 },
+        };
+        spec.validate()?;
+        let has_bf16 = rec.has_bf16;
+        let h = spec.latent;
+        let node_encoder = view_mlp(&rec.node_encoder, &spec, NODE_WIDTH, h, true, None, has_bf16)?;
+        if rec.edge_encoders.len() != spec.encoded_keys().len() {
+            return Err(corrupt("model file: wrong number of edge encoders"));
+        }
+        let edge_encoders = rec
+            .edge_encoders
+            .iter()
+            .map(|m| view_mlp(m, &spec, EDGE_WIDTH, h, true, None, has_bf16))
+            .collect::<Result<Vec<_>>>()?;
+        let body_encoder = match (rec.body_encoder.as_ref(), spec.effects.body) {
+            (Some(m), true) => Some(view_mlp(m, &spec, BODY_EDGE_WIDTH, h, true, None, has_bf16)?),
+            (None, false) => None,
+            _ => return Err(corrupt("model file: body encoder disagrees with the effects")),
+        };
+        if rec.blocks.len() != spec.blocks.len() {
+            return Err(corrupt("model file: wrong number of blocks"));
+        }
+        let mut blocks = Vec::with_capacity(spec.blocks.len());
+        for (b, s) in rec.blocks.iter().zip(&spec.blocks) {
+            if b.edges.len() != s.keys.len() {
+                return Err(corrupt("model file: a block has the wrong number of edge MLPs"));
+            }
+            let edges = b
+                .edges
+                .iter()
+                .map(|m| view_mlp(m, &spec, 3 * h, h, true, Some(3), has_bf16))
+                .collect::<Result<Vec<_>>>()?;
+            let body = match (b.body.as_ref(), spec.effects.body) {
+                (Some(m), true) => Some(view_mlp(m, &spec, 3 * h, h, true, Some(3), has_bf16)?),
+                (None, false) => None,
+                _ => return Err(corrupt("model file: a block's body MLP disagrees with the effects")),
+            };
+            let k = spec.node_inputs(s);
+            let node = view_mlp(&b.node, &spec, k * h, h, true, Some(k), has_bf16)?;
+            blocks.push(BlockView { edges, body, node });
+        }
+        let decoder = view_mlp(&rec.decoder, &spec, h, 3, false, None, has_bf16)?;
+        let node_type_embedding = floats(&rec.node_type_embedding);
+        let level_embedding = floats(&rec.level_embedding);
+        if node_type_embedding.len() != NODE_TYPES * NODE_TYPES || level_embedding.len() != LEVELS * LEVELS {
+            return Err(corrupt("model file: embedding table size"));
+        }
+        let widths = [NODE_NORMALISED, EDGE_NORMALISED, BODY_EDGE_WIDTH, 3];
+        if rec.normalisers.len() != 4 {
+            return Err(corrupt("model file: wrong number of normalisers"));
+        }
+        let mut norm = [(&[][..], &[][..]); 4];
+        for (i, (n, w)) in rec.normalisers.iter().zip(widths).enumerate() {
+            let (mean, std) = (floats(&n.mean), floats(&n.std));
+            if mean.len() != w || std.len() != w || n.sum.len() != w || n.sum_sq.len() != w {
+                return Err(corrupt("model file: normaliser width"));
+            }
+            if mean.iter().chain(std).any(|x| !x.is_finite()) || std.iter().any(|&s| s <= 0.0) {
+                return Err(corrupt("model file: non-finite or non-positive normaliser statistics"));
+            }
+            norm[i] = (mean, std);
+        }
+        Ok(Model {
+            spec,
+            has_bf16,
+            node_encoder,
+            edge_encoders,
+            body_encoder,
+            blocks,
+            decoder,
+            node_type_embedding,
+            level_embedding,
+            norm,
+            rec,
+        })
+    }
+
+    /// The model's shape.
+    pub fn spec(&self) -> &ModelSpec {
+        &self.spec
+    }
+
+    /// True when the file carries bf16 weights.
+    pub fn has_bf16(&self) -> bool {
+        self.has_bf16
+    }
+
+    /// Frozen `(mean, std)` of the node normaliser (21 columns).
+    pub fn node_stats(&self) -> (&'a [f32], &'a [f32]) {
+        self.norm[0]
+    }
+    /// Frozen `(mean, std)` of the mesh/coarse edge normaliser (9 columns).
+    pub fn edge_stats(&self) -> (&'a [f32], &'a [f32]) {
+        self.norm[1]
+    }
+    /// Frozen `(mean, std)` of the body edge normaliser (9 columns).
+    pub fn body_edge_stats(&self) -> (&'a [f32], &'a [f32]) {
+        self.norm[2]
+    }
+    /// Frozen `(mean, std)` of the output normaliser (3 columns, m/frame^2).
+    pub fn output_stats(&self) -> (&'a [f32], &'a [f32]) {
+        self.norm[3]
+    }
+
+    /// Provenance entries (training config, data, iterations, metrics, commit).
+    pub fn provenance(&self) -> impl Iterator<Item = (&'a str, &'a str)> + 'a {
+        self.rec.provenance.iter().map(|t| (t.0.as_str(), t.1.as_str()))
+    }
+
+    /// Recovers the master parameters (weights unpacked from the f32 copy, normaliser
+    /// accumulators), e.g. to resume training from an exported model.
+    pub fn to_params(&self) -> Params {
+        fn unpack(m: &MlpView<'_>) -> Mlp {
+            let layers = m
+                .layers
+                .iter()
+                .map(|l| {
+                    let mut weight = vec![0.0f32; l.out * l.inp];
+                    let mut col = 0;
+                    for part in &l.f32 {
+                        if let Weights::F32(p) = part {
+                            for o in 0..l.out {
+                                for kk in 0..p.k() {
+                                    weight[o * l.inp + col + kk] = p.get(kk, o);
+                                }
+                            }
+                            col += p.k();
+                        }
+                    }
+                    Linear { inp: l.inp, out: l.out, weight, bias: l.bias.to_vec() }
+                })
+                .collect();
+            let norm = m.layer_norm.map(|n| LayerNorm { gamma: n.gamma.to_vec(), beta: n.beta.to_vec() });
+            Mlp { layers, norm }
+        }
+        let n = |i: usize| {
+            let r = &self.rec.normalisers[i];
+            let v = |a: &rkyv::vec::ArchivedVec<rend::f64_le>| a.iter().map(|x| x.to_native()).collect::<Vec<_>>();
+            Normaliser::from_accumulators(&v(&r.sum), &v(&r.sum_sq), r.count.to_native())
+        };
+        Params {
+            spec: self.spec.clone(),
+            node_encoder: unpack(&self.node_encoder),
+            edge_encoders: self.edge_encoders.iter().map(unpack).collect(),
+            body_encoder: self.body_encoder.as_ref().map(unpack),
+            blocks: self
+                .blocks
+                .iter()
+                .map(|b| BlockParams {
+                    edges: b.edges.iter().map(unpack).collect(),
+                    body: b.body.as_ref().map(unpack),
+                    node: unpack(&b.node),
+                })
+                .collect(),
+            decoder: unpack(&self.decoder),
+            node_type_embedding: self.node_type_embedding.to_vec(),
+            level_embedding: self.level_embedding.to_vec(),
+            normalisers: Normalisers { node: n(0), edge: n(1), body_edge: n(2), output: n(3) },
+        }
+    }
+}
+
+/// An owned, aligned copy of model bytes, for callers that do not manage alignment themselves
+/// (e.g. a model read from disk).
+#[derive(Clone, Debug)]
+pub struct ModelBytes {
+    buf: rkyv::util::AlignedVec<ALIGN>,
+}
+
+impl ModelBytes {
+    /// Copies `bytes` into an aligned buffer.
+    pub fn new(bytes: &[u8]) -> ModelBytes {
+        let mut buf = rkyv::util::AlignedVec::<ALIGN>::with_capacity(bytes.len());
+        buf.extend_from_slice(bytes);
+        ModelBytes { buf }
+    }
+
+    /// Reads a `.hood` file.
+    ///
+    /// # Errors
+    /// [`Error::Io`] when the file cannot be read.
+    #[cfg(feature = "std")]
+    pub fn read(path: impl AsRef<std::path::Path>) -> Result<ModelBytes> {
+        let path = path.as_ref();
+        let bytes =
+            std::fs::read(path).map_err(|e| Error::Io { path: path.display().to_string(), message: e.to_string() })?;
+        Ok(ModelBytes::new(&bytes))
+    }
+
+    /// The aligned bytes.
+    pub fn as_bytes(&self) -> &[u8] {
+        self.buf.as_slice()
+    }
+
+    /// Validates and views the model.
+    ///
+    /// # Errors
+    /// See [`Model::from_bytes`].
+    pub fn model(&self) -> Result<Model<'_>> {
+        Model::from_bytes(self.as_bytes())
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,12 @@
+//! Models: their shape ([`spec`]), their parameters ([`params`]) and, under `std`, the
+//! reference-checkpoint converter ([`reference`]).
+
+pub mod file;
+pub mod params;
+#[cfg(feature = "std")]
+pub mod reference;
+pub mod spec;
+
+pub use file::{write_model, Model, ModelBytes};
+pub use params::{BlockParams, LayerNorm, Linear, Mlp, Normalisers, Params};
+pub use spec::{parse_schedule, BlockSpec, EdgeKey, LevelChange, ModelEffects, ModelSpec, HOOD_SCHEDULE};

@@ -1,0 +1,301 @@
+//! The model's parameters in their master form: every Linear layer as PyTorch stores it
+//! (`weight` is `[out, in]` row-major, `y = x W^T + b`), LayerNorms, embedding tables and the four
+//! normalisers. The trainer updates this form; model files hold it packed for the kernels.
+
+use super::spec::{EdgeKey, ModelSpec};
+use crate::error::{Error, Result};
+use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, EDGE_WIDTH, LEVELS, NODE_NORMALISED, NODE_TYPES, NODE_WIDTH};
+use crate::normaliser::Normaliser;
+use crate::rng::Rng;
+use alloc::vec;
+use alloc::vec::Vec;
+
+/// A fully connected layer `y = x W^T + b`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Linear {
+    /// Input width.
+    pub inp: usize,
+    /// Output width.
+    pub out: usize,
+    /// `[out, in]`, row-major.
+    pub weight: Vec<f32>,
+    /// `[out]`.
+    pub bias: Vec<f32>,
+}
+
+impl Linear {
+    /// PyTorch's default initialisation: weight and bias uniform in `±1/sqrt(in)`.
+    pub fn init(inp: usize, out: usize, rng: &mut Rng) -> Linear {
+        let bound = 1.0 / libm::sqrt(inp.max(1) as f64);
+        let weight = (0..inp * out).map(|_| rng.uniform(-bound, bound) as f32).collect();
+        let bias = (0..out).map(|_| rng.uniform(-bound, bound) as f32).collect();
+        Linear { inp, out, weight, bias }
+    }
+}
+
+/// LayerNorm's affine parameters (eps 1e-5).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LayerNorm {
+    /// Scale.
+    pub gamma: Vec<f32>,
+    /// Shift.
+    pub beta: Vec<f32>,
+}
+
+/// LayerNorm's epsilon (PyTorch default).
+pub const LAYER_NORM_EPS: f32 = 1e-5;
+
+/// Linear-ReLU-...-Linear, optionally followed by LayerNorm.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Mlp {
+    /// The Linear layers; ReLU between consecutive ones.
+    pub layers: Vec<Linear>,
+    /// The final LayerNorm (all MLPs but the decoder).
+    pub norm: Option<LayerNorm>,
+}
+
+impl Mlp {
+    /// A freshly initialised MLP of `spec`'s depth.
+    pub fn init(spec: &ModelSpec, input: usize, output: usize, norm: bool, rng: &mut Rng) -> Mlp {
+        let layers = spec.mlp_dims(input, output).iter().map(|&(i, o)| Linear::init(i, o, rng)).collect();
+        let norm = norm.then(|| LayerNorm { gamma: vec![1.0; output], beta: vec![0.0; output] });
+        Mlp { layers, norm }
+    }
+
+    /// Input width.
+    pub fn input(&self) -> usize {
+        self.layers.first().map_or(0, |l| l.inp)
+    }
+
+    /// Output width.
+    pub fn output(&self) -> usize {
+        self.layers.last().map_or(0, |l| l.out)
+    }
+}
+
+/// One processor block's MLPs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlockParams {
+    /// One edge MLP per garment key of the block, in the block's (sorted) key order.
+    pub edges: Vec<Mlp>,
+    /// The body-edge MLP (both directions), when the model has a body.
+    pub body: Option<Mlp>,
+    /// The node MLP (garment and body nodes).
+    pub node: Mlp,
+}
+
+/// The four normalisers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Normalisers {
+    /// Node features (21 columns).
+    pub node: Normaliser,
+    /// Mesh and coarse edge features (9 columns).
+    pub edge: Normaliser,
+    /// Body edge features (9 columns).
+    pub body_edge: Normaliser,
+    /// Output accelerations (3 columns).
+    pub output: Normaliser,
+}
+
+impl Normalisers {
+    /// Empty statistics.
+    pub fn new() -> Self {
+        Normalisers {
+            node: Normaliser::new(NODE_NORMALISED),
+            edge: Normaliser::new(EDGE_NORMALISED),
+            body_edge: Normaliser::new(BODY_EDGE_WIDTH),
+            output: Normaliser::new(3),
+        }
+    }
+}
+
+impl Default for Normalisers {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Every parameter of a model.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Params {
+    /// The shape.
+    pub spec: ModelSpec,
+    /// Node encoder 24 -> h.
+    pub node_encoder: Mlp,
+    /// Edge encoders 12 -> h, in [`ModelSpec::encoded_keys`] order.
+    pub edge_encoders: Vec<Mlp>,
+    /// Body edge encoder 9 -> h (both directions).
+    pub body_encoder: Option<Mlp>,
+    /// Processor blocks.
+    pub blocks: Vec<BlockParams>,
+    /// Decoder h -> 3 (no LayerNorm).
+    pub decoder: Mlp,
+    /// Node-type embedding, 9 x 9 row-major.
+    pub node_type_embedding: Vec<f32>,
+    /// Vertex-level embedding, 4 x 4 row-major.
+    pub level_embedding: Vec<f32>,
+    /// Normaliser statistics.
+    pub normalisers: Normalisers,
+}
+
+impl Params {
+    /// Random initialisation as PyTorch does it (embeddings standard normal), seeded.
+    ///
+    /// # Errors
+    /// [`Error::IncompatibleModel`] for an invalid spec.
+    pub fn init(spec: &ModelSpec, seed: u64) -> Result<Params> {
+        spec.validate()?;
+        let mut rng = Rng::new(seed);
+        let h = spec.latent;
+        let node_encoder = Mlp::init(spec, NODE_WIDTH, h, true, &mut rng);
+        let edge_encoders =
+            spec.encoded_keys().iter().map(|_| Mlp::init(spec, EDGE_WIDTH, h, true, &mut rng)).collect();
+        let body_encoder = spec.effects.body.then(|| Mlp::init(spec, BODY_EDGE_WIDTH, h, true, &mut rng));
+        let blocks = spec
+            .blocks
+            .iter()
+            .map(|b| BlockParams {
+                edges: b.keys.iter().map(|_| Mlp::init(spec, 3 * h, h, true, &mut rng)).collect(),
+                body: spec.effects.body.then(|| Mlp::init(spec, 3 * h, h, true, &mut rng)),
+                node: Mlp::init(spec, spec.node_inputs(b) * h, h, true, &mut rng),
+            })
+            .collect();
+        let decoder = Mlp::init(spec, h, 3, false, &mut rng);
+        let node_type_embedding = (0..NODE_TYPES * NODE_TYPES).map(|_| rng.normal() as f32).collect();
+        let level_embedding = (0..LEVELS * LEVELS).map(|_| rng.normal() as f32).collect();
+        Ok(Params {
+            spec: spec.clone(),
+            node_encoder,
+            edge_encoders,
+            body_encoder,
+            blocks,
+            decoder,
+            node_type_embedding,
+            level_embedding,
+            normalisers: Normalisers::new(),
+        })
+    }
+
+    /// The edge encoder of `key`, if the model encodes it.
+    pub fn edge_encoder(&self, key: EdgeKey) -> Option<&Mlp> {
+        let i = self.spec.encoded_keys().iter().position(|&k| k == key)?;
+        self.edge_encoders.get(i)
+    }
+
+    /// Every MLP in a fixed order (encoders, blocks, decoder), for visiting all parameters.
+    pub fn mlps(&self) -> Vec<&Mlp> {
+        let mut v = vec![&self.node_encoder];
+        v.extend(self.edge_encoders.iter());
+        v.extend(self.body_encoder.iter());
+        for b in &self.blocks {
+            v.extend(b.edges.iter());
+            v.extend(b.body.iter());
+            v.push(&b.node);
+        }
+        v.push(&self.decoder);
+        v
+    }
+
+    /// Trainable parameter count (must equal [`ModelSpec::parameter_count`]).
+    pub fn count(&self) -> usize {
+        let mlp: usize = self
+            .mlps()
+            .iter()
+            .map(|m| {
+                m.layers.iter().map(|l| l.weight.len() + l.bias.len()).sum::<usize>()
+                    + m.norm.as_ref().map_or(0, |n| n.gamma.len() + n.beta.len())
+            })
+            .sum();
+        mlp + self.node_type_embedding.len() + self.level_embedding.len()
+    }
+
+    /// Checks every tensor's size against the spec.
+    ///
+    /// # Errors
+    /// [`Error::IncompatibleModel`] naming the first inconsistency.
+    pub fn validate(&self) -> Result<()> {
+        self.spec.validate()?;
+        let bad = |reason| Err(Error::IncompatibleModel { reason });
+        let h = self.spec.latent;
+        let check_mlp = |m: &Mlp, i: usize, o: usize, ln: bool| -> bool {
+            let dims = self.spec.mlp_dims(i, o);
+            m.layers.len() == dims.len()
+                && m.layers
+                    .iter()
+                    .zip(&dims)
+                    .all(|(l, &(a, b))| l.inp == a && l.out == b && l.weight.len() == a * b && l.bias.len() == b)
+                && match (&m.norm, ln) {
+                    (Some(n), true) => n.gamma.len() == o && n.beta.len() == o,
+                    (None, false) => true,
+                    _ => false,
+                }
+        };
+        if !check_mlp(&self.node_encoder, NODE_WIDTH, h, true) {
+            return bad("node encoder shape");
+        }
+        if self.edge_encoders.len() != self.spec.encoded_keys().len()
+            || !self.edge_encoders.iter().all(|m| check_mlp(m, EDGE_WIDTH, h, true))
+        {
+            return bad("edge encoder shapes");
+        }
+        match (&self.body_encoder, self.spec.effects.body) {
+            (Some(m), true) if check_mlp(m, BODY_EDGE_WIDTH, h, true) => {}
+            (None, false) => {}
+            _ => return bad("body encoder shape"),
+        }
+        if self.blocks.len() != self.spec.blocks.len() {
+            return bad("block count");
+        }
+        for (b, s) in self.blocks.iter().zip(&self.spec.blocks) {
+            let body_ok = match (&b.body, self.spec.effects.body) {
+                (Some(m), true) => check_mlp(m, 3 * h, h, true),
+                (None, false) => true,
+                _ => false,
+            };
+            if b.edges.len() != s.keys.len()
+                || !b.edges.iter().all(|m| check_mlp(m, 3 * h, h, true))
+                || !body_ok
+                || !check_mlp(&b.node, self.spec.node_inputs(s) * h, h, true)
+            {
+                return bad("processor block shape");
+            }
+        }
+        if !check_mlp(&self.decoder, h, 3, false) {
+            return bad("decoder shape");
+        }
+        if self.node_type_embedding.len() != NODE_TYPES * NODE_TYPES || self.level_embedding.len() != LEVELS * LEVELS {
+            return bad("embedding table shape");
+        }
+        let n = &self.normalisers;
+        if n.node.width() != NODE_NORMALISED
+            || n.edge.width() != EDGE_NORMALISED
+            || n.body_edge.width() != BODY_EDGE_WIDTH
+            || n.output.width() != 3
+        {
+            return bad("normaliser widths");
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn model_params_init_matches_spec() {
+        for h in [16, 32, 128] {
+            let spec = ModelSpec::hood(h);
+            let p = Params::init(&spec, 3).unwrap();
+            assert_eq!(p.count(), spec.parameter_count());
+            p.validate().unwrap();
+        }
+        let p = Params::init(&ModelSpec::hood(128), 3).unwrap();
+        // PyTorch's bound for a 384-wide input.
+        let w = &p.blocks[0].edges[0].layers[0].weight;
+        let bound = 1.0 / 384f32.sqrt();
+        assert!(w.iter().all(|x| x.abs() <= bound));
+        assert!(w.iter().any(|x| x.abs() > 0.9 * bound));
+        assert_ne!(Params::init(&ModelSpec::hood(16), 4).unwrap(), Params::init(&ModelSpec::hood(16), 3).unwrap());
+    }
+}
