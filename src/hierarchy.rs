@@ -145,7 +145,7 @@ impl Hierarchy {
             }
             adj = coarsen(&adj, &bfs.dist, &mut scratch);
             let nodes =
-                (0..n as u32).filter(|&v| bfs.dist[v as usize] != UNREACHED && bfs.dist[v as usize] % 2 == 0).collect();
+                (0..n as u32).filter(|&v| bfs.dist[v as usize] != UNREACHED && bfs.dist[v as usize] & 1 == 0).collect();
             let (directed, in_offsets) = adj.directed();
             out.push(Level { edges: adj.edges(), nodes, directed, in_offsets });
         }
@@ -489,8 +489,8 @@ impl Scratch {
 /// adjacency. Built node by node, so no global sort of the edge list is needed.
 fn coarsen(adj: &Csr, dist: &[u32], s: &mut Scratch) -> Csr {
     let n = adj.n();
-    let odd = |v: u32| dist[v as usize] != UNREACHED && dist[v as usize] % 2 == 1;
-    let even = |v: u32| dist[v as usize] != UNREACHED && dist[v as usize] % 2 == 0;
+    let odd = |v: u32| dist[v as usize] != UNREACHED && dist[v as usize] & 1 == 1;
+    let even = |v: u32| dist[v as usize] != UNREACHED && dist[v as usize] & 1 == 0;
 
     // Step 2: across every odd node, join each neighbour one hop closer to each one hop farther
     // (such a pair is always exactly two hops apart). Seen from an even node x, its partners are
