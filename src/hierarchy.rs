@@ -11,7 +11,7 @@
 //! The graph has no geometry: distances here are hop counts, not metres.
 
 use crate::error::{Error, Result};
-use crate::mesh::topology::{components, directed_csr};
+use crate::mesh::topology::components;
 use crate::mesh::Garment;
 use alloc::vec;
 use alloc::vec::Vec;
@@ -143,12 +143,11 @@ impl Hierarchy {
                 bfs.clear();
                 bfs.run(&adj, centres);
             }
-            let edges = coarsen(&adj, &bfs.dist, &mut scratch);
+            adj = coarsen(&adj, &bfs.dist, &mut scratch);
             let nodes =
-                (0..n as u32).filter(|&v| bfs.dist[v as usize] != UNREACHED && bfs.dist[v as usize] % 2 == 0).collect();
-            let (directed, in_offsets) = directed_csr(n, &edges);
-            adj = Csr::from_sorted_edges(n, &edges);
-            out.push(Level { edges, nodes, directed, in_offsets });
+                (0..n as u32).filter(|&v| bfs.dist[v as usize] != UNREACHED && bfs.dist[v as usize] & 1 == 0).collect();
+            let (directed, in_offsets) = adj.directed();
+            out.push(Level { edges: adj.edges(), nodes, directed, in_offsets });
         }
         let mut vertex_level = vec![0u8; n];
         for (i, level) in out.iter().enumerate() {
@@ -326,6 +325,59 @@ impl Csr {
         self.offsets.len() - 1
     }
 
+    /// This graph plus the edges `keys` (see [`edge_key`]; sorted and deduplicated here),
+    /// merging neighbour lists node by node.
+    fn union_keys(self, keys: &mut Vec<u64>) -> Csr {
+        if keys.is_empty() {
+            return self;
+        }
+        keys.sort_unstable();
+        keys.dedup();
+        let edges: Vec<[u32; 2]> = keys.iter().map(|&k| key_edge(k)).collect();
+        let extra = Csr::from_sorted_edges(self.n(), &edges);
+        let mut offsets = Vec::with_capacity(self.offsets.len());
+        offsets.push(0u32);
+        let mut nbrs = Vec::with_capacity(self.nbrs.len() + extra.nbrs.len());
+        for v in 0..self.n() as u32 {
+            let (mut a, mut b) = (self.of(v), extra.of(v));
+            while let (Some(&x), Some(&y)) = (a.first(), b.first()) {
+                if x <= y {
+                    nbrs.push(x);
+                    a = &a[1..];
+                    if x == y {
+                        b = &b[1..];
+                    }
+                } else {
+                    nbrs.push(y);
+                    b = &b[1..];
+                }
+            }
+            nbrs.extend_from_slice(a);
+            nbrs.extend_from_slice(b);
+            offsets.push(nbrs.len() as u32);
+        }
+        Csr { offsets, nbrs }
+    }
+
+    /// Unique undirected edges `(a, b)`, `a < b`, sorted.
+    fn edges(&self) -> Vec<[u32; 2]> {
+        let mut out = Vec::with_capacity(self.nbrs.len() / 2);
+        for v in 0..self.n() as u32 {
+            out.extend(self.of(v).iter().filter(|&&w| w > v).map(|&w| [v, w]));
+        }
+        out
+    }
+
+    /// Both directions of every edge as `(source, target)` sorted by `(target, source)`, with
+    /// CSR offsets per target: the same as `mesh::topology::directed_csr` of [`Csr::edges`], without a sort.
+    fn directed(&self) -> (Vec<[u32; 2]>, Vec<u32>) {
+        let mut out = Vec::with_capacity(self.nbrs.len());
+        for t in 0..self.n() as u32 {
+            out.extend(self.of(t).iter().map(|&s| [s, t]));
+        }
+        (out, self.offsets.clone())
+    }
+
     fn of(&self, v: u32) -> &[u32] {
         &self.nbrs[self.offsets[v as usize] as usize..self.offsets[v as usize + 1] as usize]
     }
@@ -434,37 +486,45 @@ impl Scratch {
 
 /// One coarsening step (Algorithm 1, steps 2 to 4) of the graph `adj` whose hop distances from
 /// the centres are `dist` (`UNREACHED` for nodes not in the graph). Returns the new level's
-/// unique sorted edges.
-fn coarsen(adj: &Csr, dist: &[u32], s: &mut Scratch) -> Vec<[u32; 2]> {
+/// adjacency. Built node by node, so no global sort of the edge list is needed.
+fn coarsen(adj: &Csr, dist: &[u32], s: &mut Scratch) -> Csr {
     let n = adj.n();
-    let odd = |v: u32| dist[v as usize] != UNREACHED && dist[v as usize] % 2 == 1;
+    let odd = |v: u32| dist[v as usize] != UNREACHED && dist[v as usize] & 1 == 1;
+    let even = |v: u32| dist[v as usize] != UNREACHED && dist[v as usize] & 1 == 0;
 
-    // Step 2: across every odd node, join each neighbour one hop closer to each one hop farther.
-    // Such a pair is always exactly two hops apart in the finer graph.
-    s.keys.clear();
-    for v in 0..n as u32 {
-        if !odd(v) {
-            continue;
-        }
-        let d = dist[v as usize];
-        for &c in adj.of(v) {
-            if dist[c as usize] == d - 1 {
-                for &f in adj.of(v) {
-                    if dist[f as usize] == d + 1 {
-                        s.keys.push(edge_key(c, f));
+    // Step 2: across every odd node, join each neighbour one hop closer to each one hop farther
+    // (such a pair is always exactly two hops apart). Seen from an even node x, its partners are
+    // the nodes two levels up or down behind its odd neighbours.
+    let mut offsets = Vec::with_capacity(n + 1);
+    offsets.push(0u32);
+    let mut nbrs = Vec::with_capacity(adj.nbrs.len());
+    for x in 0..n as u32 {
+        if even(x) {
+            let dx = dist[x as usize];
+            let start = nbrs.len();
+            s.marks.next();
+            for &u in adj.of(x) {
+                if !odd(u) {
+                    continue;
+                }
+                let target = if dist[u as usize] > dx { dx + 2 } else { dx - 2 };
+                for &w in adj.of(u) {
+                    if dist[w as usize] == target && !s.marks.has(w) {
+                        s.marks.set(w);
+                        nbrs.push(w);
                     }
                 }
             }
+            nbrs[start..].sort_unstable();
         }
+        offsets.push(nbrs.len() as u32);
     }
-    s.keys.sort_unstable();
-    s.keys.dedup();
-    let step2: Vec<[u32; 2]> = s.keys.iter().map(|&k| key_edge(k)).collect();
-    let g2 = Csr::from_sorted_edges(n, &step2);
+    let g2 = Csr { offsets, nbrs };
 
     // Step 3: where the front ends at an odd node, join its closer neighbours that are not within
     // two hops in the step-2 graph (checked against step 2 only, as the reference does, so the
     // result does not depend on the visiting order).
+    s.keys.clear();
     for v in 0..n as u32 {
         if !odd(v) {
             continue;
@@ -487,17 +547,14 @@ fn coarsen(adj: &Csr, dist: &[u32], s: &mut Scratch) -> Vec<[u32; 2]> {
             }
         }
     }
-    s.keys.sort_unstable();
-    s.keys.dedup();
-    let step3: Vec<[u32; 2]> = s.keys.iter().map(|&k| key_edge(k)).collect();
-    let g3 = Csr::from_sorted_edges(n, &step3);
+    let g3 = g2.union_keys(&mut s.keys);
 
     // Step 4: join even nodes that were adjacent (hence at the same distance) unless already
     // within two hops, counting the edges this step has added so far.
+    s.keys.clear();
     s.head.fill(UNREACHED);
     s.next.clear();
     s.to.clear();
-    let even = |v: u32| dist[v as usize] != UNREACHED && dist[v as usize] % 2 == 0;
     for v in 0..n as u32 {
         if !even(v) {
             continue;
@@ -535,9 +592,7 @@ fn coarsen(adj: &Csr, dist: &[u32], s: &mut Scratch) -> Vec<[u32; 2]> {
             s.keys.push(edge_key(v, a));
         }
     }
-    s.keys.sort_unstable();
-    s.keys.dedup();
-    s.keys.iter().map(|&k| key_edge(k)).collect()
+    g3.union_keys(&mut s.keys)
 }
 
 /// [`centre_candidates`] on a built adjacency; labels must be valid.

@@ -1,5 +1,6 @@
 use super::*;
 use crate::mesh::shapes::grid;
+use crate::mesh::topology::directed_csr;
 use crate::mesh::{repair, GarmentDesc};
 use alloc::collections::{BTreeSet, VecDeque};
 use proptest::prelude::*;
@@ -102,7 +103,7 @@ fn naive_level(adj: &[BTreeSet<u32>], centres: &[u32]) -> Vec<[u32; 2]> {
     let reached = |v: u32| d[v as usize] != u32::MAX;
     let mut g2 = vec![BTreeSet::new(); n];
     for v in 0..n as u32 {
-        if !reached(v) || d[v as usize] % 2 == 0 {
+        if !reached(v) || d[v as usize] & 1 == 0 {
             continue;
         }
         for &c in adj[v as usize].iter().filter(|&&c| d[c as usize] + 1 == d[v as usize]) {
@@ -114,7 +115,7 @@ fn naive_level(adj: &[BTreeSet<u32>], centres: &[u32]) -> Vec<[u32; 2]> {
     }
     let mut g3 = g2.clone();
     for v in 0..n as u32 {
-        if !reached(v) || d[v as usize] % 2 == 0 {
+        if !reached(v) || d[v as usize] & 1 == 0 {
             continue;
         }
         if adj[v as usize].iter().any(|&f| d[f as usize] == d[v as usize] + 1) {
@@ -132,7 +133,7 @@ fn naive_level(adj: &[BTreeSet<u32>], centres: &[u32]) -> Vec<[u32; 2]> {
         }
     }
     for v in 0..n as u32 {
-        if !reached(v) || d[v as usize] % 2 == 1 {
+        if !reached(v) || d[v as usize] & 1 == 1 {
             continue;
         }
         let same: Vec<u32> = adj[v as usize].iter().copied().filter(|&a| d[a as usize] == d[v as usize]).collect();
