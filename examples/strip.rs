@@ -19,7 +19,10 @@ use std::path::PathBuf;
 const BODY: [u8; 3] = [200, 160, 130];
 const CLOTH: [u8; 3] = [60, 110, 190];
 
-fn frame_image(pos: &[[f32; 3]], faces: &[[u32; 3]], extra: Option<(&[[f32; 3]], &[[u32; 3]])>) -> Image {
+/// A second mesh drawn in the garment colour: positions and triangles.
+type Overlay<'a> = (&'a [[f32; 3]], &'a [[u32; 3]]);
+
+fn frame_image(pos: &[[f32; 3]], faces: &[[u32; 3]], extra: Option<Overlay<'_>>) -> Image {
     let n = pos.len() as f32;
     let c = pos.iter().fold([0.0f32; 3], |a, p| [a[0] + p[0] / n, a[1] + p[1] / n, a[2] + p[2] / n]);
     let cam = Camera::orthographic([c[0], 0.95, c[2]], [1.0, 0.15, 0.35], 2.1);

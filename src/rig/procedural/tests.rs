@@ -90,7 +90,8 @@ fn check_clear(m: &Mannequin, g: &ProceduralGarment) -> (f32, usize) {
 #[test]
 fn procedural_garments_start_outside_the_body() {
     let m = mannequin();
-    let makers: [(&str, fn(&Mannequin, usize) -> crate::Result<ProceduralGarment>); 4] =
+    type Maker = fn(&Mannequin, usize) -> crate::Result<ProceduralGarment>;
+    let makers: [(&str, Maker); 4] =
         [("square", square_cloth), ("skirt", skirt), ("dress", long_dress), ("cape", cape)];
     for (name, make) in makers {
         let g = make(m, 1000).unwrap();
