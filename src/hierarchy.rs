@@ -385,6 +385,10 @@ impl Csr {
 
 const UNREACHED: u32 = u32::MAX;
 
+/// In the centre search, a bounding BFS from a peripheral node is repeated while the previous one
+/// closed at least this many open nodes; otherwise a batch certification comes next.
+const PRUNE_GAIN: usize = 16;
+
 /// Breadth-first search with reusable buffers; `queue` holds the nodes reached, so clearing costs
 /// only what was visited.
 struct Bfs {
@@ -429,6 +433,75 @@ impl Bfs {
             self.dist[v as usize] = UNREACHED;
         }
         self.queue.clear();
+    }
+}
+
+/// Up to 64 breadth-first searches at once, one bit per source.
+struct MultiBfs {
+    visited: Vec<u64>,
+    front: Vec<u64>,
+    next: Vec<u64>,
+    list: Vec<u32>,
+    next_list: Vec<u32>,
+}
+
+impl MultiBfs {
+    fn new(n: usize) -> MultiBfs {
+        MultiBfs { visited: vec![0; n], front: vec![0; n], next: vec![0; n], list: Vec::new(), next_list: Vec::new() }
+    }
+
+    /// Searches from `sources` (at most 64, distinct, all in the component `nodes`) up to `depth`
+    /// hops. Returns a mask with bit `k` set when `sources[k]` reaches every node within
+    /// `depth`, and writes that source's eccentricity to `ecc[k]` (meaningless for unset bits).
+    fn within(&mut self, adj: &Csr, nodes: &[u32], sources: &[u32], depth: u32, ecc: &mut [u32; 64]) -> u64 {
+        debug_assert!(sources.len() <= 64);
+        self.list.clear();
+        for (k, &s) in sources.iter().enumerate() {
+            self.visited[s as usize] |= 1 << k;
+            self.front[s as usize] |= 1 << k;
+            self.list.push(s);
+            ecc[k] = 0;
+        }
+        let mut level = 0;
+        while level < depth && !self.list.is_empty() {
+            level += 1;
+            for &v in &self.list {
+                let f = self.front[v as usize];
+                for &w in adj.of(v) {
+                    let new = f & !self.visited[w as usize];
+                    if new != 0 {
+                        if self.next[w as usize] == 0 {
+                            self.next_list.push(w);
+                        }
+                        self.next[w as usize] |= new;
+                    }
+                }
+            }
+            for &v in &self.list {
+                self.front[v as usize] = 0;
+            }
+            let mut arrived = 0u64;
+            for &w in &self.next_list {
+                let bits = self.next[w as usize];
+                arrived |= bits;
+                self.visited[w as usize] |= bits;
+                self.front[w as usize] = bits;
+                self.next[w as usize] = 0;
+            }
+            while arrived != 0 {
+                ecc[arrived.trailing_zeros() as usize] = level;
+                arrived &= arrived - 1;
+            }
+            core::mem::swap(&mut self.list, &mut self.next_list);
+            self.next_list.clear();
+        }
+        let mut all = if sources.len() == 64 { u64::MAX } else { (1u64 << sources.len()) - 1 };
+        for &w in nodes {
+            all &= self.visited[w as usize];
+            self.visited[w as usize] = 0;
+            self.front[w as usize] = 0;
+        }
+        all
     }
 }
 
@@ -596,6 +669,20 @@ fn coarsen(adj: &Csr, dist: &[u32], s: &mut Scratch) -> Csr {
 }
 
 /// [`centre_candidates`] on a built adjacency; labels must be valid.
+///
+/// Per component, every node is open with bounds `lower <= ecc <= upper`, and `radius` is the
+/// smallest upper bound. Two kinds of rounds close open nodes until none is left:
+/// * a bounding BFS (Takes and Kosters) from one node tightens every node's bounds; a node whose
+///   lower bound exceeds `radius` can no longer be a candidate. The first four alternate between
+///   the open node of smallest lower bound and the one of largest upper bound; later ones take
+///   the latter (peripheral nodes prune best) while they keep paying off (see [`PRUNE_GAIN`]);
+/// * a batch certification settles up to 64 open nodes around the one of smallest lower bound
+///   with one bit-parallel BFS truncated at `radius`: a node that reaches everything gets its
+///   exact eccentricity, the others exceed the radius. Meshes have many candidates (a plateau of
+///   equal eccentricity, hundreds of nodes on a 20k-vertex garment), each of which would need
+///   its own BFS to be certified; nearby sources share most of their search.
+///
+/// At the end every node has a known eccentricity or one above `radius`, which is then the radius.
 fn candidates_of(adj: &Csr, component: &[u32], n_components: usize) -> Result<Vec<Vec<u32>>> {
     let n = adj.n();
     // Nodes grouped by component, ascending within each.
@@ -617,6 +704,10 @@ fn candidates_of(adj: &Csr, component: &[u32], n_components: usize) -> Result<Ve
     let mut upper = vec![u32::MAX; n];
     let mut bfs = Bfs::new(n);
     let mut open: Vec<u32> = Vec::new();
+    let mut multi: Option<MultiBfs> = None;
+    let mut marks = Marks::new(n);
+    let mut batch: Vec<u32> = Vec::with_capacity(64);
+    let mut ecc = [0u32; 64];
     let mut out = Vec::with_capacity(n_components);
     for c in 0..n_components {
         let nodes = &members[start[c] as usize..start[c + 1] as usize];
@@ -625,41 +716,86 @@ fn candidates_of(adj: &Csr, component: &[u32], n_components: usize) -> Result<Ve
         }
         open.clear();
         open.extend_from_slice(nodes);
-        let mut radius_bound = u32::MAX;
-        let mut by_upper = false;
+        let mut radius = u32::MAX;
+        let mut round = 0usize;
+        let mut gain = usize::MAX;
+        let mut peripheral = false;
         while !open.is_empty() {
-            // Alternate between the open node of smallest lower bound (likely central) and the
-            // one of largest upper bound (likely peripheral); ties to the higher degree, then
-            // the lower index.
-            let pick = if by_upper {
-                open.iter().copied().max_by_key(|&v| (upper[v as usize], adj.of(v).len(), u32::MAX - v))
+            round += 1;
+            let only_certify = open.iter().all(|&w| lower[w as usize] == radius);
+            let before = open.len();
+            peripheral = round <= 4 || (!only_certify && (gain >= PRUNE_GAIN || !peripheral));
+            if peripheral {
+                // Single BFS: first alternating between the node of smallest lower bound (likely
+                // central) and the one of largest upper bound (likely peripheral), then only the
+                // latter, whose lower bounds prune. Ties to the higher degree, then lower index.
+                let pick = if round % 2 == 0 && round <= 4 {
+                    open.iter().copied().min_by_key(|&v| (lower[v as usize], usize::MAX - adj.of(v).len(), v))
+                } else {
+                    open.iter().copied().max_by_key(|&v| (upper[v as usize], adj.of(v).len(), u32::MAX - v))
+                };
+                let v = pick.unwrap_or(open[0]);
+                bfs.clear();
+                let e = bfs.run(adj, &[v]);
+                if bfs.queue.len() != nodes.len() {
+                    return Err(Error::OutOfRange { what: "disconnected component", index: c });
+                }
+                for &w in nodes {
+                    let d = bfs.dist[w as usize];
+                    let (lo, hi) = (&mut lower[w as usize], &mut upper[w as usize]);
+                    *lo = (*lo).max(d).max(e - d);
+                    *hi = (*hi).min(e + d);
+                    radius = radius.min(*hi);
+                }
             } else {
-                open.iter().copied().min_by_key(|&v| (lower[v as usize], usize::MAX - adj.of(v).len(), v))
-            };
-            let v = pick.unwrap_or(open[0]);
-            by_upper = !by_upper;
-            bfs.clear();
-            let ecc = bfs.run(adj, &[v]);
-            if bfs.queue.len() != nodes.len() {
-                return Err(Error::OutOfRange { what: "disconnected component", index: c });
+                // Certify a batch: the open node of smallest lower bound and the open nodes
+                // nearest to it, 64 at most, by one bit-parallel BFS truncated at the radius
+                // bound. A node reaching everything has its exact eccentricity; the others
+                // exceed the radius.
+                let seed = open.iter().copied().min_by_key(|&v| (lower[v as usize], v)).unwrap_or(open[0]);
+                marks.next();
+                for &w in &open {
+                    marks.set(w);
+                }
+                batch.clear();
+                bfs.clear();
+                bfs.dist[seed as usize] = 0;
+                bfs.queue.push(seed);
+                let mut head = 0;
+                while head < bfs.queue.len() && batch.len() < 64 {
+                    let u = bfs.queue[head];
+                    head += 1;
+                    if marks.has(u) {
+                        batch.push(u);
+                    }
+                    for &w in adj.of(u) {
+                        if bfs.dist[w as usize] == UNREACHED {
+                            bfs.dist[w as usize] = 0;
+                            bfs.queue.push(w);
+                        }
+                    }
+                }
+                let multi = multi.get_or_insert_with(|| MultiBfs::new(n));
+                let reach = multi.within(adj, nodes, &batch, radius, &mut ecc);
+                for (k, &w) in batch.iter().enumerate() {
+                    if reach >> k & 1 == 1 {
+                        lower[w as usize] = ecc[k];
+                        upper[w as usize] = ecc[k];
+                        radius = radius.min(ecc[k]);
+                    } else {
+                        lower[w as usize] = radius.saturating_add(1);
+                    }
+                }
             }
-            for &w in nodes {
-                let d = bfs.dist[w as usize];
-                let (lo, hi) = (&mut lower[w as usize], &mut upper[w as usize]);
-                *lo = (*lo).max(d).max(ecc - d);
-                *hi = (*hi).min(ecc + d);
-                radius_bound = radius_bound.min(*hi);
+            open.retain(|&w| lower[w as usize] != upper[w as usize] && lower[w as usize] <= radius);
+            if peripheral {
+                gain = before - open.len();
             }
-            open.retain(|&w| lower[w as usize] != upper[w as usize] && lower[w as usize] <= radius_bound);
         }
-        // Every node now has a known eccentricity or one above the radius, so the radius is the
-        // smallest upper bound and the candidates are the nodes known to reach it.
+        // Every node now has a known eccentricity or one above the radius, so the candidates are
+        // the nodes known to reach it.
         out.push(
-            nodes
-                .iter()
-                .copied()
-                .filter(|&w| lower[w as usize] == radius_bound && upper[w as usize] == radius_bound)
-                .collect(),
+            nodes.iter().copied().filter(|&w| lower[w as usize] == radius && upper[w as usize] == radius).collect(),
         );
     }
     Ok(out)

@@ -403,3 +403,43 @@ proptest! {
         prop_assert_eq!(&a, &c);
     }
 }
+
+/// Edges of a closed tube, `around` x `along` nodes, quads split along alternating diagonals.
+fn tube_edges(around: usize, along: usize) -> Vec<[u32; 2]> {
+    let id = |i: usize, j: usize| (j * around + i % around) as u32;
+    let mut edges = Vec::new();
+    for j in 0..along {
+        for i in 0..around {
+            edges.push([id(i, j), id(i + 1, j)]);
+            if j + 1 < along {
+                edges.push([id(i, j), id(i, j + 1)]);
+                let diag = if (i + j) % 2 == 0 { [id(i, j), id(i + 1, j + 1)] } else { [id(i + 1, j), id(i, j + 1)] };
+                edges.push(diag);
+            }
+        }
+    }
+    edges
+}
+
+#[test]
+fn hierarchy_centre_candidates_match_brute_force_on_large_plateaus() {
+    // Tubes have a whole ring (or two) of candidates: more than one 64-node batch to certify.
+    let mut graphs: Vec<(usize, Vec<[u32; 2]>)> = Vec::new();
+    for (around, along) in [(96, 9), (70, 12), (130, 4), (5, 60)] {
+        graphs.push((around * along, tube_edges(around, along)));
+    }
+    let mut st = 7u64;
+    for _ in 0..4 {
+        let holes = (splitmix(&mut st) % 30) as f64 / 100.0;
+        let g = garment_of(&[Piece::Holed { nx: 36, nz: 30, holes, seed: splitmix(&mut st) }]);
+        graphs.push((g.n_vertices(), g.edges().to_vec()));
+    }
+    for (n, edges) in graphs {
+        let (component, n_components) = components(n, &normalise_edges(n, &edges).unwrap());
+        let cand = centre_candidates(n, &edges, &component, n_components as usize).unwrap();
+        let adj = adjacency_sets(n, &normalise_edges(n, &edges).unwrap());
+        let want = brute_candidates(&adj, &component, n_components as usize);
+        assert_eq!(cand, want, "graph of {n} nodes");
+        std::println!("{n} nodes: candidates per component {:?}", cand.iter().map(Vec::len).collect::<Vec<_>>());
+    }
+}
