@@ -729,7 +729,7 @@ fn candidates_of(adj: &Csr, component: &[u32], n_components: usize) -> Result<Ve
                 // Single BFS: first alternating between the node of smallest lower bound (likely
                 // central) and the one of largest upper bound (likely peripheral), then only the
                 // latter, whose lower bounds prune. Ties to the higher degree, then lower index.
-                let pick = if round % 2 == 0 && round <= 4 {
+                let pick = if round.is_multiple_of(2) && round <= 4 {
                     open.iter().copied().min_by_key(|&v| (lower[v as usize], usize::MAX - adj.of(v).len(), v))
                 } else {
                     open.iter().copied().max_by_key(|&v| (upper[v as usize], adj.of(v).len(), u32::MAX - v))
