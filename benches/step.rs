@@ -10,14 +10,7 @@ use std::time::Duration;
 
 fn random_model(h: usize) -> ModelBytes {
     let mut p = Params::init(&ModelSpec::hood(h), 0).unwrap();
-    let mut rng = hood::rng::Rng::new(1);
-    let n = &mut p.normalisers;
-    for (norm, w, s) in
-        [(&mut n.node, 21, 1.0), (&mut n.edge, 9, 0.05), (&mut n.body_edge, 9, 0.02), (&mut n.output, 3, 1e-3)]
-    {
-        let rows: Vec<f32> = (0..64 * w).map(|_| (rng.normal() * s) as f32).collect();
-        norm.accumulate(&rows, w);
-    }
+    p.normalisers = hood::model::Normalisers::unit_scale(1);
     ModelBytes::new(&write_model(&p, true, &[]).unwrap())
 }
 

@@ -99,15 +99,7 @@ fn main() -> ExitCode {
 
 fn random_model(h: usize) -> hood::Result<ModelBytes> {
     let mut p = Params::init(&ModelSpec::hood(h), 0)?;
-    // Unit-scale statistics, so that a random model's features and outputs stay sane.
-    let mut rng = hood::rng::Rng::new(1);
-    let n = &mut p.normalisers;
-    for (norm, w, s) in
-        [(&mut n.node, 21, 1.0), (&mut n.edge, 9, 0.05), (&mut n.body_edge, 9, 0.02), (&mut n.output, 3, 1e-3)]
-    {
-        let rows: Vec<f32> = (0..64 * w).map(|_| (rng.normal() * s) as f32).collect();
-        norm.accumulate(&rows, w);
-    }
+    p.normalisers = hood::model::Normalisers::unit_scale(1);
     Ok(ModelBytes::new(&write_model(&p, true, &[("kind", "random, for timing")])?))
 }
 

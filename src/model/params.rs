@@ -109,6 +109,25 @@ impl Normalisers {
     }
 }
 
+impl Normalisers {
+    /// Statistics of seeded random unit-scale data (nodes ~1, edges ~5 cm, body edges ~2 cm,
+    /// outputs ~1 mm/frame^2): what an untrained model needs so that its features and outputs
+    /// stay in a sensible range, for timing and for tests.
+    pub fn unit_scale(seed: u64) -> Normalisers {
+        let mut n = Normalisers::new();
+        let mut rng = Rng::new(seed ^ 0x5eed);
+        let mut fill = |norm: &mut Normaliser, w: usize, scale: f64| {
+            let rows: Vec<f32> = (0..64 * w).map(|_| (rng.normal() * scale) as f32).collect();
+            norm.accumulate(&rows, w);
+        };
+        fill(&mut n.node, NODE_NORMALISED, 1.0);
+        fill(&mut n.edge, EDGE_NORMALISED, 0.05);
+        fill(&mut n.body_edge, BODY_EDGE_WIDTH, 0.02);
+        fill(&mut n.output, 3, 1e-3);
+        n
+    }
+}
+
 impl Default for Normalisers {
     fn default() -> Self {
         Self::new()

@@ -72,13 +72,7 @@ pub fn random_model(h: usize, seed: u64, bf16: bool) -> hood::model::ModelBytes 
     use hood::model::{write_model, ModelBytes, ModelSpec, Params};
     let spec = ModelSpec::hood(h);
     let mut p = Params::init(&spec, seed).unwrap();
-    let mut rng = hood::rng::Rng::new(seed ^ 0x5eed);
-    let mut rows = |w: usize, scale: f64| -> Vec<f32> { (0..64 * w).map(|_| (rng.normal() * scale) as f32).collect() };
-    let n = &mut p.normalisers;
-    n.node.accumulate(&rows(21, 1.0), 21);
-    n.edge.accumulate(&rows(9, 0.05), 9);
-    n.body_edge.accumulate(&rows(9, 0.02), 9);
-    n.output.accumulate(&rows(3, 1e-3), 3);
+    p.normalisers = hood::model::Normalisers::unit_scale(seed);
     ModelBytes::new(&write_model(&p, bf16, &[("kind", "random test model")]).unwrap())
 }
 
