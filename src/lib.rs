@@ -47,6 +47,7 @@ pub mod physics;
 pub mod render;
 pub mod rig;
 pub mod rng;
+pub mod scene;
 pub mod sim;
 pub mod solve;
 #[cfg(feature = "train")]

@@ -1,0 +1,350 @@
+//! Animated scenes: a garment dressed on a skinned body that follows a motion at the model's
+//! 30 Hz. One place builds them for the trainer's data, the workloads, `hood simulate` and the
+//! evaluation: the procedural mannequin with the procedural garments and motions, and (under
+//! `std`) the MakeHuman body with its garments on the CMU walk.
+//!
+//! The garment is skinned along with the body (weights diffused from the body's, MODEL.md
+//! section 7): [`Scene::skinned_garment`] gives the pinned vertices' targets at every frame and,
+//! pushed out of the body, the garment's initial state ([`Scene::initial_garment`]).
+
+use crate::body::{BodyFrame, BodyMesh, Nearest};
+use crate::error::{Error, Result};
+use crate::mesh::{Garment, GarmentDesc, Material};
+use crate::physics::FaceFrame;
+use crate::rig::fit::{diffused_weights, pose_garment, DIFFUSION_SAMPLES};
+use crate::rig::motion::BodyMotion;
+use crate::rig::procedural::{self as proc_, LocalMotion, Mannequin};
+use crate::rig::{Pose, Skeleton, SkinWeights};
+use crate::solve::push_out;
+use alloc::string::String;
+use alloc::vec;
+use alloc::vec::Vec;
+
+/// Clearance the initial garment keeps from the body (MODEL.md section 7), m.
+pub const INITIAL_CLEARANCE: f32 = 2e-3;
+
+/// Voxel edge of the weight diffusion, m.
+const DIFFUSION_VOXEL: f32 = 0.01;
+
+/// The procedural garments.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GarmentKind {
+    /// A skirt, waist pinned.
+    Skirt,
+    /// A long dress hanging from the shoulders (no pins).
+    Dress,
+    /// A cape, shoulders pinned.
+    Cape,
+}
+
+impl GarmentKind {
+    /// Every kind.
+    pub const ALL: [GarmentKind; 3] = [GarmentKind::Skirt, GarmentKind::Dress, GarmentKind::Cape];
+
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            GarmentKind::Skirt => "skirt",
+            GarmentKind::Dress => "dress",
+            GarmentKind::Cape => "cape",
+        }
+    }
+
+    /// The kind called `name`.
+    pub fn parse(name: &str) -> Option<GarmentKind> {
+        GarmentKind::ALL.into_iter().find(|k| k.name() == name)
+    }
+}
+
+/// The procedural motions.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MotionKind {
+    /// A walk cycle moving forward.
+    Walk,
+    /// A run.
+    Run,
+    /// Jumps on the spot.
+    Jump,
+    /// Turning on the spot.
+    Turn,
+    /// Arm swings.
+    ArmSwings,
+    /// Random smooth poses within joint limits, from a seed.
+    RandomPoses(u64),
+}
+
+impl MotionKind {
+    /// Lower-case name (random poses as `random-<seed>`).
+    pub fn name(self) -> String {
+        match self {
+            MotionKind::Walk => "walk".into(),
+            MotionKind::Run => "run".into(),
+            MotionKind::Jump => "jump".into(),
+            MotionKind::Turn => "turn".into(),
+            MotionKind::ArmSwings => "arm-swings".into(),
+            MotionKind::RandomPoses(s) => alloc::format!("random-{s}"),
+        }
+    }
+
+    /// The kind called `name` (see [`name`](Self::name)).
+    pub fn parse(name: &str) -> Option<MotionKind> {
+        Some(match name {
+            "walk" => MotionKind::Walk,
+            "run" => MotionKind::Run,
+            "jump" => MotionKind::Jump,
+            "turn" => MotionKind::Turn,
+            "arm-swings" => MotionKind::ArmSwings,
+            _ => MotionKind::RandomPoses(name.strip_prefix("random-")?.parse().ok()?),
+        })
+    }
+
+    fn local(self, skel: &Skeleton, seconds: f32) -> Result<LocalMotion> {
+        match self {
+            MotionKind::Walk => proc_::walk(skel, seconds),
+            MotionKind::Run => proc_::run(skel, seconds),
+            MotionKind::Jump => proc_::jump(skel, seconds),
+            MotionKind::Turn => proc_::turn_on_the_spot(skel, seconds),
+            MotionKind::ArmSwings => proc_::arm_swings(skel, seconds),
+            MotionKind::RandomPoses(seed) => proc_::random_poses(skel, seconds, seed),
+        }
+    }
+}
+
+/// A garment on an animated body, frames at 30 Hz, metres.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// What it shows ("dress on walk", ...).
+    pub name: String,
+    /// The garment (rest shape, pinned flags, default materials).
+    pub garment: Garment,
+    /// Body topology.
+    pub body: BodyMesh,
+    /// Body positions per frame.
+    pub motion: BodyMotion,
+    skeleton: Skeleton,
+    poses: Vec<Pose>,
+    garment_weights: SkinWeights,
+}
+
+impl Scene {
+    /// Assembles a scene from a rigged body, its per-frame poses and a garment fitted to the
+    /// body's rest shape (its skinning weights are diffused from the body's).
+    ///
+    /// # Errors
+    /// [`Error::Empty`] without frames; [`Error::SizeMismatch`] when the motion's frame count or
+    /// vertex count disagrees with `poses` or `body`; errors of the weight diffusion.
+    #[allow(clippy::too_many_arguments)] // the parts of a scene
+    pub fn new(
+        name: String,
+        garment: Garment,
+        body: BodyMesh,
+        body_rest: &[[f32; 3]],
+        body_weights: &SkinWeights,
+        skeleton: Skeleton,
+        poses: Vec<Pose>,
+        motion: BodyMotion,
+    ) -> Result<Scene> {
+        if poses.is_empty() {
+            return Err(Error::Empty { what: "scene frames" });
+        }
+        if motion.n_frames() != poses.len() {
+            return Err(Error::SizeMismatch { what: "motion frames", expected: poses.len(), got: motion.n_frames() });
+        }
+        if motion.n_vertices != body.n_vertices() || body_rest.len() != body.n_vertices() {
+            return Err(Error::SizeMismatch {
+                what: "body vertices",
+                expected: body.n_vertices(),
+                got: motion.n_vertices,
+            });
+        }
+        let garment_weights =
+            diffused_weights(garment.rest(), body_rest, body_weights, DIFFUSION_SAMPLES, DIFFUSION_VOXEL, 1)?;
+        Ok(Scene { name, garment, body, motion, skeleton, poses, garment_weights })
+    }
+
+    /// Number of frames.
+    pub fn n_frames(&self) -> usize {
+        self.poses.len()
+    }
+
+    /// Body positions at frame `f` (clamped to the last frame), m.
+    pub fn body_frame(&self, f: usize) -> &[[f32; 3]] {
+        self.motion.frame(f.min(self.n_frames() - 1))
+    }
+
+    /// The garment's rest shape skinned to frame `f` (clamped to the last frame) into `out`: the
+    /// pinned vertices' targets.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] when `out` is not one entry per garment vertex.
+    pub fn skinned_garment(&self, f: usize, out: &mut [[f32; 3]]) -> Result<()> {
+        let pose = &self.poses[f.min(self.n_frames() - 1)];
+        pose_garment(&self.skeleton, pose, &self.garment_weights, self.garment.rest(), out)
+    }
+
+    /// The garment at frame `f`: skinned, then every unpinned vertex closer than
+    /// [`INITIAL_CLEARANCE`] to (or behind) its nearest body face pushed out along that face's
+    /// normal.
+    ///
+    /// # Errors
+    /// Errors of the body queries.
+    pub fn initial_garment(&self, f: usize) -> Result<Vec<[f32; 3]>> {
+        let mut x = vec![[0.0; 3]; self.garment.n_vertices()];
+        self.skinned_garment(f, &mut x)?;
+        push_out_of(&self.body, self.body_frame(f), &mut x, self.garment.pinned())?;
+        Ok(x)
+    }
+
+    /// The same scene with every garment vertex made of `material` (the hierarchy does not
+    /// change: only masses and the network's material inputs).
+    ///
+    /// # Errors
+    /// Errors of [`Garment::new`].
+    pub fn with_material(&self, material: Material) -> Result<Scene> {
+        let g = &self.garment;
+        let materials = vec![material; g.n_vertices()];
+        let garment = Garment::new(GarmentDesc::new(g.rest(), g.faces()).pinned(g.pinned()).materials(&materials))?;
+        Ok(Scene { garment, ..self.clone() })
+    }
+}
+
+/// Pushes the unpinned vertices of `x` at least [`INITIAL_CLEARANCE`] out of the body at
+/// `body_pos`, along the normal of the face whose centroid is nearest.
+///
+/// # Errors
+/// Errors of the body queries.
+pub fn push_out_of(body: &BodyMesh, body_pos: &[[f32; 3]], x: &mut [[f32; 3]], pinned: &[bool]) -> Result<usize> {
+    let mut frame = BodyFrame::new(body)?;
+    frame.update(body, body_pos)?;
+    let mut near = vec![Nearest { index: 0, distance: 0.0 }; x.len()];
+    frame.nearest_faces(x, &mut near)?;
+    let idx: Vec<u32> = near.iter().map(|n| n.index).collect();
+    let ff = FaceFrame { centroids: frame.centroids(), normals: frame.face_normals() };
+    push_out(x, &idx, ff, INITIAL_CLEARANCE, pinned)
+}
+
+/// A procedural scene: `garment` (about `vertices` vertices, its suggested pins set) on the
+/// `mannequin` doing `motion` for `seconds` at 30 Hz.
+///
+/// # Errors
+/// Errors of the garment and motion generators and of the weight diffusion.
+pub fn procedural(
+    mannequin: &Mannequin,
+    garment: GarmentKind,
+    vertices: usize,
+    motion: MotionKind,
+    seconds: f32,
+) -> Result<Scene> {
+    let pg = match garment {
+        GarmentKind::Skirt => proc_::skirt(mannequin, vertices)?,
+        GarmentKind::Dress => proc_::long_dress(mannequin, vertices)?,
+        GarmentKind::Cape => proc_::cape(mannequin, vertices)?,
+    };
+    let g = pg.garment(true)?;
+    let skel = mannequin.skeleton().clone();
+    let local = motion.local(&skel, seconds)?;
+    let mut poses = Vec::with_capacity(local.n_frames());
+    for f in 0..local.n_frames() {
+        let mut p = Pose::rest(&skel);
+        local.pose(&skel, f, &mut p)?;
+        poses.push(p);
+    }
+    let body_motion = local.animate(&skel, mannequin.weights(), mannequin.rest())?;
+    let body = BodyMesh::new(mannequin.rest().len(), mannequin.faces())?;
+    let name = alloc::format!("{} on {}", garment.name(), motion.name());
+    Scene::new(name, g, body, mannequin.rest(), mannequin.weights(), skel, poses, body_motion)
+}
+
+#[cfg(feature = "std")]
+pub use assets::{makehuman, MakeHumanGarment};
+
+#[cfg(feature = "std")]
+mod assets {
+    use super::*;
+    use crate::io::bvh;
+    use crate::io::makehuman::{MakeHuman, METRES_PER_UNIT};
+    use crate::io::obj::{split_components, Obj};
+    use crate::rig::fit::{boundary_loop_pins, pinned_flags, LoopChoice, MhcloBinding};
+    use crate::rig::motion::{ClipRest, Retarget, RetargetOptions, MODEL_FPS};
+    use std::path::Path;
+    use std::string::ToString;
+
+    /// The MakeHuman garments of the assets (pieces of `female_casualsuit01`).
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum MakeHumanGarment {
+        /// The t-shirt, 1,311 vertices, no pins.
+        Tee,
+        /// The jeans, 886 vertices, waist pinned.
+        Jeans,
+    }
+
+    fn io_err(path: &Path, e: std::io::Error) -> Error {
+        Error::Io { path: path.display().to_string(), message: e.to_string() }
+    }
+
+    /// The MakeHuman body (`assets/body`) wearing `which` (fitted with its `.mhclo` binding,
+    /// outside the body) on the CMU 12_03 walk retargeted at 30 Hz, at most `max_frames` frames.
+    ///
+    /// # Errors
+    /// [`Error::Io`] when the assets are absent; parse and fitting errors.
+    pub fn makehuman(assets: &Path, which: MakeHumanGarment, max_frames: usize) -> Result<Scene> {
+        let mh = MakeHuman::load(assets.join("body"))?;
+        let path = assets.join("garments/female_casualsuit01.mhclo");
+        let text = std::fs::read_to_string(&path).map_err(|e| io_err(&path, e))?;
+        let binding = MhcloBinding::parse(&text, METRES_PER_UNIT)?;
+        let obj = Obj::read(assets.join("garments").join(&binding.obj_file))?;
+        let mut normals = vec![[0.0; 3]; mh.obj.positions.len()];
+        crate::mesh::vertex_normals(&mh.obj.triangles, &mh.obj.positions, &mut normals);
+        let mut fitted = vec![[0.0; 3]; binding.vertices.len()];
+        binding.fit_outside(&mh.obj.positions, &normals, &mh.obj.positions, &mut fitted)?;
+        let mut pieces = split_components(&fitted, &obj.triangles)?;
+        let mean_y = |p: &crate::mesh::repair::CompactedMesh| {
+            p.rest.iter().map(|v| v[1] as f64).sum::<f64>() / p.rest.len().max(1) as f64
+        };
+        pieces.sort_by(|a, b| mean_y(b).total_cmp(&mean_y(a)));
+        if pieces.len() != 2 {
+            return Err(Error::parse("female_casualsuit01", 0, "expected a t-shirt and jeans"));
+        }
+        let piece = match which {
+            MakeHumanGarment::Tee => &pieces[0],
+            MakeHumanGarment::Jeans => &pieces[1],
+        };
+        let mut garment = Garment::new(GarmentDesc::new(&piece.rest, &piece.faces))?;
+        if which == MakeHumanGarment::Jeans {
+            let waist = boundary_loop_pins(&garment, LoopChoice::Highest)?;
+            garment.set_pinned(&pinned_flags(garment.n_vertices(), &waist)?)?;
+        }
+        let bvh_path = assets.join("motions/cmu_12_03_walk.bvh");
+        let clip = bvh::read(&bvh_path)?.resample(MODEL_FPS)?;
+        let opts = RetargetOptions {
+            clip_rest: ClipRest::Frame(0),
+            rig_initial: Some(&mh.t_pose),
+            aliases: &[("LeftHandFinger1", "LeftHandIndex1"), ("RightHandFinger1", "RightHandIndex1")],
+            ..Default::default()
+        };
+        let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
+        // Frame 0 of the clip is its T-pose calibration frame: start on the walk.
+        let first = 1.min(clip.n_frames() - 1);
+        let frames = (clip.n_frames() - first).min(max_frames.max(1));
+        let nb = mh.body.rest.len();
+        let mut poses = Vec::with_capacity(frames);
+        let mut positions = Vec::with_capacity(frames * nb);
+        let mut tr = crate::rig::SkinTransforms::new(mh.skeleton.len());
+        let mut buf = vec![[0.0; 3]; nb];
+        for f in first..first + frames {
+            let mut pose = Pose::rest(&mh.skeleton);
+            rt.pose(&mh.skeleton, &clip, f, &mut pose)?;
+            tr.update(&mh.skeleton, &pose)?;
+            crate::rig::skin(&tr, &mh.body_weights, &mh.body.rest, &mut buf)?;
+            positions.extend_from_slice(&buf);
+            poses.push(pose);
+        }
+        let motion = BodyMotion { fps: MODEL_FPS, n_vertices: nb, positions };
+        let body = BodyMesh::new(nb, &mh.body.faces)?;
+        let name = match which {
+            MakeHumanGarment::Tee => "MakeHuman t-shirt on CMU walk",
+            MakeHumanGarment::Jeans => "MakeHuman jeans on CMU walk",
+        };
+        Scene::new(name.into(), garment, body, &mh.body.rest, &mh.body_weights, mh.skeleton.clone(), poses, motion)
+    }
+}
