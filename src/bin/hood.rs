@@ -8,6 +8,10 @@ use hood::workloads::{default_shared_dir, workload, NAMES};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+#[cfg(feature = "train")]
+#[path = "cmd/train.rs"]
+mod train_cmd;
+
 #[derive(Parser)]
 #[command(name = "hood", version, about = "HOOD-style neural cloth: simulate, measure, train")]
 struct Cli {
@@ -21,6 +25,9 @@ enum Command {
     Bench(BenchArgs),
     /// Convert a reference HOOD checkpoint's state dict (as safetensors) into a `.hood` file.
     Convert(ConvertArgs),
+    /// Train a model from physics alone (feature `train`); resumes the run in `--dir`.
+    #[cfg(feature = "train")]
+    Train(train_cmd::TrainArgs),
 }
 
 #[derive(Args)]
@@ -87,6 +94,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Bench(a) => bench(a),
         Command::Convert(a) => convert(a),
+        #[cfg(feature = "train")]
+        Command::Train(a) => train_cmd::train(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
