@@ -25,9 +25,47 @@ enum Command {
     Bench(BenchArgs),
     /// Convert a reference HOOD checkpoint's state dict (as safetensors) into a `.hood` file.
     Convert(ConvertArgs),
+    /// Print a model file's shape, provenance and normaliser statistics.
+    Info(InfoArgs),
     /// Train a model from physics alone (feature `train`); resumes the run in `--dir`.
     #[cfg(feature = "train")]
     Train(train_cmd::TrainArgs),
+}
+
+#[derive(Args)]
+struct InfoArgs {
+    /// The `.hood` file.
+    model: PathBuf,
+}
+
+fn info(a: InfoArgs) -> hood::Result<()> {
+    let bytes = ModelBytes::new(
+        &std::fs::read(&a.model)
+            .map_err(|e| hood::Error::Io { path: a.model.display().to_string(), message: e.to_string() })?,
+    );
+    let m = bytes.model()?;
+    let spec = m.spec();
+    println!(
+        "{}: h = {}, {} blocks, {} levels, {} parameters, bf16 weights: {}",
+        a.model.display(),
+        spec.latent,
+        spec.blocks.len(),
+        spec.levels,
+        spec.parameter_count(),
+        m.has_bf16()
+    );
+    let show = |name: &str, (mean, std): (&[f32], &[f32])| {
+        let f = |v: &[f32]| v.iter().map(|x| format!("{x:.3e}")).collect::<Vec<_>>().join(" ");
+        println!("{name} mean [{}]\n{name} std  [{}]", f(mean), f(std));
+    };
+    show("node", m.node_stats());
+    show("edge", m.edge_stats());
+    show("body edge", m.body_edge_stats());
+    show("output", m.output_stats());
+    for (k, v) in m.provenance() {
+        println!("{k}: {v}");
+    }
+    Ok(())
 }
 
 #[derive(Args)]
@@ -94,6 +132,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Bench(a) => bench(a),
         Command::Convert(a) => convert(a),
+        Command::Info(a) => info(a),
         #[cfg(feature = "train")]
         Command::Train(a) => train_cmd::train(a),
     };

@@ -221,7 +221,9 @@ impl Trainer {
         let spec = self.net.spec.clone();
         for k in 0..steps {
             let (fp, fc, fnx, dt) = frames_of(sample.start, k);
-            for (buf, f) in skinned.iter_mut().zip([fp, fc, fnx]) {
+            // The skinned garment two frames back, one back and at the next frame: true
+            // frame-to-frame differences (unlike the body frames right after the start-up step).
+            for (buf, f) in skinned.iter_mut().zip([fnx.saturating_sub(2), fnx.saturating_sub(1), fnx]) {
                 scene.skinned_garment(f, buf)?;
             }
             let targets = &skinned[2];
