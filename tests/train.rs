@@ -341,3 +341,78 @@ fn train_step_timing_tee() {
         );
     }
 }
+
+/// The fast f32 path (SIMD products, workspace, executor) against the generic f32 path on a
+/// hierarchical scene with body edges and pins, random non-zero parameters and a random
+/// position gradient; one and two threads bitwise identical; scalar products agree too.
+#[test]
+fn train_fast_matches_generic() {
+    use hood::sim::{Serial, ThreadPool};
+    use hood::train::{FastWorkspace, Gemm};
+    let spec = ModelSpec::with_schedule(16, 2, 2, "f,c0 | d:c0,c1 | u:f,c0").unwrap();
+    let mut params = Params::init(&spec, 3).unwrap();
+    let (rest, faces) = hood::mesh::shapes::grid(14, 12, 0.36, 0.36, 0.301);
+    let mut pinned = vec![false; rest.len()];
+    pinned[0] = true;
+    pinned[13] = true;
+    let garment = Garment::new(GarmentDesc::new(&rest, &faces).pinned(&pinned)).unwrap();
+    let (bv, bf) = hood::body::shapes::ellipsoid(24, 32, [0.25, 0.3, 0.25], [0.0, 0.0, 0.0]);
+    let body = BodyMesh::new(bv.len(), &bf).unwrap();
+    let b_next: Vec<[f32; 3]> = bv.iter().map(|p| [p[0] + 0.004, p[1] + 0.002, p[2]]).collect();
+    let graph = graph_of(&garment, 2);
+    let mut rng = Rng::new(9);
+    let (pos, vel) = jittered(&rest, &mut rng);
+    let gs = GarmentState { pos: &pos, velocity: &vel, pinned: &pinned, pin_targets: &rest };
+    let frames = BodyFrames { mesh: &body, prev: &bv, pos: &bv, next: &b_next };
+    let step = StepData::build(&spec, &garment, &graph, &gs, Some(&frames), DT).unwrap();
+    assert!(step.prefix[0] >= 4 && step.prefix[1] > 0, "body edges: {:?}", step.prefix);
+    let n = &mut params.normalisers;
+    n.node.accumulate(&(0..64 * 21).map(|_| rng.normal() as f32).collect::<Vec<_>>(), 21);
+    n.node.accumulate(&step.node_features, 24);
+    n.edge.accumulate(&step.edge_features[3], 12);
+    n.body_edge.accumulate(&step.g2b_features, 9);
+    n.output.accumulate(&(0..64 * 3).map(|_| (rng.normal() * 2e-3) as f32).collect::<Vec<_>>(), 3);
+    let net = Network::of(&params).unwrap();
+    let stats = Stats::<f32>::of(&params);
+    // Every parameter perturbed (LayerNorm gains away from 1, biases away from 0).
+    let theta: Vec<f32> = net.layout.flatten::<f32>(&params).iter().map(|&t| t + 0.05 * rng.normal() as f32).collect();
+    let dpos: Vec<[f32; 3]> = (0..rest.len()).map(|_| [0.0; 3].map(|_: f32| rng.normal() as f32)).collect();
+
+    let tape = net.forward(&theta, &stats, &graph, &step).unwrap();
+    let mut g_ref = vec![0.0f32; theta.len()];
+    net.backward(&theta, &stats, &graph, &step, &tape, &dpos, &mut g_ref).unwrap();
+
+    let pool = ThreadPool::new(2);
+    let run = |ws: &mut FastWorkspace, exec: &dyn hood::sim::Executor| {
+        net.forward_fast(ws, exec, &theta, &stats, &graph, &step).unwrap();
+        let mut g = vec![0.0f32; theta.len()];
+        net.backward_fast(ws, exec, &theta, &stats, &graph, &step, &dpos, &mut g).unwrap();
+        (ws.new_pos.clone(), g)
+    };
+    let mut ws = FastWorkspace::new(Gemm::best());
+    let (p1, g1) = run(&mut ws, &Serial);
+    let (p2, g2) = run(&mut ws, &pool);
+    assert!(p1 == p2 && g1 == g2, "one and two threads differ");
+    let (p3, g3) = run(&mut FastWorkspace::new(Gemm::best()), &pool);
+    assert!(p3 == p1 && g3 == g1, "a fresh workspace differs from a reused one");
+    let (ps, gs_) = run(&mut FastWorkspace::new(Gemm::scalar()), &Serial);
+
+    let pos_err = |p: &[[f32; 3]]| {
+        p.iter().zip(&tape.new_pos).flat_map(|(a, b)| (0..3).map(move |k| (a[k] - b[k]).abs())).fold(0.0f32, f32::max)
+    };
+    assert!(pos_err(&p1) < 1e-6 && pos_err(&ps) < 1e-6, "positions differ: {} {}", pos_err(&p1), pos_err(&ps));
+    let mut worst = (0.0f64, String::new());
+    for (name, r) in net.layout.tensors(&spec) {
+        let gmax = g_ref[r.clone()].iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+        assert!(gmax > 0.0, "{name}: zero reference gradient");
+        for g in [&g1, &gs_] {
+            let d = g[r.clone()].iter().zip(&g_ref[r.clone()]).fold(0.0f32, |m, (a, b)| m.max((a - b).abs())) as f64;
+            let rel = d / gmax;
+            assert!(rel < 1e-4, "{name}: fast gradient differs by {rel:e} of its largest entry");
+            if rel > worst.0 {
+                worst = (rel, name.clone());
+            }
+        }
+    }
+    println!("train_fast_matches_generic: worst tensor relative difference {:e} ({})", worst.0, worst.1);
+}

@@ -6,12 +6,16 @@
 //! [`crate::model::Params`]); gradients use the same layout. Everything is generic over
 //! [`crate::math::Real`]: f32 to train, f64 for gradient checks.
 
+pub mod fast;
+pub mod gemm;
 pub mod inputs;
 pub mod layout;
 pub mod network;
 pub mod ops;
 pub mod optim;
 
+pub use fast::FastWorkspace;
+pub use gemm::Gemm;
 pub use inputs::{BodyFrames, GarmentState, StepData};
 pub use layout::Layout;
 pub use network::{Network, Stats, Tape};
