@@ -326,6 +326,40 @@ fn train_step_timing_tee() {
                 *b = b.min(x);
             }
         }
+        for threads in [1usize, 2] {
+            let pool = hood::sim::ThreadPool::new(threads);
+            let mut ws = hood::train::FastWorkspace::default();
+            let mut fbest = [f64::INFINITY; 4];
+            for _ in 0..reps + 2 {
+                let t = Instant::now();
+                net.forward_fast(&mut ws, &pool, &theta, &stats, &graph, &step).unwrap();
+                let t_fwd = t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let terms = objective.eval(&cloth, &inputs, &ws.new_pos, Some(&mut dx)).unwrap();
+                let t_loss = t.elapsed().as_secs_f64();
+                assert!(terms.total().is_finite());
+                let t = Instant::now();
+                grad.iter_mut().for_each(|g| *g = 0.0);
+                net.backward_fast(&mut ws, &pool, &theta, &stats, &graph, &step, &dx, &mut grad).unwrap();
+                let t_bwd = t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                clip_global_norm(&mut grad, 1.0);
+                adam.step(&mut theta, &grad, learning_rate(adam.t));
+                let t_adam = t.elapsed().as_secs_f64();
+                for (b, x) in fbest.iter_mut().zip([t_fwd, t_loss, t_bwd, t_adam]) {
+                    *b = b.min(x);
+                }
+            }
+            println!(
+                "fast train step tee h={h}, {threads} threads: {:.1} ms (forward {:.1}, losses {:.2}, backward {:.1}, \
+                 clip+adam {:.2})",
+                fbest.iter().sum::<f64>() * 1e3,
+                fbest[0] * 1e3,
+                fbest[1] * 1e3,
+                fbest[2] * 1e3,
+                fbest[3] * 1e3
+            );
+        }
         let total: f64 = best.iter().sum();
         println!(
             "train step tee h={h}: {:.1} ms (forward {:.1}, losses {:.2}, backward {:.1}, clip+adam {:.2}; \

@@ -65,6 +65,11 @@ fn fit(v: &mut Vec<f32>, n: usize) {
     v.resize(n, 0.0);
 }
 
+/// Resizes to `n` elements without clearing the kept ones (for buffers the caller overwrites).
+fn size(v: &mut Vec<f32>, n: usize) {
+    v.resize(n, 0.0);
+}
+
 /// What an MLP's backward needs from its forward (the fast twin of `ops::MlpCache`).
 #[derive(Clone, Debug, Default)]
 struct MlpTape {
@@ -81,10 +86,10 @@ impl MlpTape {
     fn shape(&mut self, m: &MlpAt, rows: usize) {
         self.rows = rows;
         let hid: usize = m.layers[..m.layers.len() - 1].iter().map(|l| rows * l.out).sum();
-        fit(&mut self.hidden, hid);
+        size(&mut self.hidden, hid);
         let (x, i) = if m.norm.is_some() { (rows * m.output(), rows) } else { (0, 0) };
-        fit(&mut self.xhat, x);
-        fit(&mut self.inv_std, i);
+        size(&mut self.xhat, x);
+        size(&mut self.inv_std, i);
     }
 }
 
@@ -287,7 +292,7 @@ impl Ctx<'_> {
             // SAFETY: part p owns scratch p and rows `r` of every per-row buffer.
             let pb = unsafe { &mut pbs.range(p..p + 1)[0] };
             let y = &mut pb.y;
-            fit(y, nr * nout);
+            size(y, nr * nout);
             for (li, l) in m.layers.iter().enumerate() {
                 let last = li + 1 == nl;
                 // SAFETY: rows `r` of hidden layer li belong to this part.
@@ -404,23 +409,28 @@ impl Ctx<'_> {
             let PartBufs { d, dn, grad: pg, .. } = pb;
             d.clear();
             d.extend_from_slice(&dout[r.start * nout..r.end * nout]);
-            if let Some((gm, bt)) = m.norm {
+            if let Some((gm, _)) = m.norm {
                 let nf = nout as f32;
-                for (i, dr) in d.chunks_exact_mut(nout).enumerate() {
-                    let row = r.start + i;
-                    let xh = &tape.xhat[row * nout..(row + 1) * nout];
+                // Gamma and beta are adjacent in the layout.
+                let (dg, db) = pg[gm..gm + 2 * nout].split_at_mut(nout);
+                let gamma = &theta[gm..gm + nout];
+                let xhs = &tape.xhat[r.start * nout..r.end * nout];
+                for ((dr, xh), iv) in d.chunks_exact_mut(nout).zip(xhs.chunks_exact(nout)).zip(&tape.inv_std[r.clone()])
+                {
                     let (mut s1, mut s2) = (0.0f32, 0.0f32);
-                    for c in 0..nout {
-                        pg[gm + c] += dr[c] * xh[c];
-                        pg[bt + c] += dr[c];
-                        let dxh = dr[c] * theta[gm + c];
-                        dr[c] = dxh;
+                    for ((((dv, &x), g), b), &gv) in
+                        dr.iter_mut().zip(xh).zip(dg.iter_mut()).zip(db.iter_mut()).zip(gamma)
+                    {
+                        *g += *dv * x;
+                        *b += *dv;
+                        let dxh = *dv * gv;
+                        *dv = dxh;
                         s1 += dxh;
-                        s2 += dxh * xh[c];
+                        s2 += dxh * x;
                     }
-                    let (m1, m2, iv) = (s1 / nf, s2 / nf, tape.inv_std[row]);
-                    for c in 0..nout {
-                        dr[c] = iv * (dr[c] - m1 - xh[c] * m2);
+                    let (m1, m2) = (s1 / nf, s2 / nf);
+                    for (dv, &x) in dr.iter_mut().zip(xh) {
+                        *dv = iv * (*dv - m1 - x * m2);
                     }
                 }
             }
@@ -430,13 +440,12 @@ impl Ctx<'_> {
                 let x = &tape.hidden[off + r.start * l.inp..off + r.end * l.inp];
                 colsum(d, l.out, &mut pg[l.b..l.b + l.out]);
                 g.tn(nr, l.out, l.inp, Mat { data: d, ld: l.out }, Mat { data: x, ld: l.inp }, &mut pg[l.w..], l.inp);
-                fit(dn, nr * l.inp);
+                size(dn, nr * l.inp);
+                dn.fill(0.0);
                 g.nn(nr, l.inp, l.out, Mat { data: d, ld: l.out }, Mat { data: &theta[l.w..], ld: l.inp }, dn, l.inp);
                 // ReLU: the gradient passes where the activation is positive.
                 for (gv, a) in dn.iter_mut().zip(x) {
-                    if *a <= 0.0 {
-                        *gv = 0.0;
-                    }
+                    *gv = if *a > 0.0 { *gv } else { 0.0 };
                 }
                 core::mem::swap(d, dn);
             }
@@ -590,13 +599,13 @@ fn edge_fwd(
     let l0 = m.layers[0];
     let w = l0.out;
     let ne = es.target.len();
-    fit(pt, es.xt.len() / h * w);
+    size(pt, es.xt.len() / h * w);
     c.project(&l0, 0, h, es.xt, pt);
-    fit(ps, es.xs.len() / h * w);
+    size(ps, es.xs.len() / h * w);
     c.project(&l0, h, h, es.xs, ps);
     et.lat_in.clear();
     et.lat_in.extend_from_slice(lat);
-    fit(msg, ne * h);
+    size(msg, ne * h);
     let first = First::Edge { lat, pt, ps, target: es.target, source: es.source };
     c.mlp_fwd(m, first, ne, &mut et.mlp, msg, false, parts);
     c.add(msg, lat);
@@ -623,7 +632,7 @@ fn edge_bwd(
     let l0 = m.layers[0];
     let w = l0.out;
     let ne = es.target.len();
-    fit(d0, ne * w);
+    size(d0, ne * w);
     c.mlp_bwd(m, &[&et.lat_in], &et.mlp, dm, &mut [Some(dlat)], Some(d0), parts);
     fit(dpt, es.xt.len() / h * w);
     c.scatter_add(d0, es.target, w, dpt);
@@ -660,7 +669,9 @@ impl Network {
     fn check_fast(&self) -> Result<()> {
         let too_deep = self.layout.mlps().iter().any(|m| m.layers.len() > 8);
         let too_wide = self.spec.blocks.iter().any(|b| self.spec.node_inputs(b) > MAX_INPUTS);
-        if too_deep || too_wide {
+        // The LayerNorm backward reads gamma and beta as one block.
+        let split_norm = self.layout.mlps().iter().any(|m| m.norm.is_some_and(|(g, b)| b != g + m.output()));
+        if too_deep || too_wide || split_norm {
             return Err(Error::IncompatibleModel {
                 reason: "the fast trainer path supports at most 8 layers and 8 node inputs",
             });
@@ -778,7 +789,7 @@ impl Network {
                     }
                     Some(l) => {
                         let nodes = &graph.coarse[l].nodes;
-                        fit(&mut tmp.gath, nodes.len() * h);
+                        size(&mut tmp.gath, nodes.len() * h);
                         c.gather(&bt.x_in, nodes, h, None, &mut tmp.gath);
                         fit(&mut tmp.local, nodes.len() * h);
                         let es = EdgeSet { xt: &tmp.gath, xs: &tmp.gath, target: &list.target, source: &list.source };
@@ -792,7 +803,7 @@ impl Network {
             bt.has_body = n > 0;
             if n > 0 {
                 let m = ba.body.as_ref().ok_or(Error::UnsupportedEffect { effect: "body collision" })?;
-                fit(&mut tmp.gath, n * h);
+                size(&mut tmp.gath, n * h);
                 c.gather(&bt.x_in, &step.body_garment[..n], h, None, &mut tmp.gath);
                 let xg = &tmp.gath;
                 let xb = &bt.x_in[v * h..rows * h];
@@ -916,14 +927,14 @@ impl Network {
                 let n = self.body_rows(bi, step);
                 let (garm, act) = (&step.body_garment[..n], &step.body_active[..n]);
                 let dslot = &tmp.dslots[bs.keys.len()];
-                fit(&mut tmp.gath, n * h);
+                size(&mut tmp.gath, n * h);
                 c.gather(x, garm, h, None, &mut tmp.gath);
                 let xg = &tmp.gath;
                 let xb = &x[v * h..rows * h];
                 fit(&mut tmp.dxg, n * h);
                 let (_, dxb) = tmp.dx.split_at_mut(v * h);
                 // dm = dlat + dagg[target]
-                fit(&mut tmp.dm, n * h);
+                size(&mut tmp.dm, n * h);
                 c.gather(&dslot[v * h..], act, h, Some(&tmp.dg2b[..n * h]), &mut tmp.dm);
                 let es = EdgeSet { xt: xb, xs: xg, target: act, source: &iota[..n] };
                 let scratch = (&mut tmp.d0, &mut tmp.local, &mut tmp.msg);
@@ -944,7 +955,7 @@ impl Network {
                 match key.coarse_level() {
                     None => {
                         let xg = &x[..v * h];
-                        fit(&mut tmp.dm, list.target.len() * h);
+                        size(&mut tmp.dm, list.target.len() * h);
                         c.gather(&tmp.dslots[ki], &list.target, h, Some(&tmp.dlat[k]), &mut tmp.dm);
                         let es = EdgeSet { xt: xg, xs: xg, target: &list.target, source: &list.source };
                         let dxv = &mut tmp.dx[..v * h];
@@ -952,11 +963,11 @@ impl Network {
                     }
                     Some(l) => {
                         let nodes = &graph.coarse[l].nodes;
-                        fit(&mut tmp.gath, nodes.len() * h);
+                        size(&mut tmp.gath, nodes.len() * h);
                         c.gather(x, nodes, h, None, &mut tmp.gath);
-                        fit(&mut tmp.gath2, nodes.len() * h);
+                        size(&mut tmp.gath2, nodes.len() * h);
                         c.gather(&tmp.dslots[ki], nodes, h, None, &mut tmp.gath2);
-                        fit(&mut tmp.dm, list.target.len() * h);
+                        size(&mut tmp.dm, list.target.len() * h);
                         c.gather(&tmp.gath2, &list.target, h, Some(&tmp.dlat[k]), &mut tmp.dm);
                         fit(&mut tmp.dxl, nodes.len() * h);
                         let es = EdgeSet { xt: &tmp.gath, xs: &tmp.gath, target: &list.target, source: &list.source };
