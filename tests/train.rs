@@ -450,3 +450,49 @@ fn train_fast_matches_generic() {
     }
     println!("train_fast_matches_generic: worst tensor relative difference {:e} ({})", worst.0, worst.1);
 }
+
+/// An `InputBuilder` reused across steps (other states, bodies of other sizes, no body) builds
+/// exactly what a fresh `StepData::build` builds.
+#[test]
+fn train_input_builder_matches_build() {
+    use hood::train::InputBuilder;
+    let spec = ModelSpec::with_schedule(8, 2, 2, "f,c0 | d:c0,c1 | u:f,c0").unwrap();
+    let (rest, faces) = hood::mesh::shapes::grid(12, 10, 0.36, 0.36, 0.301);
+    let mut pinned = vec![false; rest.len()];
+    pinned[3] = true;
+    let garment = Garment::new(GarmentDesc::new(&rest, &faces).pinned(&pinned)).unwrap();
+    let graph = graph_of(&garment, 2);
+    let mut rng = Rng::new(17);
+    let bodies: Vec<(BodyMesh, Vec<[f32; 3]>)> = [(24, 32, 0.0f32), (16, 20, 0.01), (24, 32, -0.02)]
+        .iter()
+        .map(|&(a, b, dy)| {
+            let (bv, bf) = hood::body::shapes::ellipsoid(a, b, [0.25, 0.3, 0.25], [0.0, dy, 0.0]);
+            (BodyMesh::new(bv.len(), &bf).unwrap(), bv)
+        })
+        .collect();
+    let mut builder = InputBuilder::default();
+    let mut reused = StepData::build(
+        &spec,
+        &garment,
+        &graph,
+        &GarmentState { pos: &rest, velocity: &vec![[0.0; 3]; rest.len()], pinned: &pinned, pin_targets: &rest },
+        None,
+        DT,
+    )
+    .unwrap();
+    let mut with_body_edges = 0;
+    for round in 0..6 {
+        let (pos, vel) = jittered(&rest, &mut rng);
+        let gs = GarmentState { pos: &pos, velocity: &vel, pinned: &pinned, pin_targets: &rest };
+        let (mesh, bv) = &bodies[round % 3];
+        let next: Vec<[f32; 3]> = bv.iter().map(|p| [p[0] + 0.003, p[1], p[2] - 0.001]).collect();
+        let frames = BodyFrames { mesh, prev: bv, pos: bv, next: &next };
+        let body = if round == 4 { None } else { Some(&frames) };
+        let dt = if round == 1 { hood::features::DT_STARTUP } else { DT };
+        let fresh = StepData::build(&spec, &garment, &graph, &gs, body, dt).unwrap();
+        builder.build(&spec, &garment, &graph, &gs, body, dt, &mut reused).unwrap();
+        assert_eq!(reused, fresh, "round {round}");
+        with_body_edges += usize::from(fresh.prefix[0] > 0);
+    }
+    assert!(with_body_edges >= 3, "the scenes must have body edges");
+}

@@ -16,7 +16,7 @@ pub mod optim;
 
 pub use fast::FastWorkspace;
 pub use gemm::Gemm;
-pub use inputs::{BodyFrames, GarmentState, StepData};
+pub use inputs::{BodyFrames, GarmentState, InputBuilder, StepData};
 pub use layout::Layout;
 pub use network::{Network, Stats, Tape};
 pub use optim::{clip_global_norm, learning_rate, Adam};
