@@ -3,7 +3,7 @@
 //! (weight gradients `dW += dYᵀ·X`). An AVX2+FMA path chosen at run time (by
 //! [`crate::kernels::Kernels::best`], so `HOOD_KERNEL_TIER` caps it too) and a scalar twin.
 //!
-//! Every output element is one sum in a fixed order whatever the row position (a tile of four
+//! Every output element is one sum in a fixed order whatever the row position (a tile of six
 //! rows and a single tail row run the same chain of operations), so splitting rows between
 //! threads never changes a result.
 
@@ -119,7 +119,7 @@ mod avx2 {
     /// Rows of `B` streamed per pass of [`tn`] (keeps a 16-column strip in L1).
     const TN_ROWS: usize = 128;
 
-    /// One tile of `C += A·B`: `R` rows (1..=4) × `V` vectors of 8 columns at `j`.
+    /// One tile of `C += A·B`: `R` rows (1..=6) × `V` vectors of 8 columns at `j`.
     #[inline(always)]
     unsafe fn nn_tile<const R: usize, const V: usize>(
         k: usize,
@@ -189,9 +189,9 @@ mod avx2 {
         let mut r = 0;
         // SAFETY: bounds checked by `Gemm::nn`; AVX2+FMA enabled by the caller's token.
         unsafe {
-            while r + 4 <= m {
-                nn_rows::<4>(n, k, a, b, cp, ldc, r);
-                r += 4;
+            while r + 6 <= m {
+                nn_rows::<6>(n, k, a, b, cp, ldc, r);
+                r += 6;
             }
             while r < m {
                 nn_rows::<1>(n, k, a, b, cp, ldc, r);
@@ -281,9 +281,9 @@ mod avx2 {
             while r0 < m {
                 let rows = r0..(r0 + TN_ROWS).min(m);
                 let mut o = 0;
-                while o + 4 <= ka {
-                    tn_outs::<4>(rows.clone(), n, a, b, cp, ldc, o);
-                    o += 4;
+                while o + 6 <= ka {
+                    tn_outs::<6>(rows.clone(), n, a, b, cp, ldc, o);
+                    o += 6;
                 }
                 while o < ka {
                     tn_outs::<1>(rows.clone(), n, a, b, cp, ldc, o);
@@ -347,7 +347,7 @@ mod tests {
         }
     }
 
-    /// A row computed in a tile of four equals the same row computed alone (thread splits).
+    /// A row computed in a tile of six equals the same row computed alone (thread splits).
     #[test]
     fn train_gemm_rows_independent_of_split() {
         let g = Gemm::best();
