@@ -10,8 +10,8 @@ use hood::model::{ModelSpec, Params};
 use hood::physics::{face_frames, Cloth, CollisionInput, FaceFrame, Objective, StepInputs};
 use hood::sim::{Graph, SimState, ThreadPool};
 use hood::train::{
-    clip_global_norm, learning_rate, Adam, BodyFrames, FastWorkspace, GarmentState, InputBuilder, Network, StepData,
-    Stats,
+    clip_global_norm, learning_rate, Adam, BodyFrames, FastWorkspace, GarmentState, InputBuilder, Network, Stats,
+    StepData,
 };
 use hood::workloads::{default_shared_dir, workload};
 use std::hint::black_box;
@@ -102,7 +102,8 @@ impl<'a> Trainer<'a> {
             pinned: g.pinned(),
             pin_targets: g.rest(),
         };
-        let bf = BodyFrames { mesh: self.mesh, prev: &self.state.body_prev, pos: &self.state.body_pos, next: self.next };
+        let bf =
+            BodyFrames { mesh: self.mesh, prev: &self.state.body_prev, pos: &self.state.body_pos, next: self.next };
         self.builder.build(&self.spec, g, self.graph, &gs, Some(&bf), DT, &mut self.step).unwrap();
         self.body_frame.update(self.mesh, &self.state.body_pos).unwrap();
         self.body_frame.nearest_faces(&self.step.pos, &mut self.nearest).unwrap();
@@ -133,7 +134,8 @@ impl<'a> Trainer<'a> {
     fn backward(&mut self, pool: &ThreadPool) {
         self.grad.iter_mut().for_each(|g| *g = 0.0);
         let (net, ws) = (&self.net, &mut self.ws);
-        net.backward_fast(ws, pool, &self.theta, &self.stats, self.graph, &self.step, &self.dx, &mut self.grad).unwrap();
+        net.backward_fast(ws, pool, &self.theta, &self.stats, self.graph, &self.step, &self.dx, &mut self.grad)
+            .unwrap();
     }
 
     /// One whole optimiser step.

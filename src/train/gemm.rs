@@ -52,6 +52,7 @@ impl Gemm {
     ///
     /// # Panics
     /// When an operand is shorter than its shape and stride need (a caller bug).
+    #[allow(clippy::too_many_arguments)] // BLAS-style: three sizes, three operands, a stride
     pub fn nn(&self, m: usize, n: usize, k: usize, a: Mat<'_>, b: Mat<'_>, c: &mut [f32], ldc: usize) {
         assert!(
             a.data.len() >= needed(m, k, a.ld) && b.data.len() >= needed(k, n, b.ld) && c.len() >= needed(m, n, ldc),
@@ -83,7 +84,7 @@ impl Gemm {
     ///
     /// # Panics
     /// When an operand is shorter than its shape and stride need (a caller bug).
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments)] // BLAS-style: three sizes, three operands, a stride
     pub fn tn(&self, m: usize, ka: usize, n: usize, a: Mat<'_>, b: Mat<'_>, c: &mut [f32], ldc: usize) {
         assert!(
             a.data.len() >= needed(m, ka, a.ld) && b.data.len() >= needed(m, n, b.ld) && c.len() >= needed(ka, n, ldc),
@@ -156,6 +157,7 @@ mod avx2 {
     }
 
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     unsafe fn nn_rows<const R: usize>(n: usize, k: usize, a: Mat<'_>, b: Mat<'_>, c: *mut f32, ldc: usize, r: usize) {
         // SAFETY: rows r..r+R exist (caller), columns stay below n; the bounds were checked by
         // `Gemm::nn`.
@@ -184,6 +186,7 @@ mod avx2 {
     }
 
     #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::too_many_arguments)]
     pub(super) unsafe fn nn(m: usize, n: usize, k: usize, a: Mat<'_>, b: Mat<'_>, c: &mut [f32], ldc: usize) {
         let cp = c.as_mut_ptr();
         let mut r = 0;
@@ -273,6 +276,7 @@ mod avx2 {
     }
 
     #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::too_many_arguments)]
     pub(super) unsafe fn tn(m: usize, ka: usize, n: usize, a: Mat<'_>, b: Mat<'_>, c: &mut [f32], ldc: usize) {
         let cp = c.as_mut_ptr();
         let mut r0 = 0;
