@@ -508,3 +508,80 @@ fn train_input_builder_matches_build() {
     }
     assert!(with_body_edges >= 3, "the scenes must have body edges");
 }
+
+/// Counts allocations made by threads that opt in (the other tests of this binary run
+/// alongside and are not counted).
+struct CountingAlloc;
+
+static ALLOCS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+std::thread_local! {
+    static COUNTING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+// SAFETY: forwards every call to the system allocator unchanged; only counts.
+unsafe impl std::alloc::GlobalAlloc for CountingAlloc {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        if COUNTING.with(|c| c.get()) {
+            ALLOCS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        // SAFETY: the caller's contract is the system allocator's.
+        unsafe { std::alloc::System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        // SAFETY: as above.
+        unsafe { std::alloc::System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, new_size: usize) -> *mut u8 {
+        if COUNTING.with(|c| c.get()) {
+            ALLOCS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        // SAFETY: as above.
+        unsafe { std::alloc::System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: CountingAlloc = CountingAlloc;
+
+/// After warm-up steps, a fast forward + backward and an `InputBuilder` step allocate nothing.
+#[test]
+fn train_fast_step_allocates_nothing() {
+    use hood::sim::Serial;
+    use hood::train::{FastWorkspace, InputBuilder};
+    let scene = Scene::new(14, 12);
+    let mut params = Params::init(&ModelSpec::with_schedule(16, 2, 2, "f,c0 | d:c0,c1 | u:f,c0").unwrap(), 4).unwrap();
+    params.normalisers = hood::model::Normalisers::unit_scale(1);
+    let graph = graph_of(&scene.garment, params.spec.levels);
+    let net = Network::of(&params).unwrap();
+    let stats = Stats::<f32>::of(&params);
+    let theta = net.layout.flatten::<f32>(&params);
+    let mut rng = Rng::new(8);
+    let (b0, b1, b2) = (scene.body_at(0), scene.body_at(1), scene.body_at(2));
+    let states: Vec<_> = (0..3).map(|_| jittered(scene.garment.rest(), &mut rng)).collect();
+    let dpos = vec![[1e-3f32, -2e-3, 5e-4]; scene.garment.n_vertices()];
+    let mut ws = FastWorkspace::default();
+    let mut builder = InputBuilder::default();
+    let mut step = StepData::default();
+    let mut grad = vec![0.0f32; theta.len()];
+    let mut run = |i: usize, count: bool| -> usize {
+        let (pos, vel) = &states[i % states.len()];
+        let gs = GarmentState { pos, velocity: vel, pinned: scene.garment.pinned(), pin_targets: scene.garment.rest() };
+        let bf = BodyFrames { mesh: &scene.body, prev: &b0, pos: &b1, next: &b2 };
+        ALLOCS.store(0, std::sync::atomic::Ordering::Relaxed);
+        COUNTING.with(|c| c.set(count));
+        builder.build(&params.spec, &scene.garment, &graph, &gs, Some(&bf), DT, &mut step).unwrap();
+        net.forward_fast(&mut ws, &Serial, &theta, &stats, &graph, &step).unwrap();
+        grad.iter_mut().for_each(|g| *g = 0.0);
+        net.backward_fast(&mut ws, &Serial, &theta, &stats, &graph, &step, &dpos, &mut grad).unwrap();
+        COUNTING.with(|c| c.set(false));
+        assert!(step.prefix[0] > 0, "the scene must have body edges");
+        ALLOCS.load(std::sync::atomic::Ordering::Relaxed)
+    };
+    assert!(run(0, true) > 0, "the counter must see the first step's allocations");
+    for i in 1..6 {
+        run(i, false);
+    }
+    let steady: usize = (6..9).map(|i| run(i, true)).sum();
+    assert_eq!(steady, 0, "allocations in steady-state steps");
+}

@@ -175,6 +175,10 @@ struct FastTape {
 #[derive(Clone, Debug)]
 pub struct FastWorkspace {
     gemm: Gemm,
+    /// Every Linear layer of the network last run (read from the layout once).
+    linears: Vec<super::layout::LinearAt>,
+    /// The layout `linears` belongs to.
+    layout: Option<super::layout::Layout>,
     /// Per Linear layer, its weight transposed (`[in, out]`), at the layer's offset.
     wt: Vec<f32>,
     tape: FastTape,
@@ -199,6 +203,8 @@ impl FastWorkspace {
     pub fn new(gemm: Gemm) -> FastWorkspace {
         FastWorkspace {
             gemm,
+            linears: Vec::new(),
+            layout: None,
             wt: Vec::new(),
             tape: FastTape::default(),
             tmp: Temps::default(),
@@ -698,19 +704,21 @@ impl Network {
         if theta.len() != lay.len {
             return Err(Error::SizeMismatch { what: "parameter vector", expected: lay.len, got: theta.len() });
         }
-        self.check_fast()?;
+        if ws.layout.as_ref() != Some(lay) {
+            self.check_fast()?;
+            ws.linears = lay.mlps().iter().flat_map(|m| m.layers.iter().copied()).collect();
+            ws.layout = Some(lay.clone());
+        }
         // Transposed weights of the current parameters (cheap next to the step).
-        fit(&mut ws.wt, lay.len);
-        for m in lay.mlps() {
-            for l in &m.layers {
-                for o in 0..l.out {
-                    for i in 0..l.inp {
-                        ws.wt[l.w + i * l.out + o] = theta[l.w + o * l.inp + i];
-                    }
+        size(&mut ws.wt, lay.len);
+        for l in &ws.linears {
+            for o in 0..l.out {
+                for i in 0..l.inp {
+                    ws.wt[l.w + i * l.out + o] = theta[l.w + o * l.inp + i];
                 }
             }
         }
-        let FastWorkspace { gemm, wt, tape: t, tmp, parts, decoded, new_pos } = ws;
+        let FastWorkspace { gemm, wt, tape: t, tmp, parts, decoded, new_pos, .. } = ws;
         let c = Ctx { g: *gemm, exec, theta, wt };
         let h = self.spec.latent;
         let (v, na) = (step.n_garment, step.n_active);
