@@ -3,8 +3,11 @@
 //! gradient to every parameter, and the optimiser (Adam, learning-rate schedule, clipping).
 //!
 //! Parameters are trained in a flat vector ([`layout::Layout`] maps it to and from
-//! [`crate::model::Params`]); gradients use the same layout. Everything is generic over
-//! [`crate::math::Real`]: f32 to train, f64 for gradient checks.
+//! [`crate::model::Params`]); gradients use the same layout. The reference passes
+//! ([`Network::forward`], [`Network::backward`]) are generic over [`crate::math::Real`] (f64 for
+//! gradient checks); training runs the f32 fast path ([`Network::forward_fast`],
+//! [`Network::backward_fast`] with a [`FastWorkspace`]: SIMD products, two threads, no
+//! allocation per step), fed by an [`InputBuilder`].
 
 pub mod fast;
 pub mod gemm;
