@@ -74,3 +74,46 @@ fn scene_makehuman_jeans_on_cmu_walk() {
     let x = s.initial_garment(0).unwrap();
     assert!(x.iter().flatten().all(|c| c.is_finite()));
 }
+
+/// The initial garment states the trainer starts from: stretching energy per vertex and the
+/// largest edge strain over a few frames of every scene kind.
+#[test]
+fn scene_initial_states_are_not_torn() {
+    use hood::physics::{max_edge_strain, Cloth, Objective, StepInputs};
+    let m = Mannequin::new();
+    let mut scenes = vec![
+        procedural(&m, GarmentKind::Skirt, 300, MotionKind::Walk, 2.0).unwrap(),
+        procedural(&m, GarmentKind::Dress, 400, MotionKind::RandomPoses(2), 2.0).unwrap(),
+        procedural(&m, GarmentKind::Cape, 200, MotionKind::ArmSwings, 2.0).unwrap(),
+    ];
+    let assets = hood::workloads::default_shared_dir().join("assets");
+    if assets.join("body/base.obj").exists() {
+        for g in [hood::scene::MakeHumanGarment::Tee, hood::scene::MakeHumanGarment::Jeans] {
+            scenes.push(hood::scene::makehuman(&assets, g, 60).unwrap());
+        }
+    } else {
+        println!("MakeHuman scenes SKIPPED: {} not found", assets.display());
+    }
+    let obj = Objective { inertia: false, gravity: false, bending: false, ..Objective::cloth_only() };
+    for s in &scenes {
+        let cloth = Cloth::<f64>::new(&s.garment);
+        for f in [0, s.n_frames() / 2, s.n_frames() - 1] {
+            let x: Vec<[f64; 3]> = s.initial_garment(f).unwrap().iter().map(|p| p.map(f64::from)).collect();
+            let inputs = StepInputs { pos: &[], velocity: &[], dt: 1.0 / 30.0, collision: None, friction: None };
+            let e = obj.eval(&cloth, &inputs, &x, None).unwrap().stretching;
+            let strain = max_edge_strain(&cloth, &x);
+            println!(
+                "{:<32} frame {f:>3}: stretching {:.3} mJ/vertex, largest edge strain {:.1} %",
+                s.name,
+                1e3 * e / s.garment.n_vertices() as f64,
+                100.0 * strain
+            );
+            assert!(
+                strain.is_finite() && strain < 5.0,
+                "{} frame {f}: an edge stretched by {:.0} %",
+                s.name,
+                100.0 * strain
+            );
+        }
+    }
+}

@@ -306,7 +306,8 @@ fn train_step_timing_tee() {
         let mut best = [f64::INFINITY; 4];
         let mut dx = vec![[0.0f32; 3]; n];
         let mut grad = vec![0.0f32; theta.len()];
-        for _ in 0..reps {
+        let generic_reps = if std::env::var("HOOD_TRAIN_FAST_ONLY").is_ok() { 0 } else { reps };
+        for _ in 0..generic_reps {
             let t = Instant::now();
             let tape = net.forward(&theta, &stats, &graph, &step).unwrap();
             let t_fwd = t.elapsed().as_secs_f64();
@@ -326,6 +327,51 @@ fn train_step_timing_tee() {
                 *b = b.min(x);
             }
         }
+        for threads in [1usize, 2] {
+            let pool = hood::sim::ThreadPool::new(threads);
+            let mut ws = hood::train::FastWorkspace::default();
+            let mut fbest = [f64::INFINITY; 4];
+            // CPU time of this thread (ns), to see through a busy machine.
+            let cpu = || -> f64 {
+                std::fs::read_to_string("/proc/thread-self/schedstat")
+                    .ok()
+                    .and_then(|s| s.split_whitespace().next().and_then(|x| x.parse::<f64>().ok()))
+                    .unwrap_or(f64::NAN)
+            };
+            let mut cpu_best = f64::INFINITY;
+            for _ in 0..reps + 2 {
+                let c0 = cpu();
+                let t = Instant::now();
+                net.forward_fast(&mut ws, &pool, &theta, &stats, &graph, &step).unwrap();
+                let t_fwd = t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let terms = objective.eval(&cloth, &inputs, &ws.new_pos, Some(&mut dx)).unwrap();
+                let t_loss = t.elapsed().as_secs_f64();
+                assert!(terms.total().is_finite());
+                let t = Instant::now();
+                grad.iter_mut().for_each(|g| *g = 0.0);
+                net.backward_fast(&mut ws, &pool, &theta, &stats, &graph, &step, &dx, &mut grad).unwrap();
+                let t_bwd = t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                clip_global_norm(&mut grad, 1.0);
+                adam.step(&mut theta, &grad, learning_rate(adam.t));
+                let t_adam = t.elapsed().as_secs_f64();
+                for (b, x) in fbest.iter_mut().zip([t_fwd, t_loss, t_bwd, t_adam]) {
+                    *b = b.min(x);
+                }
+                cpu_best = cpu_best.min(cpu() - c0);
+            }
+            println!(
+                "fast train step tee h={h}, {threads} threads: {:.1} ms (forward {:.1}, losses {:.2}, backward {:.1}, \
+                 clip+adam {:.2}; calling thread's CPU time {:.1} ms)",
+                fbest.iter().sum::<f64>() * 1e3,
+                fbest[0] * 1e3,
+                fbest[1] * 1e3,
+                fbest[2] * 1e3,
+                fbest[3] * 1e3,
+                cpu_best * 1e-6
+            );
+        }
         let total: f64 = best.iter().sum();
         println!(
             "train step tee h={h}: {:.1} ms (forward {:.1}, losses {:.2}, backward {:.1}, clip+adam {:.2}; \
@@ -340,4 +386,202 @@ fn train_step_timing_tee() {
             theta.len()
         );
     }
+}
+
+/// The fast f32 path (SIMD products, workspace, executor) against the generic f32 path on a
+/// hierarchical scene with body edges and pins, random non-zero parameters and a random
+/// position gradient; one and two threads bitwise identical; scalar products agree too.
+#[test]
+fn train_fast_matches_generic() {
+    use hood::sim::{Serial, ThreadPool};
+    use hood::train::{FastWorkspace, Gemm};
+    let spec = ModelSpec::with_schedule(16, 2, 2, "f,c0 | d:c0,c1 | u:f,c0").unwrap();
+    let mut params = Params::init(&spec, 3).unwrap();
+    let (rest, faces) = hood::mesh::shapes::grid(14, 12, 0.36, 0.36, 0.301);
+    let mut pinned = vec![false; rest.len()];
+    pinned[0] = true;
+    pinned[13] = true;
+    let garment = Garment::new(GarmentDesc::new(&rest, &faces).pinned(&pinned)).unwrap();
+    let (bv, bf) = hood::body::shapes::ellipsoid(24, 32, [0.25, 0.3, 0.25], [0.0, 0.0, 0.0]);
+    let body = BodyMesh::new(bv.len(), &bf).unwrap();
+    let b_next: Vec<[f32; 3]> = bv.iter().map(|p| [p[0] + 0.004, p[1] + 0.002, p[2]]).collect();
+    let graph = graph_of(&garment, 2);
+    let mut rng = Rng::new(9);
+    let (pos, vel) = jittered(&rest, &mut rng);
+    let gs = GarmentState { pos: &pos, velocity: &vel, pinned: &pinned, pin_targets: &rest };
+    let frames = BodyFrames { mesh: &body, prev: &bv, pos: &bv, next: &b_next };
+    let step = StepData::build(&spec, &garment, &graph, &gs, Some(&frames), DT).unwrap();
+    assert!(step.prefix[0] >= 4 && step.prefix[1] > 0, "body edges: {:?}", step.prefix);
+    let n = &mut params.normalisers;
+    n.node.accumulate(&(0..64 * 21).map(|_| rng.normal() as f32).collect::<Vec<_>>(), 21);
+    n.node.accumulate(&step.node_features, 24);
+    n.edge.accumulate(&step.edge_features[3], 12);
+    n.body_edge.accumulate(&step.g2b_features, 9);
+    n.output.accumulate(&(0..64 * 3).map(|_| (rng.normal() * 2e-3) as f32).collect::<Vec<_>>(), 3);
+    let net = Network::of(&params).unwrap();
+    let stats = Stats::<f32>::of(&params);
+    // Every parameter perturbed (LayerNorm gains away from 1, biases away from 0).
+    let theta: Vec<f32> = net.layout.flatten::<f32>(&params).iter().map(|&t| t + 0.05 * rng.normal() as f32).collect();
+    let dpos: Vec<[f32; 3]> = (0..rest.len()).map(|_| [0.0; 3].map(|_: f32| rng.normal() as f32)).collect();
+
+    let tape = net.forward(&theta, &stats, &graph, &step).unwrap();
+    let mut g_ref = vec![0.0f32; theta.len()];
+    net.backward(&theta, &stats, &graph, &step, &tape, &dpos, &mut g_ref).unwrap();
+
+    let pool = ThreadPool::new(2);
+    let run = |ws: &mut FastWorkspace, exec: &dyn hood::sim::Executor| {
+        net.forward_fast(ws, exec, &theta, &stats, &graph, &step).unwrap();
+        let mut g = vec![0.0f32; theta.len()];
+        net.backward_fast(ws, exec, &theta, &stats, &graph, &step, &dpos, &mut g).unwrap();
+        (ws.new_pos.clone(), g)
+    };
+    let mut ws = FastWorkspace::new(Gemm::best());
+    let (p1, g1) = run(&mut ws, &Serial);
+    let (p2, g2) = run(&mut ws, &pool);
+    assert!(p1 == p2 && g1 == g2, "one and two threads differ");
+    let (p3, g3) = run(&mut FastWorkspace::new(Gemm::best()), &pool);
+    assert!(p3 == p1 && g3 == g1, "a fresh workspace differs from a reused one");
+    let (ps, gs_) = run(&mut FastWorkspace::new(Gemm::scalar()), &Serial);
+
+    let pos_err = |p: &[[f32; 3]]| {
+        p.iter().zip(&tape.new_pos).flat_map(|(a, b)| (0..3).map(move |k| (a[k] - b[k]).abs())).fold(0.0f32, f32::max)
+    };
+    assert!(pos_err(&p1) < 1e-6 && pos_err(&ps) < 1e-6, "positions differ: {} {}", pos_err(&p1), pos_err(&ps));
+    let mut worst = (0.0f64, String::new());
+    for (name, r) in net.layout.tensors(&spec) {
+        let gmax = g_ref[r.clone()].iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+        assert!(gmax > 0.0, "{name}: zero reference gradient");
+        for g in [&g1, &gs_] {
+            let d = g[r.clone()].iter().zip(&g_ref[r.clone()]).fold(0.0f32, |m, (a, b)| m.max((a - b).abs())) as f64;
+            let rel = d / gmax;
+            assert!(rel < 1e-4, "{name}: fast gradient differs by {rel:e} of its largest entry");
+            if rel > worst.0 {
+                worst = (rel, name.clone());
+            }
+        }
+    }
+    println!("train_fast_matches_generic: worst tensor relative difference {:e} ({})", worst.0, worst.1);
+}
+
+/// An `InputBuilder` reused across steps (other states, bodies of other sizes, no body) builds
+/// exactly what a fresh `StepData::build` builds.
+#[test]
+fn train_input_builder_matches_build() {
+    use hood::train::InputBuilder;
+    let spec = ModelSpec::with_schedule(8, 2, 2, "f,c0 | d:c0,c1 | u:f,c0").unwrap();
+    let (rest, faces) = hood::mesh::shapes::grid(12, 10, 0.36, 0.36, 0.301);
+    let mut pinned = vec![false; rest.len()];
+    pinned[3] = true;
+    let garment = Garment::new(GarmentDesc::new(&rest, &faces).pinned(&pinned)).unwrap();
+    let graph = graph_of(&garment, 2);
+    let mut rng = Rng::new(17);
+    let bodies: Vec<(BodyMesh, Vec<[f32; 3]>)> = [(24, 32, 0.0f32), (16, 20, 0.01), (24, 32, -0.02)]
+        .iter()
+        .map(|&(a, b, dy)| {
+            let (bv, bf) = hood::body::shapes::ellipsoid(a, b, [0.25, 0.3, 0.25], [0.0, dy, 0.0]);
+            (BodyMesh::new(bv.len(), &bf).unwrap(), bv)
+        })
+        .collect();
+    let mut builder = InputBuilder::default();
+    let mut reused = StepData::build(
+        &spec,
+        &garment,
+        &graph,
+        &GarmentState { pos: &rest, velocity: &vec![[0.0; 3]; rest.len()], pinned: &pinned, pin_targets: &rest },
+        None,
+        DT,
+    )
+    .unwrap();
+    let mut with_body_edges = 0;
+    for round in 0..6 {
+        let (pos, vel) = jittered(&rest, &mut rng);
+        let gs = GarmentState { pos: &pos, velocity: &vel, pinned: &pinned, pin_targets: &rest };
+        let (mesh, bv) = &bodies[round % 3];
+        let next: Vec<[f32; 3]> = bv.iter().map(|p| [p[0] + 0.003, p[1], p[2] - 0.001]).collect();
+        let frames = BodyFrames { mesh, prev: bv, pos: bv, next: &next };
+        let body = if round == 4 { None } else { Some(&frames) };
+        let dt = if round == 1 { hood::features::DT_STARTUP } else { DT };
+        let fresh = StepData::build(&spec, &garment, &graph, &gs, body, dt).unwrap();
+        builder.build(&spec, &garment, &graph, &gs, body, dt, &mut reused).unwrap();
+        assert_eq!(reused, fresh, "round {round}");
+        with_body_edges += usize::from(fresh.prefix[0] > 0);
+    }
+    assert!(with_body_edges >= 3, "the scenes must have body edges");
+}
+
+/// Counts allocations made by threads that opt in (the other tests of this binary run
+/// alongside and are not counted).
+struct CountingAlloc;
+
+static ALLOCS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+std::thread_local! {
+    static COUNTING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+// SAFETY: forwards every call to the system allocator unchanged; only counts.
+unsafe impl std::alloc::GlobalAlloc for CountingAlloc {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        if COUNTING.with(|c| c.get()) {
+            ALLOCS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        // SAFETY: the caller's contract is the system allocator's.
+        unsafe { std::alloc::System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        // SAFETY: as above.
+        unsafe { std::alloc::System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, new_size: usize) -> *mut u8 {
+        if COUNTING.with(|c| c.get()) {
+            ALLOCS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        // SAFETY: as above.
+        unsafe { std::alloc::System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: CountingAlloc = CountingAlloc;
+
+/// After warm-up steps, a fast forward + backward and an `InputBuilder` step allocate nothing.
+#[test]
+fn train_fast_step_allocates_nothing() {
+    use hood::sim::Serial;
+    use hood::train::{FastWorkspace, InputBuilder};
+    let scene = Scene::new(14, 12);
+    let mut params = Params::init(&ModelSpec::with_schedule(16, 2, 2, "f,c0 | d:c0,c1 | u:f,c0").unwrap(), 4).unwrap();
+    params.normalisers = hood::model::Normalisers::unit_scale(1);
+    let graph = graph_of(&scene.garment, params.spec.levels);
+    let net = Network::of(&params).unwrap();
+    let stats = Stats::<f32>::of(&params);
+    let theta = net.layout.flatten::<f32>(&params);
+    let mut rng = Rng::new(8);
+    let (b0, b1, b2) = (scene.body_at(0), scene.body_at(1), scene.body_at(2));
+    let states: Vec<_> = (0..3).map(|_| jittered(scene.garment.rest(), &mut rng)).collect();
+    let dpos = vec![[1e-3f32, -2e-3, 5e-4]; scene.garment.n_vertices()];
+    let mut ws = FastWorkspace::default();
+    let mut builder = InputBuilder::default();
+    let mut step = StepData::default();
+    let mut grad = vec![0.0f32; theta.len()];
+    let mut run = |i: usize, count: bool| -> usize {
+        let (pos, vel) = &states[i % states.len()];
+        let gs = GarmentState { pos, velocity: vel, pinned: scene.garment.pinned(), pin_targets: scene.garment.rest() };
+        let bf = BodyFrames { mesh: &scene.body, prev: &b0, pos: &b1, next: &b2 };
+        ALLOCS.store(0, std::sync::atomic::Ordering::Relaxed);
+        COUNTING.with(|c| c.set(count));
+        builder.build(&params.spec, &scene.garment, &graph, &gs, Some(&bf), DT, &mut step).unwrap();
+        net.forward_fast(&mut ws, &Serial, &theta, &stats, &graph, &step).unwrap();
+        grad.iter_mut().for_each(|g| *g = 0.0);
+        net.backward_fast(&mut ws, &Serial, &theta, &stats, &graph, &step, &dpos, &mut grad).unwrap();
+        COUNTING.with(|c| c.set(false));
+        assert!(step.prefix[0] > 0, "the scene must have body edges");
+        ALLOCS.load(std::sync::atomic::Ordering::Relaxed)
+    };
+    assert!(run(0, true) > 0, "the counter must see the first step's allocations");
+    for i in 1..6 {
+        run(i, false);
+    }
+    let steady: usize = (6..9).map(|i| run(i, true)).sum();
+    assert_eq!(steady, 0, "allocations in steady-state steps");
 }

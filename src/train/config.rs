@@ -79,6 +79,10 @@ pub struct TrainConfig {
     pub collision_weight: (f64, f64),
     /// Iterations over which the collision weight grows (log-linearly) to its final value.
     pub collision_ramp: u64,
+    /// Scale of the decoder's last layer at initialisation (1: PyTorch's initialisation as
+    /// the reference; smaller starts the model near the no-force prediction `pos + velocity`
+    /// instead of random accelerations).
+    pub decoder_init_scale: f32,
     /// Draw a random material per sample (otherwise the default material).
     pub random_materials: bool,
     /// Draw a random hierarchy centre per sample (otherwise the first candidate).
@@ -116,6 +120,7 @@ impl Default for TrainConfig {
             noise: 3e-3,
             collision_weight: (5e3, 5e5),
             collision_ramp: 20_000,
+            decoder_init_scale: 1.0,
             random_materials: true,
             random_centres: true,
             scenes: vec![
@@ -213,6 +218,7 @@ impl TrainConfig {
                     c.collision_weight = (a[0], a[1]);
                 }
                 "collision_ramp" => c.collision_ramp = uint(v, key)?,
+                "decoder_init_scale" => c.decoder_init_scale = float(v, key)? as f32,
                 "random_materials" => c.random_materials = boolean(v, key)?,
                 "random_centres" => c.random_centres = boolean(v, key)?,
                 "scenes" => {
@@ -269,7 +275,7 @@ impl TrainConfig {
             "{{\n  \"latent\": {}, \"hidden_layers\": {}, \"levels\": {}, \"schedule\": \"{}\",\n  \
              \"iterations\": {}, \"warmup_iterations\": {}, \"learning_rate\": {:e}, \"lr_halving_steps\": {}, \
              \"clip\": {},\n  \"rollout_max\": {}, \"rollout_every\": {}, \"noise\": {:e}, \
-             \"collision_weight\": [{:e}, {:e}], \"collision_ramp\": {},\n  \"random_materials\": {}, \
+             \"collision_weight\": [{:e}, {:e}], \"collision_ramp\": {},\n  \"decoder_init_scale\": {}, \"random_materials\": {}, \
              \"random_centres\": {}, \"checkpoint_every\": {}, \"validate_every\": {}, \"validation\": [{}, {}], \
              \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
             self.latent,
@@ -287,6 +293,7 @@ impl TrainConfig {
             self.collision_weight.0,
             self.collision_weight.1,
             self.collision_ramp,
+            self.decoder_init_scale,
             self.random_materials,
             self.random_centres,
             self.checkpoint_every,

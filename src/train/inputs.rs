@@ -10,7 +10,6 @@ use crate::features::{
 use crate::mesh::{vertex_normals, Garment};
 use crate::model::{EdgeKey, ModelSpec};
 use crate::sim::{Graph, BODY_EDGE_RADIUS};
-use alloc::vec;
 use alloc::vec::Vec;
 
 /// The body at the three frames a step reads, m.
@@ -40,7 +39,7 @@ pub struct GarmentState<'a> {
 }
 
 /// Everything the network reads in one step besides its parameters.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct StepData {
     /// Step length, s.
     pub dt: f32,
@@ -78,8 +77,32 @@ pub struct StepData {
     pub pinned: Vec<bool>,
 }
 
+impl Default for StepData {
+    fn default() -> Self {
+        StepData {
+            dt: 0.0,
+            n_garment: 0,
+            n_active: 0,
+            node_features: Vec::new(),
+            node_type: Vec::new(),
+            node_level: Vec::new(),
+            edge_features: [Vec::new(), Vec::new(), Vec::new(), Vec::new()],
+            g2b_features: Vec::new(),
+            b2g_features: Vec::new(),
+            body_garment: Vec::new(),
+            body_active: Vec::new(),
+            active: Vec::new(),
+            prefix: [0; 4],
+            pos: Vec::new(),
+            velocity: Vec::new(),
+            pinned: Vec::new(),
+        }
+    }
+}
+
 impl StepData {
-    /// Builds the step's inputs as the runtime does (`Sim::advance`).
+    /// Builds the step's inputs as the runtime does (`Sim::advance`). A training loop should
+    /// keep an [`InputBuilder`] instead (same result, no fresh body grid and buffers per call).
     ///
     /// # Errors
     /// [`Error::SizeMismatch`] for inconsistent lengths; errors of the body queries and features.
@@ -91,6 +114,42 @@ impl StepData {
         body: Option<&BodyFrames<'_>>,
         dt: f32,
     ) -> Result<StepData> {
+        let mut d = StepData::default();
+        InputBuilder::default().build(spec, garment, graph, state, body, dt, &mut d)?;
+        Ok(d)
+    }
+}
+
+/// Builds [`StepData`] step after step reusing its body grid and buffers (they only grow; the
+/// grid is rebuilt in place, and remade only when the body's vertex count changes).
+#[derive(Clone, Debug, Default)]
+pub struct InputBuilder {
+    grid: Option<PointGrid>,
+    nearest: Vec<Option<Nearest>>,
+    normals: Vec<[f32; 3]>,
+    body_normals: Vec<[f32; 3]>,
+    material: Vec<[f32; 3]>,
+    body_vertex: Vec<u32>,
+    active_of: Vec<u32>,
+    pairs: Vec<[u32; 2]>,
+}
+
+impl InputBuilder {
+    /// Writes the step's inputs into `d` (every field replaced), as [`StepData::build`].
+    ///
+    /// # Errors
+    /// As [`StepData::build`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn build(
+        &mut self,
+        spec: &ModelSpec,
+        garment: &Garment,
+        graph: &Graph,
+        state: &GarmentState<'_>,
+        body: Option<&BodyFrames<'_>>,
+        dt: f32,
+        d: &mut StepData,
+    ) -> Result<()> {
         let n = garment.n_vertices();
         for (what, got) in [
             ("state positions", state.pos.len()),
@@ -103,60 +162,62 @@ impl StepData {
                 return Err(Error::SizeMismatch { what, expected: n, got });
             }
         }
-        let pos: Vec<[f32; 3]> =
-            (0..n).map(|i| if state.pinned[i] { state.pin_targets[i] } else { state.pos[i] }).collect();
+        d.dt = dt;
+        d.n_garment = n;
+        d.n_active = 0;
+        d.prefix = [0; 4];
+        d.pos.clear();
+        d.pos.extend((0..n).map(|i| if state.pinned[i] { state.pin_targets[i] } else { state.pos[i] }));
+        d.velocity.clear();
+        d.velocity.extend_from_slice(state.velocity);
+        d.pinned.clear();
+        d.pinned.extend_from_slice(state.pinned);
         let zero_type = [0.0; NODE_TYPES * NODE_TYPES];
         let zero_level = [0.0; LEVELS * LEVELS];
         let emb = Embeddings { node_type: &zero_type, level: &zero_level };
-        let material: Vec<[f32; 3]> = garment.materials().iter().map(|m| m.network_inputs()).collect();
-        let mut normals = vec![[0.0; 3]; n];
-        vertex_normals(garment.faces(), &pos, &mut normals);
-        let mut node_features = vec![0.0; n * NODE_WIDTH];
+        self.material.clear();
+        self.material.extend(garment.materials().iter().map(|m| m.network_inputs()));
+        self.normals.clear();
+        self.normals.resize(n, [0.0; 3]);
+        vertex_normals(garment.faces(), &d.pos, &mut self.normals);
+        d.node_features.clear();
+        d.node_features.resize(n * NODE_WIDTH, 0.0);
         let gn = GarmentNodes {
             velocity: state.velocity,
-            normals: &normals,
+            normals: &self.normals,
             mass: garment.vertex_mass(),
             pinned: state.pinned,
             level: &graph.vertex_level,
-            material: &material,
+            material: &self.material,
             dt,
         };
-        features::garment_node_features(&gn, &emb, &mut node_features)?;
-        let mut node_type: Vec<u8> =
-            state.pinned.iter().map(|&p| if p { NodeType::Pinned } else { NodeType::Normal } as u8).collect();
-        let mut node_level = graph.vertex_level.clone();
-
-        let mut d = StepData {
-            dt,
-            n_garment: n,
-            n_active: 0,
-            node_features: Vec::new(),
-            node_type: Vec::new(),
-            node_level: Vec::new(),
-            edge_features: [Vec::new(), Vec::new(), Vec::new(), Vec::new()],
-            g2b_features: Vec::new(),
-            b2g_features: Vec::new(),
-            body_garment: Vec::new(),
-            body_active: Vec::new(),
-            active: Vec::new(),
-            prefix: [0; 4],
-            pos,
-            velocity: state.velocity.to_vec(),
-            pinned: state.pinned.to_vec(),
-        };
+        features::garment_node_features(&gn, &emb, &mut d.node_features)?;
+        d.node_type.clear();
+        d.node_type.extend(state.pinned.iter().map(|&p| if p { NodeType::Pinned } else { NodeType::Normal } as u8));
+        d.node_level.clear();
+        d.node_level.extend_from_slice(&graph.vertex_level);
+        for v in [&mut d.body_garment, &mut d.body_active, &mut d.active] {
+            v.clear();
+        }
+        d.g2b_features.clear();
+        d.b2g_features.clear();
         if let (Some(b), true) = (body, spec.effects.body) {
             let nb = b.mesh.n_vertices();
             b.mesh.check_positions(b.pos)?;
-            let mut grid = PointGrid::new(nb, (8 * nb).max(64))?;
+            if self.grid.as_ref().is_none_or(|g| g.capacity() != nb) {
+                self.grid = Some(PointGrid::new(nb, (8 * nb).max(64))?);
+            }
+            let grid = self.grid.as_mut().ok_or(Error::Empty { what: "body grid" })?;
             grid.rebuild(b.pos)?;
-            let mut nearest: Vec<Option<Nearest>> = vec![None; n];
-            grid.nearest_within(&d.pos, BODY_EDGE_RADIUS, &mut nearest)?;
-            b.mesh.keep_not_omitted(&mut nearest);
-            let mut body_vertex = Vec::new();
+            self.nearest.clear();
+            self.nearest.resize(n, None);
+            grid.nearest_within(&d.pos, BODY_EDGE_RADIUS, &mut self.nearest)?;
+            b.mesh.keep_not_omitted(&mut self.nearest);
+            self.body_vertex.clear();
             for &g in &graph.body_order {
-                if let Some(near) = nearest[g as usize] {
+                if let Some(near) = self.nearest[g as usize] {
                     d.body_garment.push(g);
-                    body_vertex.push(near.index);
+                    self.body_vertex.push(near.index);
                     let lvl = graph.vertex_level[g as usize] as usize;
                     for p in d.prefix.iter_mut().take(lvl + 1) {
                         *p += 1;
@@ -164,40 +225,49 @@ impl StepData {
                 }
             }
             // Active body rows in ascending body vertex order.
-            let mut active_of = vec![u32::MAX; nb];
-            for &o in &body_vertex {
-                active_of[o as usize] = 0;
+            self.active_of.clear();
+            self.active_of.resize(nb, u32::MAX);
+            for &o in &self.body_vertex {
+                self.active_of[o as usize] = 0;
             }
-            for (o, a) in active_of.iter_mut().enumerate() {
+            for (o, a) in self.active_of.iter_mut().enumerate() {
                 if *a == 0 {
                     *a = d.active.len() as u32;
                     d.active.push(o as u32);
                 }
             }
-            d.body_active = body_vertex.iter().map(|&o| active_of[o as usize]).collect();
+            d.body_active.extend(self.body_vertex.iter().map(|&o| self.active_of[o as usize]));
             d.n_active = d.active.len();
-            let mut bnormals = vec![[0.0; 3]; nb];
-            vertex_normals(b.mesh.faces(), b.pos, &mut bnormals);
-            let bn = BodyNodes { pos: b.pos, prev: b.prev, normals: &bnormals, omitted: b.mesh.omitted(), dt };
-            let mut rows = vec![0.0; d.n_active * NODE_WIDTH];
-            features::body_node_features(&bn, &d.active, &emb, &mut rows)?;
-            node_features.extend_from_slice(&rows);
+            self.body_normals.clear();
+            self.body_normals.resize(nb, [0.0; 3]);
+            vertex_normals(b.mesh.faces(), b.pos, &mut self.body_normals);
+            let bn = BodyNodes { pos: b.pos, prev: b.prev, normals: &self.body_normals, omitted: b.mesh.omitted(), dt };
+            d.node_features.resize((n + d.n_active) * NODE_WIDTH, 0.0);
+            features::body_node_features(&bn, &d.active, &emb, &mut d.node_features[n * NODE_WIDTH..])?;
             for &o in &d.active {
                 let omitted = b.mesh.omitted().get(o as usize).copied().unwrap_or(false);
-                node_type.push(if omitted { NodeType::BodyOmitted } else { NodeType::Body } as u8);
-                node_level.push(0);
+                d.node_type.push(if omitted { NodeType::BodyOmitted } else { NodeType::Body } as u8);
+                d.node_level.push(0);
             }
-            let pairs: Vec<[u32; 2]> = d.body_garment.iter().zip(&body_vertex).map(|(&g, &o)| [g, o]).collect();
-            let ne = pairs.len();
-            d.g2b_features = vec![0.0; ne * BODY_EDGE_WIDTH];
-            d.b2g_features = vec![0.0; ne * BODY_EDGE_WIDTH];
-            features::body_edge_features(&pairs, &d.pos, b.pos, b.next, dt, &mut d.g2b_features, &mut d.b2g_features)?;
+            self.pairs.clear();
+            self.pairs.extend(d.body_garment.iter().zip(&self.body_vertex).map(|(&g, &o)| [g, o]));
+            let ne = self.pairs.len();
+            d.g2b_features.resize(ne * BODY_EDGE_WIDTH, 0.0);
+            d.b2g_features.resize(ne * BODY_EDGE_WIDTH, 0.0);
+            features::body_edge_features(
+                &self.pairs,
+                &d.pos,
+                b.pos,
+                b.next,
+                dt,
+                &mut d.g2b_features,
+                &mut d.b2g_features,
+            )?;
         }
-        d.node_features = node_features;
-        d.node_type = node_type;
-        d.node_level = node_level;
         let rest = garment.rest();
         for key in [EdgeKey::C0, EdgeKey::C1, EdgeKey::C2, EdgeKey::Mesh] {
+            let f = &mut d.edge_features[key as usize];
+            f.clear();
             if !spec.blocks.iter().any(|b| b.keys.contains(&key)) {
                 continue;
             }
@@ -213,10 +283,9 @@ impl StepData {
                         .edges
                 }
             };
-            let mut f = vec![0.0; list.global.len() * features::EDGE_WIDTH];
-            features::edge_features(&list.global, &d.pos, rest, &material, dt, &mut f)?;
-            d.edge_features[key as usize] = f;
+            f.resize(list.global.len() * features::EDGE_WIDTH, 0.0);
+            features::edge_features(&list.global, &d.pos, rest, &self.material, dt, f)?;
         }
-        Ok(d)
+        Ok(())
     }
 }

@@ -4,11 +4,16 @@
 //! run around them (config, data, loss, checkpoints, validation, export).
 //!
 //! Parameters are trained in a flat vector ([`layout::Layout`] maps it to and from
-//! [`crate::model::Params`]); gradients use the same layout. The network passes are generic
-//! over [`crate::math::Real`]: f32 to train, f64 for gradient checks.
+//! [`crate::model::Params`]); gradients use the same layout. The reference passes
+//! ([`Network::forward`], [`Network::backward`]) are generic over [`crate::math::Real`] (f64 for
+//! gradient checks); training runs the f32 fast path ([`Network::forward_fast`],
+//! [`Network::backward_fast`] with a [`FastWorkspace`]: SIMD products, two threads, no
+//! allocation per step), fed by an [`InputBuilder`].
 
 pub mod config;
 pub mod data;
+pub mod fast;
+pub mod gemm;
 pub mod inputs;
 pub mod layout;
 pub mod loss;
@@ -19,7 +24,9 @@ pub mod session;
 
 pub use config::{SceneSource, TrainConfig};
 pub use data::{Dataset, Sample};
-pub use inputs::{BodyFrames, GarmentState, StepData};
+pub use fast::FastWorkspace;
+pub use gemm::Gemm;
+pub use inputs::{BodyFrames, GarmentState, InputBuilder, StepData};
 pub use layout::Layout;
 pub use loss::{LossBody, StepLoss};
 pub use network::{Network, Stats, Tape};

@@ -233,7 +233,7 @@ fn edges_of(graph: &Graph, key: EdgeKey) -> Result<&crate::sim::graph::EdgeList>
 
 impl Network {
     /// Rows of body edges a block uses (those whose garment end is among its finest nodes).
-    fn body_rows(&self, bi: usize, step: &StepData) -> usize {
+    pub(super) fn body_rows(&self, bi: usize, step: &StepData) -> usize {
         let depth = self.spec.blocks[bi].finest().coarse_level().map_or(0, |l| l + 1);
         step.prefix[depth]
     }

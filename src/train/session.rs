@@ -5,7 +5,8 @@
 
 use super::config::TrainConfig;
 use super::data::{Dataset, Sample};
-use super::inputs::{BodyFrames, GarmentState, StepData};
+use super::fast::FastWorkspace;
+use super::inputs::{BodyFrames, GarmentState, InputBuilder, StepData};
 use super::layout::Layout;
 use super::loss::{LossBody, StepLoss};
 use super::network::{Network, Stats};
@@ -18,7 +19,7 @@ use crate::model::{write_model, Model, Normalisers, Params};
 use crate::normaliser::Normaliser;
 use crate::physics::{score_rollout, Objective, RolloutScore, Terms};
 use crate::rng::Rng;
-use crate::sim::Graph;
+use crate::sim::{Executor, Graph, ThreadPool};
 use std::format;
 use std::path::Path;
 use std::string::{String, ToString};
@@ -107,6 +108,11 @@ pub struct Trainer {
     pub optimiser_steps: u64,
     /// Wall time spent training so far (restored from checkpoints), s.
     pub seconds: f64,
+    /// The network passes' workers, activations and inputs (reused step after step).
+    pool: ThreadPool,
+    ws: FastWorkspace,
+    builder: InputBuilder,
+    step: StepData,
 }
 
 fn noisy(rng: &mut Rng, x: &[[f32; 3]], pinned: &[bool], std: f32) -> Vec<[f32; 3]> {
@@ -163,12 +169,32 @@ impl Trainer {
     /// Errors of the spec and of the network layout.
     pub fn new(cfg: TrainConfig, data: Dataset) -> Result<Trainer> {
         let spec = cfg.spec()?;
-        let params = Params::init(&spec, cfg.seed)?;
+        let mut params = Params::init(&spec, cfg.seed)?;
+        if let Some(last) = params.decoder.layers.last_mut() {
+            let k = cfg.decoder_init_scale;
+            last.weight.iter_mut().chain(last.bias.iter_mut()).for_each(|w| *w *= k);
+        }
         let net = Network::of(&params)?;
         let theta = net.layout.flatten::<f32>(&params);
         let adam = Adam::new(theta.len());
         let rng = Rng::new(cfg.seed ^ 0x7a1e_5eed);
-        Ok(Trainer { cfg, data, net, params, theta, adam, rng, iteration: 0, optimiser_steps: 0, seconds: 0.0 })
+        let pool = ThreadPool::new(cfg.threads);
+        Ok(Trainer {
+            cfg,
+            data,
+            net,
+            params,
+            theta,
+            adam,
+            rng,
+            iteration: 0,
+            optimiser_steps: 0,
+            seconds: 0.0,
+            pool,
+            ws: FastWorkspace::default(),
+            builder: InputBuilder::default(),
+            step: StepData::default(),
+        })
     }
 
     /// The current parameters (weights from the flat vector, current normaliser statistics).
@@ -234,8 +260,9 @@ impl Trainer {
                 pos: scene.body_frame(fc),
                 next: scene.body_frame(fnx),
             };
-            let step = StepData::build(&spec, garment, &graph, &gs, Some(&body), dt)?;
-            accumulate(&self.net.layout, &self.theta, &mut self.params.normalisers, &step);
+            self.builder.build(&spec, garment, &graph, &gs, Some(&body), dt, &mut self.step)?;
+            let step = &self.step;
+            accumulate(&self.net.layout, &self.theta, &mut self.params.normalisers, step);
             if k > 0 {
                 // The output normaliser: linear-blend-skinning accelerations (MODEL.md section 3).
                 let acc: Vec<f32> = (0..n)
@@ -253,17 +280,18 @@ impl Trainer {
                 continue;
             }
             let stats = Stats::<f32>::of(&self.params);
-            let tape = self.net.forward(&self.theta, &stats, &graph, &step)?;
+            let exec: &dyn Executor = &self.pool;
+            self.net.forward_fast(&mut self.ws, exec, &self.theta, &stats, &graph, step)?;
             let lb = LossBody { mesh: &scene.body, current: scene.body_frame(fc), next: scene.body_frame(fnx) };
             let mut sr = StepReport { startup: k == 0, ..StepReport::default() };
-            let ok = finite(&tape.new_pos);
+            let ok = finite(&self.ws.new_pos);
             if ok {
-                let (terms, dx) = loss.eval(&objective, &lb, &step.pos, &step.velocity, dt, &tape.new_pos)?;
+                let (terms, dx) = loss.eval(&objective, &lb, &step.pos, &step.velocity, dt, &self.ws.new_pos)?;
                 sr.terms = terms;
                 sr.total = terms.total();
                 if sr.total.is_finite() && finite(dx) {
                     grad.iter_mut().for_each(|g| *g = 0.0);
-                    self.net.backward(&self.theta, &stats, &graph, &step, &tape, dx, &mut grad)?;
+                    self.net.backward_fast(&mut self.ws, exec, &self.theta, &stats, &graph, step, dx, &mut grad)?;
                     sr.grad_norm = clip_global_norm(&mut grad, self.cfg.clip);
                 }
             }
@@ -279,9 +307,9 @@ impl Trainer {
             report.steps.push(sr);
             // Detached hand-over: the prediction becomes the next step's state.
             for i in 0..n {
-                velocity[i] = [0, 1, 2].map(|c| tape.new_pos[i][c] - step.pos[i][c]);
+                velocity[i] = [0, 1, 2].map(|c| self.ws.new_pos[i][c] - step.pos[i][c]);
             }
-            pos.copy_from_slice(&tape.new_pos);
+            pos.copy_from_slice(&self.ws.new_pos);
         }
         self.iteration += 1;
         Ok(report)
@@ -312,7 +340,7 @@ impl Trainer {
     ///
     /// # Errors
     /// Errors of the data, features and scoring.
-    pub fn validate(&self) -> Result<ValidationReport> {
+    pub fn validate(&mut self) -> Result<ValidationReport> {
         let frames = self.cfg.validation.1.max(2);
         let stats = Stats::<f32>::of(&self.params);
         let mut report = ValidationReport { iteration: self.iteration, rollouts: Vec::new() };
@@ -338,16 +366,18 @@ impl Trainer {
                     pos: scene.body_frame(fc),
                     next: scene.body_frame(fnx),
                 };
-                let step = StepData::build(&self.net.spec, garment, &graph, &gs, Some(&body), dt)?;
-                let tape = self.net.forward(&self.theta, &stats, &graph, &step)?;
-                if !finite(&tape.new_pos) {
+                self.builder.build(&self.net.spec, garment, &graph, &gs, Some(&body), dt, &mut self.step)?;
+                let step = &self.step;
+                self.net.forward_fast(&mut self.ws, &self.pool, &self.theta, &stats, &graph, step)?;
+                let new_pos = &self.ws.new_pos;
+                if !finite(new_pos) {
                     ok = false;
                     break;
                 }
                 for i in 0..n {
-                    velocity[i] = [0, 1, 2].map(|c| tape.new_pos[i][c] - step.pos[i][c]);
+                    velocity[i] = [0, 1, 2].map(|c| new_pos[i][c] - step.pos[i][c]);
                 }
-                pos.copy_from_slice(&tape.new_pos);
+                pos.copy_from_slice(new_pos);
                 out_frames.push(pos.clone());
                 body_frames.push(scene.body_frame(fnx).to_vec());
             }

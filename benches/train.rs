@@ -1,0 +1,180 @@
+//! The trainer's optimiser step on the fixture t-shirt (1,311 vertices, 13,380-vertex body) at
+//! h = 32, 64, 128 on 1 and 2 threads: the whole step (inputs, forward, losses, backward,
+//! clipping, Adam) and its parts. Skipped with a message when `../shared` is absent.
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use hood::body::{BodyFrame, Nearest};
+use hood::features::DT;
+use hood::mesh::Garment;
+use hood::model::{ModelSpec, Params};
+use hood::physics::{face_frames, Cloth, CollisionInput, FaceFrame, Objective, StepInputs};
+use hood::sim::{Graph, SimState, ThreadPool};
+use hood::train::{
+    clip_global_norm, learning_rate, Adam, BodyFrames, FastWorkspace, GarmentState, InputBuilder, Network, Stats,
+    StepData,
+};
+use hood::workloads::{default_shared_dir, workload};
+use std::hint::black_box;
+use std::time::Duration;
+
+/// One training sample's step and everything an optimiser step keeps between steps.
+struct Trainer<'a> {
+    garment: &'a Garment,
+    graph: &'a Graph,
+    mesh: &'a hood::body::BodyMesh,
+    state: &'a SimState,
+    next: &'a [[f32; 3]],
+    spec: ModelSpec,
+    net: Network,
+    stats: Stats<f32>,
+    theta: Vec<f32>,
+    adam: Adam,
+    grad: Vec<f32>,
+    dx: Vec<[f32; 3]>,
+    builder: InputBuilder,
+    step: StepData,
+    body_frame: BodyFrame,
+    nearest: Vec<Nearest>,
+    nearest_idx: Vec<u32>,
+    centroids: Vec<[f32; 3]>,
+    normals: Vec<[f32; 3]>,
+    cloth: Cloth<f32>,
+    objective: Objective,
+    ws: FastWorkspace,
+}
+
+impl<'a> Trainer<'a> {
+    fn new(
+        h: usize,
+        garment: &'a Garment,
+        graph: &'a Graph,
+        mesh: &'a hood::body::BodyMesh,
+        state: &'a SimState,
+        next: &'a [[f32; 3]],
+    ) -> Trainer<'a> {
+        let spec = ModelSpec::hood(h);
+        let mut params = Params::init(&spec, 1).unwrap();
+        let n = garment.n_vertices();
+        let mut t = Trainer {
+            garment,
+            graph,
+            mesh,
+            state,
+            next,
+            spec: spec.clone(),
+            net: Network::of(&params).unwrap(),
+            stats: Stats::of(&params),
+            theta: Vec::new(),
+            adam: Adam::new(0),
+            grad: Vec::new(),
+            dx: vec![[0.0; 3]; n],
+            builder: InputBuilder::default(),
+            step: StepData::default(),
+            body_frame: BodyFrame::new(mesh).unwrap(),
+            nearest: vec![Nearest { index: 0, distance: 0.0 }; n],
+            nearest_idx: vec![0; n],
+            centroids: vec![[0.0; 3]; mesh.n_faces()],
+            normals: vec![[0.0; 3]; mesh.n_faces()],
+            cloth: Cloth::new(garment),
+            objective: Objective { friction: None, ..Objective::training(5e3) },
+            ws: FastWorkspace::default(),
+        };
+        t.inputs();
+        // Normalisers fitted to this step (the trainer accumulates them the same way).
+        let nz = &mut params.normalisers;
+        nz.node.accumulate(&t.step.node_features, 24);
+        nz.edge.accumulate(&t.step.edge_features[3], 12);
+        nz.body_edge.accumulate(&t.step.g2b_features, 9);
+        nz.output.accumulate(&vec![1e-3f32; 64 * 3], 3);
+        t.stats = Stats::of(&params);
+        t.theta = t.net.layout.flatten(&params);
+        t.adam = Adam::new(t.theta.len());
+        t.grad = vec![0.0; t.theta.len()];
+        t
+    }
+
+    /// The step's network inputs and the objective's body data.
+    fn inputs(&mut self) {
+        let g = self.garment;
+        let gs = GarmentState {
+            pos: &self.state.pos,
+            velocity: &self.state.velocity,
+            pinned: g.pinned(),
+            pin_targets: g.rest(),
+        };
+        let bf =
+            BodyFrames { mesh: self.mesh, prev: &self.state.body_prev, pos: &self.state.body_pos, next: self.next };
+        self.builder.build(&self.spec, g, self.graph, &gs, Some(&bf), DT, &mut self.step).unwrap();
+        self.body_frame.update(self.mesh, &self.state.body_pos).unwrap();
+        self.body_frame.nearest_faces(&self.step.pos, &mut self.nearest).unwrap();
+        for (i, q) in self.nearest_idx.iter_mut().zip(&self.nearest) {
+            *i = q.index;
+        }
+        face_frames(self.next, self.mesh.faces(), &mut self.centroids, &mut self.normals).unwrap();
+    }
+
+    fn forward(&mut self, pool: &ThreadPool) {
+        self.net.forward_fast(&mut self.ws, pool, &self.theta, &self.stats, self.graph, &self.step).unwrap();
+    }
+
+    fn losses(&mut self) -> f32 {
+        let inputs = StepInputs {
+            pos: &self.step.pos,
+            velocity: &self.step.velocity,
+            dt: DT,
+            collision: Some(CollisionInput {
+                nearest: &self.nearest_idx,
+                next: FaceFrame { centroids: &self.centroids, normals: &self.normals },
+            }),
+            friction: None,
+        };
+        self.objective.eval(&self.cloth, &inputs, &self.ws.new_pos, Some(&mut self.dx)).unwrap().total()
+    }
+
+    fn backward(&mut self, pool: &ThreadPool) {
+        self.grad.iter_mut().for_each(|g| *g = 0.0);
+        let (net, ws) = (&self.net, &mut self.ws);
+        net.backward_fast(ws, pool, &self.theta, &self.stats, self.graph, &self.step, &self.dx, &mut self.grad)
+            .unwrap();
+    }
+
+    /// One whole optimiser step.
+    fn optimiser_step(&mut self, pool: &ThreadPool) -> f32 {
+        self.inputs();
+        self.forward(pool);
+        let loss = self.losses();
+        self.backward(pool);
+        clip_global_norm(&mut self.grad, 1.0);
+        self.adam.step(&mut self.theta, &self.grad, learning_rate(self.adam.t));
+        loss
+    }
+}
+
+fn bench_train(c: &mut Criterion) {
+    let Ok(w) = workload("tee", &default_shared_dir()) else {
+        eprintln!("train: skipped (the fixture t-shirt under ../shared is absent)");
+        return;
+    };
+    let (mesh, frames) = w.body.as_ref().unwrap();
+    let state = w.fixed_state.clone().unwrap();
+    let graph = w.graph.clone().unwrap();
+    let mut g = c.benchmark_group("train");
+    g.sample_size(10).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(4));
+    for h in [32, 64, 128] {
+        let mut t = Trainer::new(h, &w.garment, &graph, mesh, &state, &frames[1]);
+        for threads in [1, 2] {
+            let pool = ThreadPool::new(threads);
+            let id = |what: &str| BenchmarkId::new(what, format!("h{h}/t{threads}"));
+            g.bench_function(id("step"), |b| b.iter(|| black_box(t.optimiser_step(&pool))));
+            t.optimiser_step(&pool);
+            g.bench_function(id("forward"), |b| b.iter(|| t.forward(&pool)));
+            g.bench_function(id("backward"), |b| b.iter(|| t.backward(&pool)));
+        }
+        g.bench_function(BenchmarkId::new("losses", format!("h{h}")), |b| b.iter(|| black_box(t.losses())));
+        g.bench_function(BenchmarkId::new("inputs", format!("h{h}")), |b| b.iter(|| t.inputs()));
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_train);
+criterion_main!(benches);
