@@ -401,9 +401,149 @@ fn body_query_omitted_nearest_has_no_fallback() {
     frame.update(&mesh, &v).unwrap();
     let g = [[0.001, 0.0, 0.0], [0.019, 0.0, 0.0], [0.5, 0.5, 0.0]];
     let mut raw = [None; 3];
-    frame.vertex_grid().nearest_within(&g, 0.03, &mut raw).unwrap();
+    frame.vertex_tree().nearest_within(&g, 0.03, &mut raw).unwrap();
     assert_eq!(raw.map(|n| n.map(|n| n.index)), [Some(0), Some(1), None]);
     let mut out = [None; 3];
     assert_eq!(frame.body_edges(&mesh, &g, 0.03, &mut out).unwrap(), 1);
     assert_eq!(out.map(|n| n.map(|n| n.index)), [None, Some(1), None]);
+}
+
+/// Random rigid-ish motion plus jitter of a point set (a body between frames), or a large
+/// deformation (every point moved independently) that forces a rebuild.
+fn moved(rng: &mut Rng, pts: &[[f32; 3]], deform: bool) -> Vec<[f32; 3]> {
+    let t = [rng.range(-0.3, 0.3), rng.range(-0.3, 0.3), rng.range(-0.3, 0.3)];
+    let (s, c) = libm::sincosf(rng.range(-0.5, 0.5));
+    pts.iter()
+        .map(|p| {
+            if deform {
+                return [p[0] + rng.range(-1.0, 1.0), p[1] + rng.range(-1.0, 1.0), p[2]];
+            }
+            let j = 0.002;
+            [
+                c * p[0] - s * p[2] + t[0] + rng.range(-j, j),
+                p[1] + t[1] + rng.range(-j, j),
+                s * p[0] + c * p[2] + t[2] + rng.range(-j, j),
+            ]
+        })
+        .collect()
+}
+
+#[test]
+fn body_query_tree_nearest_matches_brute_force_while_points_move() {
+    let mut rng = Rng(11);
+    let mut tree = PointTree::new(3000).unwrap();
+    let mut prev_n = 0;
+    for round in 0..30 {
+        let kind = round % 5;
+        let n = [1, 2, 5, 9, 17, 300, 3000][rng.below(7)];
+        let mut pts = random_cloud(&mut rng, kind, n);
+        let builds = tree.builds();
+        for frame in 0..4 {
+            if frame > 0 {
+                pts = moved(&mut rng, &pts, frame == 3);
+            }
+            tree.rebuild(&pts).unwrap();
+            let qs = random_queries(&mut rng, &pts, 200);
+            let mut out = vec![Nearest { index: 0, distance: 0.0 }; qs.len()];
+            tree.nearest(&qs, &mut out).unwrap();
+            for (q, got) in qs.iter().zip(&out) {
+                let want = brute(&pts, *q, f32::INFINITY).unwrap();
+                assert_eq!(*got, want, "round {round} frame {frame} kind {kind} n {n} query {q:?}");
+            }
+            let hints: Vec<u32> = (0..qs.len())
+                .map(|k| match k % 4 {
+                    0 => out[k].index,
+                    1 => rng.below(n) as u32,
+                    2 => u32::MAX,
+                    _ => n as u32 + 3,
+                })
+                .collect();
+            let mut hinted = vec![Nearest { index: 0, distance: 0.0 }; qs.len()];
+            tree.nearest_hinted(&qs, &hints, &mut hinted).unwrap();
+            assert_eq!(hinted, out, "round {round}: hints changed the result");
+            for r in [0.0, 0.01, 0.03, 0.2] {
+                let mut within = vec![None; qs.len()];
+                let mut within_hinted = vec![None; qs.len()];
+                tree.nearest_within(&qs, r, &mut within).unwrap();
+                tree.nearest_within_hinted(&qs, r, &hints, &mut within_hinted).unwrap();
+                for (q, got) in qs.iter().zip(&within) {
+                    assert_eq!(*got, brute(&pts, *q, r * r), "round {round} frame {frame} r {r} query {q:?}");
+                }
+                assert_eq!(within, within_hinted, "round {round}: hints changed the radius result");
+            }
+        }
+        assert!(tree.builds() > builds || n == prev_n, "round {round}: a new point count must be built");
+        prev_n = n;
+    }
+}
+
+#[test]
+fn body_query_tree_refits_small_motions_and_rebuilds_large_ones() {
+    let mut rng = Rng(12);
+    let mut tree = PointTree::new(2000).unwrap();
+    let mut pts = random_cloud(&mut rng, 1, 2000);
+    tree.rebuild(&pts).unwrap();
+    assert_eq!(tree.builds(), 1);
+    assert!(tree.leaves() >= 2000 / LEAF && tree.leaves() <= 2 * 2000 / LEAF, "{} leaves", tree.leaves());
+    for _ in 0..5 {
+        pts = moved(&mut rng, &pts, false);
+        tree.rebuild(&pts).unwrap();
+    }
+    assert_eq!(tree.builds(), 1, "rigid motions with jitter only refit");
+    pts = moved(&mut rng, &pts, true);
+    tree.rebuild(&pts).unwrap();
+    assert_eq!(tree.builds(), 2, "a large deformation rebuilds");
+    let (lo, hi) = tree.bounds();
+    for p in &pts {
+        assert!((0..3).all(|a| lo[a] <= p[a] && p[a] <= hi[a]));
+    }
+}
+
+#[test]
+fn body_query_tree_radius_ties_and_errors() {
+    let r = 0.03f32;
+    let q = [1.0f32, 2.0, 3.0];
+    let far = f32::from_bits((q[0] + r).to_bits() + 1);
+    // Padded with distant points so that the exact pair sits in a leaf of a deeper tree.
+    let mut pts = vec![[far, q[1], q[2]], [q[0], q[1] + r, q[2]], [q[0], q[1], q[2] - r], [q[0] - 0.5, q[1], q[2]]];
+    pts.extend((0..40).map(|k| [5.0 + k as f32, 0.0, 0.0]));
+    let mut tree = PointTree::new(64).unwrap();
+    tree.rebuild(&pts).unwrap();
+    let exact = d2(pts[1], q);
+    assert_eq!(exact, d2(pts[2], q));
+    assert_eq!(tree.nearest_within_one(q, libm::sqrtf(exact)).map(|n| n.index), Some(1));
+    assert_eq!(tree.nearest_within_one(q, f32::from_bits(libm::sqrtf(exact).to_bits() - 1)), None);
+    // Ties: duplicates, in either order, also across leaves.
+    let mut dup: Vec<[f32; 3]> = (0..30).map(|k| [k as f32, 5.0, 0.0]).collect();
+    dup.extend([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]);
+    tree.rebuild(&dup).unwrap();
+    assert_eq!(tree.nearest_one([0.0, 0.0, 0.0]).unwrap().index, 30);
+    assert_eq!(tree.nearest_one([-1.0, 0.0, 0.0]).unwrap().index, 31);
+    dup.reverse();
+    tree.rebuild(&dup).unwrap();
+    assert_eq!(tree.nearest_one([0.0, 0.0, 0.0]).unwrap().index, 0);
+    assert_eq!(
+        tree.nearest_one([0.0, 1e30, 0.0]).map(|n| n.index),
+        brute(&dup, [0.0, 1e30, 0.0], f32::INFINITY).map(|n| n.index)
+    );
+    assert_eq!(tree.nearest_one([f32::NAN, 0.0, 0.0]), None);
+    // Errors leave the tree empty; an empty tree answers nothing.
+    assert_eq!(
+        tree.rebuild(&[[0.0; 3]; 65]),
+        Err(Error::CapacityExceeded { what: "tree points", capacity: 64, needed: 65 })
+    );
+    assert!(tree.is_empty());
+    let mut near = [Nearest { index: 0, distance: 0.0 }];
+    assert_eq!(tree.nearest(&[[0.0; 3]], &mut near), Err(Error::Empty { what: "point tree" }));
+    assert_eq!(tree.rebuild(&[[0.0; 3], [f32::NAN, 0.0, 0.0]]), Err(Error::NonFinite { what: "tree point", index: 1 }));
+    tree.rebuild(&[[0.0; 3]]).unwrap();
+    let qs = [[0.0; 3], [0.0, f32::INFINITY, 0.0]];
+    let mut out2 = [None; 2];
+    assert_eq!(tree.nearest_within(&qs, 1.0, &mut out2), Err(Error::NonFinite { what: "query point", index: 1 }));
+    assert_eq!(
+        tree.nearest_within(&qs[..1], -1.0, &mut out2[..1]),
+        Err(Error::OutOfRange { what: "query radius", index: 0 })
+    );
+    tree.rebuild(&[]).unwrap();
+    assert_eq!(tree.nearest_one([1.0, 0.0, 0.0]), None);
 }
