@@ -55,12 +55,14 @@ fn bench(c: &mut Criterion) {
     let mut nearest = vec![Nearest { index: 0, distance: 0.0 }; garment.len()];
     let n_edges = frame.body_edges(&mesh, &garment, RADIUS, &mut edges).unwrap();
     eprintln!(
-        "{what}: {} vertices, {} faces, {} garment points, {n_edges} body edges; vertex tree {} leaves, centroid tree {} leaves",
+        "{what}: {} vertices, {} faces, {} garment points, {n_edges} body edges; vertex grid {:?} cells of {:.4} m, centroid grid {:?} cells of {:.4} m",
         body.len(),
         faces.len(),
         garment.len(),
-        frame.vertex_tree().leaves(),
-        frame.centroid_tree().leaves(),
+        frame.vertex_grid().cells(),
+        frame.vertex_grid().cell_size(),
+        frame.centroid_grid().cells(),
+        frame.centroid_grid().cell_size()
     );
 
     let mut g = c.benchmark_group("body_query");

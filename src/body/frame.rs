@@ -1,11 +1,11 @@
-//! One frame of the body: centroids, normals and the two point trees, in buffers sized once.
+//! One frame of the body: centroids, normals and both grids, in buffers sized once.
 
-use super::{BodyMesh, Nearest, PointTree};
+use super::{BodyMesh, Nearest, PointGrid};
 use crate::error::{Error, Result};
 use alloc::vec;
 use alloc::vec::Vec;
 
-/// The body's geometry at one frame and the two nearest-point trees (body vertices, face
+/// The body's geometry at one frame and the two nearest-point grids (body vertices, face
 /// centroids). [`new`](Self::new) sizes everything for one [`BodyMesh`]; [`update`](Self::update)
 /// and the queries then allocate nothing.
 #[derive(Clone, Debug)]
@@ -14,9 +14,13 @@ pub struct BodyFrame {
     centroids: Vec<[f32; 3]>,
     face_normals: Vec<[f32; 3]>,
     vertex_normals: Vec<[f32; 3]>,
-    vertex_tree: PointTree,
-    centroid_tree: PointTree,
+    vertex_grid: PointGrid,
+    centroid_grid: PointGrid,
 }
+
+/// Cells allowed per point: the grids aim for [`super::DEFAULT_CELLS_PER_POINT`], this leaves
+/// room for flat or thin point sets, whose block padding wastes cells.
+const MAX_CELLS_PER_POINT: usize = 32;
 
 impl BodyFrame {
     /// Buffers and grids for `mesh` (empty until the first [`update`](Self::update)).
@@ -27,12 +31,22 @@ impl BodyFrame {
             centroids: vec![[0.0; 3]; nf],
             face_normals: vec![[0.0; 3]; nf],
             vertex_normals: vec![[0.0; 3]; nv],
-            vertex_tree: PointTree::new(nv)?,
-            centroid_tree: PointTree::new(nf)?,
+            vertex_grid: PointGrid::new(nv, (MAX_CELLS_PER_POINT * nv).max(64))?,
+            centroid_grid: PointGrid::new(nf, (MAX_CELLS_PER_POINT * nf).max(64))?,
         })
     }
 
-    /// Recomputes centroids, face and vertex normals and both trees at `positions` (metres, one
+    /// Sets the cells per point of both grids (speed only), see
+    /// [`PointGrid::set_cells_per_point`].
+    ///
+    /// # Errors
+    /// [`Error::OutOfRange`] for a non-positive or non-finite value.
+    pub fn set_cells_per_point(&mut self, cells_per_point: f32) -> Result<()> {
+        self.vertex_grid.set_cells_per_point(cells_per_point)?;
+        self.centroid_grid.set_cells_per_point(cells_per_point)
+    }
+
+    /// Recomputes centroids, face and vertex normals and both grids at `positions` (metres, one
     /// per body vertex).
     ///
     /// # Errors
@@ -54,8 +68,8 @@ impl BodyFrame {
         self.rebuild_grids(positions)
     }
 
-    /// Refits only the two trees at `positions` (for callers that compute normals
-    /// themselves): the face centroids are recomputed first, since the centroid tree needs them.
+    /// Rebuilds only the two grids at `positions` (for callers that compute normals
+    /// themselves): the face centroids are recomputed first, since the centroid grid needs them.
     ///
     /// # Errors
     /// As [`update`](Self::update).
@@ -73,8 +87,8 @@ impl BodyFrame {
     }
 
     fn rebuild_grids(&mut self, positions: &[[f32; 3]]) -> Result<()> {
-        self.vertex_tree.rebuild(positions)?;
-        self.centroid_tree.rebuild(&self.centroids)
+        self.vertex_grid.rebuild(positions)?;
+        self.centroid_grid.rebuild(&self.centroids)
     }
 
     /// Face centroids of the last update, metres.
@@ -89,22 +103,22 @@ impl BodyFrame {
     pub fn vertex_normals(&self) -> &[[f32; 3]] {
         &self.vertex_normals
     }
-    /// The tree over the body vertices.
-    pub fn vertex_tree(&self) -> &PointTree {
-        &self.vertex_tree
+    /// The grid over the body vertices.
+    pub fn vertex_grid(&self) -> &PointGrid {
+        &self.vertex_grid
     }
-    /// The tree over the face centroids.
-    pub fn centroid_tree(&self) -> &PointTree {
-        &self.centroid_tree
+    /// The grid over the face centroids.
+    pub fn centroid_grid(&self) -> &PointGrid {
+        &self.centroid_grid
     }
 
     /// Body edges (MODEL.md section 1): for every garment vertex (metres), its nearest body vertex
     /// if that is within `radius` (inclusive) and not `body_omitted`, else `None`. This is
-    /// [`PointTree::nearest_within`] followed by [`BodyMesh::keep_not_omitted`]. Returns the number
+    /// [`PointGrid::nearest_within`] followed by [`BodyMesh::keep_not_omitted`]. Returns the number
     /// of edges.
     ///
     /// # Errors
-    /// As [`PointTree::nearest_within`].
+    /// As [`PointGrid::nearest_within`].
     pub fn body_edges(
         &self,
         mesh: &BodyMesh,
@@ -112,16 +126,16 @@ impl BodyFrame {
         radius: f32,
         out: &mut [Option<Nearest>],
     ) -> Result<usize> {
-        self.vertex_tree.nearest_within(garment, radius, out)?;
+        self.vertex_grid.nearest_within(garment, radius, out)?;
         Ok(mesh.keep_not_omitted(out))
     }
 
     /// As [`body_edges`](Self::body_edges), starting each search from a guessed body vertex
-    /// (e.g. last frame's; `u32::MAX` for none), see [`PointTree::nearest_within_hinted`]. Same
+    /// (e.g. last frame's; `u32::MAX` for none), see [`PointGrid::nearest_within_hinted`]. Same
     /// result, usually faster.
     ///
     /// # Errors
-    /// As [`PointTree::nearest_within_hinted`].
+    /// As [`PointGrid::nearest_within_hinted`].
     pub fn body_edges_hinted(
         &self,
         mesh: &BodyMesh,
@@ -130,7 +144,7 @@ impl BodyFrame {
         hints: &[u32],
         out: &mut [Option<Nearest>],
     ) -> Result<usize> {
-        self.vertex_tree.nearest_within_hinted(garment, radius, hints, out)?;
+        self.vertex_grid.nearest_within_hinted(garment, radius, hints, out)?;
         Ok(mesh.keep_not_omitted(out))
     }
 
@@ -138,17 +152,17 @@ impl BodyFrame {
     /// used by the collision and friction terms.
     ///
     /// # Errors
-    /// As [`PointTree::nearest`].
+    /// As [`PointGrid::nearest`].
     pub fn nearest_faces(&self, garment: &[[f32; 3]], out: &mut [Nearest]) -> Result<()> {
-        self.centroid_tree.nearest(garment, out)
+        self.centroid_grid.nearest(garment, out)
     }
 
     /// As [`nearest_faces`](Self::nearest_faces), starting each search from a guessed face (e.g.
-    /// last frame's answer), see [`PointTree::nearest_hinted`]. Same result, usually much faster.
+    /// last frame's answer), see [`PointGrid::nearest_hinted`]. Same result, usually much faster.
     ///
     /// # Errors
-    /// As [`PointTree::nearest_hinted`].
+    /// As [`PointGrid::nearest_hinted`].
     pub fn nearest_faces_hinted(&self, garment: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
-        self.centroid_tree.nearest_hinted(garment, hints, out)
+        self.centroid_grid.nearest_hinted(garment, hints, out)
     }
 }

@@ -6,9 +6,7 @@
 //! * [`geometry`]: face centroids, unit face normals and unit vertex normals into caller buffers.
 //! * [`PointGrid`]: a uniform grid rebuilt every frame without allocation, answering exact
 //!   nearest-point queries, with and without a radius.
-//! * [`PointTree`]: a bounding-box tree refitted every frame without allocation, answering the
-//!   same exact queries faster on bodies of uneven density (the runtime's index).
-//! * [`BodyFrame`]: owns the buffers and the two trees (vertices, face centroids) of one frame and
+//! * [`BodyFrame`]: owns the buffers and the two grids (vertices, face centroids) of one frame and
 //!   answers the two queries of the model: body edges and nearest faces.
 //! * [`shapes`]: procedural closed bodies.
 
@@ -17,11 +15,9 @@ pub mod geometry;
 mod grid;
 pub mod rigid;
 pub mod shapes;
-mod tree;
 
 pub use frame::BodyFrame;
 pub use grid::{Nearest, PointGrid, BLOCK, DEFAULT_CELLS_PER_POINT};
-pub use tree::{PointTree, LEAF, REBUILD_GROWTH};
 
 use crate::error::{Error, Result};
 use crate::math::finite3;

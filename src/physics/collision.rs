@@ -67,17 +67,10 @@ impl CentroidQuery for crate::body::PointGrid {
     }
 }
 
-/// The body module's tree over face centroids (rebuilt by the caller for the frame).
-impl CentroidQuery for crate::body::PointTree {
-    fn nearest(&self, p: [f32; 3]) -> u32 {
-        self.nearest_one(p).map_or(0, |n| n.index)
-    }
-}
-
-/// A body frame answers through its centroid tree.
+/// A body frame answers through its centroid grid.
 impl CentroidQuery for crate::body::BodyFrame {
     fn nearest(&self, p: [f32; 3]) -> u32 {
-        CentroidQuery::nearest(self.centroid_tree(), p)
+        CentroidQuery::nearest(self.centroid_grid(), p)
     }
 }
 
