@@ -190,3 +190,48 @@ fn fixture_tee(shared: &Path, subdivide: bool) -> Result<Workload> {
         worn: None,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
+    use crate::sim::{BodyDesc, SimConfig};
+
+    #[test]
+    fn workloads_worn_sequence_steps_through_the_walk() {
+        let w = worn_procedural("skirt-small", GarmentKind::Skirt, 300).unwrap();
+        let worn = w.worn.as_ref().unwrap();
+        let (_, frames) = w.body.as_ref().unwrap();
+        assert_eq!(worn.states.len(), frames.len() - 2);
+        assert!(!w.startup());
+        let pinned: Vec<usize> = (0..w.garment.n_vertices()).filter(|&i| w.garment.pinned()[i]).collect();
+        assert!(!pinned.is_empty(), "the skirt's waist is pinned");
+        for (k, s) in worn.states.iter().enumerate() {
+            assert!(s.started);
+            assert_eq!(s.body_prev, frames[k]);
+            assert_eq!(s.body_pos, frames[k + 1]);
+        }
+        // The waist's targets move with the walk from step to step.
+        let last = worn.pin_targets.len() - 1;
+        let moved = pinned.iter().map(|&i| (worn.pin_targets[last][i][2] - worn.pin_targets[0][i][2]).abs());
+        assert!(moved.fold(0.0f32, f32::max) > 0.2, "pins should follow the walking body");
+
+        let mut p = Params::init(&ModelSpec::hood(8), 0).unwrap();
+        p.normalisers = Normalisers::unit_scale(1);
+        let bytes = ModelBytes::new(&write_model(&p, false, &[]).unwrap());
+        let model = bytes.model().unwrap();
+        let (mesh, frames) = w.body.as_ref().unwrap();
+        let cfg = SimConfig { startup: w.startup(), ..SimConfig::default() };
+        let mut sim = Sim::new(&model, &w.garment, Some(BodyDesc { mesh, positions: &frames[0] }), cfg).unwrap();
+        for t in [0, 1, worn.states.len() + 3] {
+            let k = t % worn.states.len();
+            let next = w.prepare_step(&mut sim, t).unwrap();
+            assert_eq!(next, &frames[k + 2][..], "step {t} goes to frame {}", k + 2);
+            assert_eq!(sim.state().pos, worn.states[k].pos, "step {t} restarts from its state");
+            let out = sim.step(next).unwrap();
+            for &i in &pinned {
+                assert_eq!(out[i], worn.pin_targets[k][i], "step {t}: pinned vertex {i} sits at its target");
+            }
+        }
+    }
+}
