@@ -1,7 +1,7 @@
 //! Step latency (criterion): workloads x model sizes x precision x threads, and the cost of each
 //! effect. `hood bench` prints the same measurements with FLOP counts and efficiency.
 
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode};
 use hood::model::{write_model, ModelBytes, ModelSpec, Params};
 use hood::sim::{BodyDesc, Precision, Sim, SimConfig, SimState};
 use hood::workloads::{default_shared_dir, workload, Workload};
@@ -17,7 +17,7 @@ fn random_model(h: usize) -> ModelBytes {
 /// A sim for `w` and the state every timed step restarts from (if the workload fixes one).
 fn sim<'m>(w: &Workload, model: &'m hood::model::Model<'m>, cfg: SimConfig) -> (Sim<'m>, Option<SimState>) {
     let body = w.body.as_ref().map(|(mesh, frames)| BodyDesc { mesh, positions: &frames[0] });
-    let cfg = SimConfig { startup: w.fixed_state.is_none(), ..cfg };
+    let cfg = SimConfig { startup: w.startup(), ..cfg };
     let mut s = match &w.graph {
         Some(g) => Sim::with_graph(model, &w.garment, g.clone(), body, cfg).unwrap(),
         None => Sim::new(model, &w.garment, body, cfg).unwrap(),
@@ -35,42 +35,73 @@ fn sim<'m>(w: &Workload, model: &'m hood::model::Model<'m>, cfg: SimConfig) -> (
     (s, state)
 }
 
+/// One timed step: the workload's own start state, pins and body frame (`Workload::prepare_step`),
+/// except with body collision off, where the fixed state without its body is restored.
 fn step_once(s: &mut Sim<'_>, state: &Option<SimState>, w: &Workload, t: usize) {
-    if let Some(st) = state {
-        s.set_state(st).unwrap();
-    }
-    let frame: &[[f32; 3]] = match &w.body {
-        Some((_, frames)) if s.config().body_collision => &frames[1 + t % (frames.len() - 1)],
-        _ => &[],
+    let frame: &[[f32; 3]] = if s.config().body_collision {
+        w.prepare_step(s, t).unwrap()
+    } else {
+        if let Some(st) = state {
+            s.set_state(st).unwrap();
+        }
+        &[]
     };
     black_box(s.step(frame).unwrap());
+}
+
+/// `(latent, precision, threads)` timed per workload: everything on the small ones; on the walk
+/// workloads (seconds per step) h = 128 in full and the smaller models at 2 threads only.
+fn matrix(name: &str) -> Vec<(usize, Precision, usize)> {
+    let mut m = Vec::new();
+    for h in [128, 64, 32] {
+        for precision in [Precision::F32, Precision::Bf16] {
+            for threads in [1, 2] {
+                let full = h == 128 || matches!(name, "grid-1k" | "tee");
+                let wanted = match name {
+                    "dress-12k" => h == 128 || (threads == 2 && precision == Precision::F32),
+                    _ => full || threads == 2,
+                };
+                if wanted {
+                    m.push((h, precision, threads));
+                }
+            }
+        }
+    }
+    m
 }
 
 fn bench_step(c: &mut Criterion) {
     let shared = default_shared_dir();
     let mut g = c.benchmark_group("step");
     g.sample_size(10).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(5));
-    for name in ["grid-1k", "tee"] {
-        let Ok(w) = workload(name, &shared) else {
-            eprintln!("step/{name}: skipped (its files are absent)");
-            continue;
-        };
-        for h in [128, 64, 32] {
-            let bytes = random_model(h);
-            let model = bytes.model().unwrap();
-            for (precision, p) in [(Precision::F32, "f32"), (Precision::Bf16, "bf16")] {
-                for threads in [1, 2] {
-                    let (mut s, st) = sim(&w, &model, SimConfig { precision, threads, ..SimConfig::default() });
-                    let mut t = 0;
-                    let id = BenchmarkId::new(format!("{name}/h{h}/{p}"), format!("{threads}t"));
-                    g.bench_function(id, |b| {
-                        b.iter(|| {
-                            t += 1;
-                            step_once(&mut s, &st, &w, t)
-                        })
-                    });
-                }
+    for name in ["grid-1k", "skirt-4k", "dress-12k", "tee"] {
+        let w = match workload(name, &shared) {
+            Ok(w) => w,
+            Err(e) => {
+                eprintln!("step/{name}: skipped ({e})");
+                continue;
             }
+        };
+        // Steps of the walk workloads take seconds: one step per sample.
+        g.sampling_mode(if w.worn.is_some() { SamplingMode::Flat } else { SamplingMode::Auto });
+        let mut last_h = 0;
+        let mut bytes = random_model(128);
+        for (h, precision, threads) in matrix(name) {
+            if h != last_h {
+                bytes = random_model(h);
+                last_h = h;
+            }
+            let model = bytes.model().unwrap();
+            let p = if precision == Precision::Bf16 { "bf16" } else { "f32" };
+            let (mut s, st) = sim(&w, &model, SimConfig { precision, threads, ..SimConfig::default() });
+            let mut t = 0;
+            let id = BenchmarkId::new(format!("{name}/h{h}/{p}"), format!("{threads}t"));
+            g.bench_function(id, |b| {
+                b.iter(|| {
+                    t += 1;
+                    step_once(&mut s, &st, &w, t)
+                })
+            });
         }
     }
     g.finish();

@@ -60,26 +60,17 @@ pub fn bench_step(
     steps: usize,
     peak: &peak::Peak,
 ) -> Result<BenchRow> {
-    let cfg = SimConfig { precision, threads, startup: w.fixed_state.is_none(), ..SimConfig::default() };
+    let cfg = SimConfig { precision, threads, startup: w.startup(), ..SimConfig::default() };
     let body = w.body.as_ref().map(|(mesh, frames)| BodyDesc { mesh, positions: &frames[0] });
     let mut sim = match &w.graph {
         Some(g) => Sim::with_graph(model, &w.garment, g.clone(), body, cfg)?,
         None => Sim::new(model, &w.garment, body, cfg)?,
     };
-    let empty: Vec<[f32; 3]> = Vec::new();
-    let frame = |t: usize| -> &[[f32; 3]] {
-        match &w.body {
-            Some((_, frames)) => &frames[1 + t % (frames.len() - 1)],
-            None => &empty,
-        }
-    };
     let mut times = Vec::with_capacity(steps);
     for t in 0..warmup + steps {
-        if let Some(s) = &w.fixed_state {
-            sim.set_state(s)?;
-        }
+        let next = w.prepare_step(&mut sim, t)?;
         let start = Instant::now();
-        sim.step(frame(t))?;
+        sim.step(next)?;
         let ms = start.elapsed().as_secs_f64() * 1e3;
         if t >= warmup {
             times.push(ms);

@@ -6,7 +6,9 @@ use crate::body::BodyMesh;
 use crate::error::{Error, Result};
 use crate::io::safetensors::SafeTensors;
 use crate::mesh::{shapes, Garment, GarmentDesc};
-use crate::sim::{Graph, SimState};
+use crate::rig::procedural::Mannequin;
+use crate::scene::{self, GarmentKind, MotionKind};
+use crate::sim::{Graph, Sim, SimState};
 use std::path::{Path, PathBuf};
 use std::string::{String, ToString};
 use std::vec::Vec;
@@ -24,10 +26,59 @@ pub struct Workload {
     pub fixed_state: Option<SimState>,
     /// A prepared graph (the fixture's reference coarse edges), if any.
     pub graph: Option<Graph>,
+    /// The garment worn through a body motion, frame by frame (the procedural scenes).
+    pub worn: Option<WornSequence>,
+}
+
+/// A garment worn on a moving body, as start states for the timed steps: step `t` restarts from
+/// `states[t % len]` (the garment skinned to body frame `k + 1` and pushed out of the body, its
+/// velocity the skinned motion since frame `k`), sets the pinned vertices' targets to
+/// `pin_targets[t % len]` (frame `k + 2`) and steps the body to frame `k + 2`. So every timed
+/// step is a step of a garment worn on the walking body, with a realistic number of body edges,
+/// whatever the (random) weights of the timed model do to the garment.
+pub struct WornSequence {
+    /// Start state per step, at 30 Hz.
+    pub states: Vec<SimState>,
+    /// Targets of the pinned vertices per step (one entry per garment vertex), m.
+    pub pin_targets: Vec<Vec<[f32; 3]>>,
+}
+
+impl Workload {
+    /// Whether a [`Sim`] of this workload runs the start-up step (not when every timed step
+    /// restarts from a prepared state).
+    pub fn startup(&self) -> bool {
+        self.fixed_state.is_none() && self.worn.is_none()
+    }
+
+    /// Readies `sim` (built for this workload, body collision on) for timed step `t`: restores
+    /// the step's start state and pin targets, if the workload has them. Returns the body
+    /// positions to pass to [`Sim::step`] (empty without a body).
+    ///
+    /// # Errors
+    /// Errors of [`Sim::set_state`] and [`Sim::set_pin_targets`] (a sim of another workload).
+    pub fn prepare_step(&self, sim: &mut Sim<'_>, t: usize) -> Result<&[[f32; 3]]> {
+        if let Some(w) = &self.worn {
+            let k = t % w.states.len();
+            sim.set_state(&w.states[k])?;
+            sim.set_pin_targets(&w.pin_targets[k])?;
+        } else if let Some(s) = &self.fixed_state {
+            sim.set_state(s)?;
+        }
+        Ok(match &self.body {
+            Some((_, frames)) if sim.config().body_collision => match &self.worn {
+                Some(w) => &frames[(t % w.states.len()) + 2],
+                None => &frames[1 + t % (frames.len() - 1)],
+            },
+            _ => &[],
+        })
+    }
 }
 
 /// Names [`workload`] knows.
-pub const NAMES: &[&str] = &["grid-1k", "tee", "tee-sub"];
+pub const NAMES: &[&str] = &["grid-1k", "skirt-4k", "dress-12k", "tee", "tee-sub"];
+
+/// Seconds of the walk the procedural workloads step through (30 frames at 30 Hz).
+pub const WALK_SECONDS: f32 = 1.0;
 
 /// `../shared` next to the crate's source checkout.
 pub fn default_shared_dir() -> PathBuf {
@@ -41,6 +92,8 @@ pub fn default_shared_dir() -> PathBuf {
 pub fn workload(name: &str, shared: &Path) -> Result<Workload> {
     match name {
         "grid-1k" => grid_1k(),
+        "skirt-4k" => worn_procedural("skirt-4k", GarmentKind::Skirt, 4400),
+        "dress-12k" => worn_procedural("dress-12k", GarmentKind::Dress, 12_000),
         "tee" => fixture_tee(shared, false),
         "tee-sub" => fixture_tee(shared, true),
         _ => Err(Error::parse("workload", 0, std::format!("unknown workload '{name}' (known: {})", NAMES.join(", ")))),
@@ -55,7 +108,43 @@ fn grid_1k() -> Result<Workload> {
     pinned[0] = true;
     pinned[n - 1] = true;
     let garment = Garment::new(GarmentDesc::new(&rest, &faces).pinned(&pinned))?;
-    Ok(Workload { name: "grid-1k".to_string(), garment, body: None, fixed_state: None, graph: None })
+    Ok(Workload { name: "grid-1k".to_string(), garment, body: None, fixed_state: None, graph: None, worn: None })
+}
+
+/// `skirt-4k` / `dress-12k`: a procedural garment of about `vertices` vertices (its suggested
+/// pins set) on the procedural mannequin walking for [`WALK_SECONDS`], as a [`WornSequence`].
+fn worn_procedural(name: &str, kind: GarmentKind, vertices: usize) -> Result<Workload> {
+    let sc = scene::procedural(&Mannequin::new(), kind, vertices, MotionKind::Walk, WALK_SECONDS)?;
+    let frames = sc.n_frames();
+    if frames < 3 {
+        return Err(Error::Empty { what: "walk frames" });
+    }
+    let worn: Vec<Vec<[f32; 3]>> = (0..frames).map(|f| sc.initial_garment(f)).collect::<Result<_>>()?;
+    let body: Vec<Vec<[f32; 3]>> = (0..frames).map(|f| sc.body_frame(f).to_vec()).collect();
+    let n = sc.garment.n_vertices();
+    let mut states = Vec::with_capacity(frames - 2);
+    let mut pin_targets = Vec::with_capacity(frames - 2);
+    for k in 0..frames - 2 {
+        let velocity = worn[k + 1].iter().zip(&worn[k]).map(|(p, q)| [0, 1, 2].map(|a| p[a] - q[a])).collect();
+        states.push(SimState {
+            pos: worn[k + 1].clone(),
+            velocity,
+            body_prev: body[k].clone(),
+            body_pos: body[k + 1].clone(),
+            started: true,
+        });
+        let mut pins = std::vec![[0.0; 3]; n];
+        sc.skinned_garment(k + 2, &mut pins)?;
+        pin_targets.push(pins);
+    }
+    Ok(Workload {
+        name: name.to_string(),
+        garment: sc.garment,
+        body: Some((sc.body, body)),
+        fixed_state: None,
+        graph: None,
+        worn: Some(WornSequence { states, pin_targets }),
+    })
 }
 
 /// `tee` / `tee-sub`: the reference fixture's scene (the MakeHuman t-shirt on the 13,380-vertex
@@ -98,5 +187,51 @@ fn fixture_tee(shared: &Path, subdivide: bool) -> Result<Workload> {
         body: Some((body, std::vec![bpos, bnext])),
         fixed_state: Some(state),
         graph,
+        worn: None,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
+    use crate::sim::{BodyDesc, SimConfig};
+
+    #[test]
+    fn workloads_worn_sequence_steps_through_the_walk() {
+        let w = worn_procedural("skirt-small", GarmentKind::Skirt, 300).unwrap();
+        let worn = w.worn.as_ref().unwrap();
+        let (_, frames) = w.body.as_ref().unwrap();
+        assert_eq!(worn.states.len(), frames.len() - 2);
+        assert!(!w.startup());
+        let pinned: Vec<usize> = (0..w.garment.n_vertices()).filter(|&i| w.garment.pinned()[i]).collect();
+        assert!(!pinned.is_empty(), "the skirt's waist is pinned");
+        for (k, s) in worn.states.iter().enumerate() {
+            assert!(s.started);
+            assert_eq!(s.body_prev, frames[k]);
+            assert_eq!(s.body_pos, frames[k + 1]);
+        }
+        // The waist's targets move with the walk from step to step.
+        let last = worn.pin_targets.len() - 1;
+        let moved = pinned.iter().map(|&i| (worn.pin_targets[last][i][2] - worn.pin_targets[0][i][2]).abs());
+        assert!(moved.fold(0.0f32, f32::max) > 0.2, "pins should follow the walking body");
+
+        let mut p = Params::init(&ModelSpec::hood(8), 0).unwrap();
+        p.normalisers = Normalisers::unit_scale(1);
+        let bytes = ModelBytes::new(&write_model(&p, false, &[]).unwrap());
+        let model = bytes.model().unwrap();
+        let (mesh, frames) = w.body.as_ref().unwrap();
+        let cfg = SimConfig { startup: w.startup(), ..SimConfig::default() };
+        let mut sim = Sim::new(&model, &w.garment, Some(BodyDesc { mesh, positions: &frames[0] }), cfg).unwrap();
+        for t in [0, 1, worn.states.len() + 3] {
+            let k = t % worn.states.len();
+            let next = w.prepare_step(&mut sim, t).unwrap();
+            assert_eq!(next, &frames[k + 2][..], "step {t} goes to frame {}", k + 2);
+            assert_eq!(sim.state().pos, worn.states[k].pos, "step {t} restarts from its state");
+            let out = sim.step(next).unwrap();
+            for &i in &pinned {
+                assert_eq!(out[i], worn.pin_targets[k][i], "step {t}: pinned vertex {i} sits at its target");
+            }
+        }
+    }
 }

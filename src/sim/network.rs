@@ -16,6 +16,8 @@ use core::ops::Range;
 
 /// Rows per chunk when an MLP runs over many rows (bounds the hidden-layer temporaries).
 const CHUNK: usize = 256;
+/// Floats below which a fill or copy is not worth splitting between tasks.
+const PAR_FLOATS: usize = 1 << 15;
 
 /// What the forward pass needs to know about the step's body edges.
 #[derive(Clone, Copy, Debug)]
@@ -303,7 +305,7 @@ impl Workspace {
         for (bi, (bspec, bview)) in model.spec().blocks.iter().zip(&model.blocks).enumerate() {
             let n_slots = bspec.keys.len() + usize::from(nb > 0);
             for s in &mut self.slots[..n_slots] {
-                s[..rows * h].fill(0.0);
+                par.fill(&mut s[..rows * h]);
             }
             for (ki, (&key, mlp)) in bspec.keys.iter().zip(&bview.edges).enumerate() {
                 let slot = &mut self.slots[ki][..rows * h];
@@ -388,7 +390,7 @@ impl Workspace {
                 }
             }
             // Node update from the latents at the start of the block.
-            self.next_latents[..rows * h].copy_from_slice(&self.latents[..rows * h]);
+            par.copy(&mut self.next_latents[..rows * h], &self.latents[..rows * h]);
             let mut inputs: [Option<&[f32]>; MAX_OPERANDS] = [None; MAX_OPERANDS];
             inputs[0] = Some(&self.latents[..rows * h]);
             for s in 0..n_slots {
@@ -485,6 +487,32 @@ impl Par<'_> {
         first_error(&mut self.errors[..n])
     }
 
+    /// Zeroes `buf`, split between tasks (megabytes per block at h = 128: serially it would
+    /// hold back the second thread).
+    fn fill(&mut self, buf: &mut [f32]) {
+        let len = buf.len();
+        let n = self.tasks.len().min(len.div_ceil(PAR_FLOATS)).max(1);
+        let buf = Disjoint::new(buf);
+        let _ = self.run(n, &|t, _| {
+            // SAFETY: ranges of different tasks are disjoint.
+            unsafe { buf.range(split(len, n, t)) }.fill(0.0);
+            Ok(())
+        });
+    }
+
+    /// `dst.copy_from_slice(src)` (same lengths), split between tasks.
+    fn copy(&mut self, dst: &mut [f32], src: &[f32]) {
+        let len = dst.len().min(src.len());
+        let n = self.tasks.len().min(len.div_ceil(PAR_FLOATS)).max(1);
+        let dst = Disjoint::new(dst);
+        let _ = self.run(n, &|t, _| {
+            let r = split(len, n, t);
+            // SAFETY: ranges of different tasks are disjoint.
+            unsafe { dst.range(r.clone()) }.copy_from_slice(&src[r]);
+            Ok(())
+        });
+    }
+
     /// `mlp` over `rows` rows, split into row ranges per task (see [`Net::mlp_rows`]).
     fn mlp(
         &mut self,
@@ -508,12 +536,12 @@ impl Par<'_> {
             .sum();
         let rest: usize = mlp.layers[1..].iter().map(|l| l.inp * l.out).sum();
         *self.flops += 2 * (rows * (first + rest)) as u64;
-        let chunks = rows.div_ceil(CHUNK);
-        let n = self.tasks.len().min(chunks);
+        // Even row ranges (not whole chunks: a few hundred rows in chunks of 256 would leave one
+        // task with twice the work of another); rows are independent, so the split changes no bit.
+        let n = self.tasks.len().min(rows.div_ceil(64)).max(1);
         let out = Disjoint::new(out);
         self.run(n, &|t, tb| {
-            let c = split(chunks, n, t);
-            let r = (c.start * CHUNK)..(c.end * CHUNK).min(rows);
+            let r = split(rows, n, t);
             // SAFETY: row ranges of different tasks are disjoint.
             let o = unsafe { out.range(r.start * w..r.end * w) };
             net.mlp_rows(mlp, inputs, r, o, residual, tb)
