@@ -460,11 +460,18 @@ impl Scorer {
             }),
             _ => None,
         };
-        let state = StepState { pos: &self.pos, velocity: &self.vel, dt: DT as f64, pinned: &self.pinned, targets: &self.targets };
+        let state = StepState {
+            pos: &self.pos,
+            velocity: &self.vel,
+            dt: DT as f64,
+            pinned: &self.pinned,
+            targets: &self.targets,
+        };
         let terms = self.solver.evaluate(&self.cloth, &self.objective, &state, body.as_ref(), &self.x)?;
         let gap = match gap {
             Some(params) => {
-                let r = self.solver.step(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x_star)?;
+                let r =
+                    self.solver.step(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x_star)?;
                 let model = terms.total();
                 let descent = r.f_start - r.f;
                 let relative = (descent > 1e-12 * r.f_start.abs().max(1e-3)).then(|| (model - r.f) / descent);
@@ -482,6 +489,9 @@ impl Scorer {
         Ok((Some(terms), penetrating, gap))
     }
 }
+
+/// Sees every frame's record and the garment's new positions (m) during a rollout.
+pub type FrameObserver<'a> = dyn FnMut(&FrameRecord, &[[f32; 3]]) -> Result<()> + 'a;
 
 /// [`rollout_observed`] without an observer.
 ///
@@ -514,7 +524,7 @@ pub fn rollout_observed(
     frames: usize,
     cfg: SimConfig,
     options: &RolloutOptions,
-    observer: &mut dyn FnMut(&FrameRecord, &[[f32; 3]]) -> Result<()>,
+    observer: &mut FrameObserver<'_>,
 ) -> Result<Rollout> {
     if frames == 0 {
         return Err(Error::Empty { what: "rollout frames" });
@@ -537,7 +547,8 @@ pub fn rollout_observed(
         started: sim.state().started,
     })?;
     let mut scorer = Scorer::new(anim, &options.objective)?;
-    let mut out = Rollout { frames: Vec::with_capacity(frames), kept: Vec::new(), failure: None, summary: Summary::default() };
+    let mut out =
+        Rollout { frames: Vec::with_capacity(frames), kept: Vec::new(), failure: None, summary: Summary::default() };
     if options.keep.contains(&0) {
         out.kept.push((0, sim.positions().to_vec()));
     }
@@ -579,8 +590,8 @@ pub fn rollout_observed(
         let want_gap = stepped && options.gap_every > 0 && t % options.gap_every == 0;
         let (terms, penetrating_percent, gap) =
             scorer.score(anim, body_frames, stepped, want_gap.then_some(&options.gap_solver))?;
-        let max_speed = scorer.x.iter().zip(&scorer.pos).map(|(a, b)| norm3(sub3(*a, *b))).fold(0.0f64, f64::max)
-            / DT as f64;
+        let max_speed =
+            scorer.x.iter().zip(&scorer.pos).map(|(a, b)| norm3(sub3(*a, *b))).fold(0.0f64, f64::max) / DT as f64;
         let rec = FrameRecord {
             frame: t,
             kind,

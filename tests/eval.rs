@@ -76,9 +76,16 @@ fn eval_frame_objective_matches_the_physics_rollout_score() {
     let r = rollout(&model, &scene, frames, SimConfig::default(), &opts).unwrap();
     assert!(r.failure.is_none(), "{:?}", r.failure);
     let garment: Vec<Vec<[f32; 3]>> = r.kept.iter().map(|k| k.1.clone()).collect();
-    let body: Vec<Vec<[f32; 3]>> = scene.body_frames.clone().collect();
-    let s =
-        score_rollout(&scene.garment, &Objective::evaluation(), &garment, &body, scene.body.as_ref().unwrap().faces(), 1.0 / 30.0).unwrap();
+    let body: Vec<Vec<[f32; 3]>> = scene.body_frames.clone();
+    let s = score_rollout(
+        &scene.garment,
+        &Objective::evaluation(),
+        &garment,
+        &body,
+        scene.body.as_ref().unwrap().faces(),
+        1.0 / 30.0,
+    )
+    .unwrap();
     for t in 3..=frames {
         let ours = r.frames[t - 1].terms.unwrap();
         let theirs = s.frames[t - 1].terms;

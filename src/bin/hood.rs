@@ -8,6 +8,9 @@ use hood::workloads::{default_shared_dir, workload, NAMES};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+#[path = "hood/simulate.rs"]
+mod simulate;
+
 #[derive(Parser)]
 #[command(name = "hood", version, about = "HOOD-style neural cloth: simulate, measure, train")]
 struct Cli {
@@ -17,6 +20,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run a model on a scene (default: the shipped model, dress on the walking mannequin):
+    /// OBJ sequence, PNG preview strip, per-step timing and objective.
+    Simulate(simulate::SimulateArgs),
     /// Step latency per workload, model size, precision and thread count (EVALUATION.md).
     Bench(BenchArgs),
     /// Convert a reference HOOD checkpoint's state dict (as safetensors) into a `.hood` file.
@@ -85,6 +91,7 @@ struct BenchArgs {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Simulate(a) => simulate::simulate(a),
         Command::Bench(a) => bench(a),
         Command::Convert(a) => convert(a),
     };
