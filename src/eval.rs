@@ -269,7 +269,7 @@ pub struct Summary {
     pub max_penetrating_percent: f64,
     /// Largest edge strain of any frame.
     pub max_edge_strain: f64,
-    /// Largest vertex speed of any frame, m/s.
+    /// Largest vertex speed of any frame but teleports (which are no motion), m/s.
     pub max_speed: f64,
     /// Mean relative gap over the frames where it was computed and defined.
     pub gap_mean: Option<f64>,
@@ -630,7 +630,9 @@ fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
         s.mean_penetrating_percent += f.penetrating_percent / nf;
         s.max_penetrating_percent = s.max_penetrating_percent.max(f.penetrating_percent);
         s.max_edge_strain = s.max_edge_strain.max(f.max_edge_strain);
-        s.max_speed = s.max_speed.max(f.max_speed);
+        if f.kind != StepKind::Teleported {
+            s.max_speed = s.max_speed.max(f.max_speed);
+        }
         s.mean_step_ms += f.step_ms / nf;
     }
     let mut gaps: Vec<f64> = frames.iter().filter_map(|f| f.gap.and_then(|g| g.relative)).collect();
