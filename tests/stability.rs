@@ -155,6 +155,9 @@ fn stability_long_rollout_of_a_repeated_motion() {
     assert!((last - second).abs() <= 0.05 * second.abs(), "objective drifted from {second} to {last}");
 }
 
+/// A map of points (m), applied to body frames and pin targets.
+type PointMap = Box<dyn Fn([f32; 3]) -> [f32; 3]>;
+
 /// Item 2: the body jumps 1 m sideways in one frame, and turns 180° in one frame. Bound: that
 /// frame is a teleport carrying the garment by the body's best-fit rigid motion (to 1e-4 m), the
 /// rollout goes on finite (and, for a trained model, within the speed and strain bounds).
@@ -164,7 +167,7 @@ fn stability_teleport_jump_and_half_turn() {
     let base = Playback::record(skirt_walk(), 20).unwrap();
     let jump = 8;
     let centre = centroid(&base.body_frames[jump - 1]);
-    let moves: [(&str, Box<dyn Fn([f32; 3]) -> [f32; 3]>); 2] = [
+    let moves: [(&str, PointMap); 2] = [
         ("jump 1 m", Box::new(|p: [f32; 3]| [p[0] + 1.0, p[1], p[2]])),
         ("turn 180°", Box::new(move |p: [f32; 3]| [2.0 * centre[0] - p[0], p[1], 2.0 * centre[2] - p[2]])),
     ];
@@ -289,15 +292,18 @@ fn stability_bad_start_states() {
     }
 }
 
+/// Vertex positions (m) and triangles.
+type Mesh = (Vec<[f32; 3]>, Vec<[u32; 3]>);
+
 /// A `nx × nz` grid of `size` metres at height `y`, shifted by `dx` along x.
-fn grid(nx: usize, nz: usize, size: f32, y: f32, dx: f32) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+fn grid(nx: usize, nz: usize, size: f32, y: f32, dx: f32) -> Mesh {
     let (mut rest, faces) = hood::mesh::shapes::grid(nx, nz, size, size, y);
     rest.iter_mut().for_each(|p| p[0] += dx);
     (rest, faces)
 }
 
 /// Concatenates meshes into one vertex and face list.
-fn concat(parts: &[(Vec<[f32; 3]>, Vec<[u32; 3]>)]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+fn concat(parts: &[Mesh]) -> Mesh {
     let (mut rest, mut faces) = (Vec::new(), Vec::new());
     for (r, f) in parts {
         let o = rest.len() as u32;
@@ -355,21 +361,19 @@ fn stability_degenerate_input() {
 
     let trained_model = trained("stability_degenerate_input (trained bounds)");
     let random = random_model(16, 22, false);
-    let cases: Vec<(&str, Vec<[f32; 3]>, Vec<[u32; 3]>)> = vec![
-        ("repaired", compact.rest.clone(), compact.faces.clone()),
-        ("single triangle", vec![[0.0, 0.33, 0.0], [0.1, 0.33, 0.0], [0.0, 0.33, 0.1]], vec![[0, 2, 1]]),
+    let cases: Vec<(&str, Mesh)> = vec![
+        ("repaired", (compact.rest.clone(), compact.faces.clone())),
+        ("single triangle", (vec![[0.0, 0.33, 0.0], [0.1, 0.33, 0.0], [0.0, 0.33, 0.1]], vec![[0, 2, 1]])),
         {
             // Two grids whose touching edges have coincident but distinct vertices.
-            let (r, f) = concat(&[grid(4, 4, 0.3, 0.32, -0.3), grid(4, 4, 0.3, 0.32, 0.0)]);
-            ("duplicate vertices", r, f)
+            ("duplicate vertices", concat(&[grid(4, 4, 0.3, 0.32, -0.3), grid(4, 4, 0.3, 0.32, 0.0)]))
         },
         {
-            let (r, f) =
-                concat(&[grid(4, 4, 0.2, 0.32, -0.35), grid(5, 3, 0.2, 0.33, 0.0), grid(3, 3, 0.1, 0.34, 0.3)]);
-            ("three components", r, f)
+            let parts = [grid(4, 4, 0.2, 0.32, -0.35), grid(5, 3, 0.2, 0.33, 0.0), grid(3, 3, 0.1, 0.34, 0.3)];
+            ("three components", concat(&parts))
         },
     ];
-    for (what, r, f) in cases {
+    for (what, (r, f)) in cases {
         let g = Garment::new(GarmentDesc::new(&r, &f)).unwrap();
         if what == "duplicate vertices" || what == "three components" {
             assert!(g.n_components() >= 2, "{what}");
