@@ -29,7 +29,7 @@ use crate::physics::{Terms, PENETRATION_DEPTH};
 use crate::render::{Camera, Image, Style};
 use crate::scene::Scene;
 use crate::sim::{BodyDesc, Sim, SimConfig, SimState};
-use crate::solve::{ImplicitStep, LbfgsParams, StepBody, StepState};
+use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, StepBody, StepState};
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -402,6 +402,19 @@ impl Scorer {
     /// Loads the step's start state: `before` as the runtime saw it (pinned vertices at their
     /// targets with zero velocity), or, after the start-up step, the state it left.
     fn load(&mut self, kind: StepKind, before: &SimState, targets: &[[f32; 3]], x: &[[f32; 3]], v: &[[f32; 3]]) {
+        self.load_parts(kind, &before.pos, &before.velocity, targets, x, v);
+    }
+
+    /// [`Scorer::load`] from the state's positions and velocities.
+    fn load_parts(
+        &mut self,
+        kind: StepKind,
+        before_pos: &[[f32; 3]],
+        before_vel: &[[f32; 3]],
+        targets: &[[f32; 3]],
+        x: &[[f32; 3]],
+        v: &[[f32; 3]],
+    ) {
         let to64 = |p: [f32; 3]| p.map(|c| c as f64);
         for i in 0..self.pos.len() {
             self.targets[i] = to64(targets[i]);
@@ -412,12 +425,67 @@ impl Scorer {
             } else if kind == StepKind::StartUp {
                 // x = p + v_s + a and v = v_s + a, so the start-up left p = x - v, v_s = p - p0.
                 self.pos[i] = sub3(self.x[i], to64(v[i]));
-                self.vel[i] = sub3(self.pos[i], to64(before.pos[i]));
+                self.vel[i] = sub3(self.pos[i], to64(before_pos[i]));
             } else {
-                self.pos[i] = to64(before.pos[i]);
-                self.vel[i] = to64(before.velocity[i]);
+                self.pos[i] = to64(before_pos[i]);
+                self.vel[i] = to64(before_vel[i]);
             }
         }
+    }
+
+    /// The record of the loaded and scored step (strain and speed of the prediction).
+    fn record(
+        &self,
+        frame: usize,
+        kind: StepKind,
+        terms: Option<Terms<f64>>,
+        penetrating_percent: f64,
+        step_ms: f64,
+        gap: Option<Gap>,
+    ) -> FrameRecord {
+        let max_speed =
+            self.x.iter().zip(&self.pos).map(|(a, b)| norm3(sub3(*a, *b))).fold(0.0f64, f64::max) / DT as f64;
+        FrameRecord {
+            frame,
+            kind,
+            terms,
+            penetrating_percent,
+            max_edge_strain: max_edge_strain(&self.cloth, &self.x),
+            max_speed,
+            step_ms,
+            gap,
+        }
+    }
+
+    /// The ring slots of body frames `[previous, current, next]` (`None` without a body).
+    fn body_slots(&mut self, anim: &dyn Animation, frames: [usize; 3]) -> Result<Option<[usize; 3]>> {
+        let [fp, fc, fnx] = frames;
+        let Some(ring) = &mut self.ring else { return Ok(None) };
+        let c = ring.ensure(anim, fc, &[fc])?;
+        let nx = ring.ensure(anim, fnx, &[fc, fnx])?;
+        let p = ring.ensure(anim, fp, &[fc, fnx, fp])?;
+        Ok(Some([p, c, nx]))
+    }
+
+    /// Solves the loaded step with `stepper` (L-BFGS under `params`) into the prediction `x`:
+    /// the implicit solver as a simulator.
+    fn solve(
+        &mut self,
+        anim: &dyn Animation,
+        frames: [usize; 3],
+        stepper: &mut ImplicitStep<f64>,
+        params: &LbfgsParams,
+    ) -> Result<LbfgsReport> {
+        let idx = self.body_slots(anim, frames)?;
+        let body = step_body(self.ring.as_ref(), idx);
+        let state = StepState {
+            pos: &self.pos,
+            velocity: &self.vel,
+            dt: DT as f64,
+            pinned: &self.pinned,
+            targets: &self.targets,
+        };
+        stepper.step(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x)
     }
 
     /// Scores the loaded step: terms, penetration, strain, speed and (if asked) the gap.
@@ -428,38 +496,21 @@ impl Scorer {
         with_terms: bool,
         gap: Option<&LbfgsParams>,
     ) -> Result<(Option<Terms<f64>>, f64, Option<Gap>)> {
-        let [fp, fc, fnx] = frames;
+        let idx = self.body_slots(anim, frames)?;
         let mut penetrating = 0.0;
-        let idx = match &mut self.ring {
-            Some(ring) => {
-                let c = ring.ensure(anim, fc, &[fc])?;
-                let nx = ring.ensure(anim, fnx, &[fc, fnx])?;
-                let p = ring.ensure(anim, fp, &[fc, fnx, fp])?;
-                for (o, p) in self.pos32.iter_mut().zip(&self.pos) {
-                    *o = p.map(|c| c as f32);
-                }
-                ring.slots[c].grid.nearest_into(&self.pos32, &mut self.near);
-                plane_distances(&self.x, &self.near, ring.face_frame(nx), &mut self.dist);
-                let count = self.dist.iter().filter(|&&d| d < PENETRATION_DEPTH).count();
-                penetrating = 100.0 * count as f64 / self.dist.len().max(1) as f64;
-                Some([p, c, nx])
+        if let (Some(ring), Some([_, c, nx])) = (&self.ring, idx) {
+            for (o, p) in self.pos32.iter_mut().zip(&self.pos) {
+                *o = p.map(|c| c as f32);
             }
-            None => None,
-        };
+            ring.slots[c].grid.nearest_into(&self.pos32, &mut self.near);
+            plane_distances(&self.x, &self.near, ring.face_frame(nx), &mut self.dist);
+            let count = self.dist.iter().filter(|&&d| d < PENETRATION_DEPTH).count();
+            penetrating = 100.0 * count as f64 / self.dist.len().max(1) as f64;
+        }
         if !with_terms {
             return Ok((None, penetrating, None));
         }
-        let body = match (&self.ring, idx) {
-            (Some(ring), Some([p, c, nx])) => Some(StepBody {
-                prev: ring.face_frame(p),
-                current: ring.face_frame(c),
-                next: ring.face_frame(nx),
-                query_prev: &ring.slots[p].grid as &dyn CentroidQuery,
-                query_current: &ring.slots[c].grid,
-                query_next: &ring.slots[nx].grid,
-            }),
-            _ => None,
-        };
+        let body = step_body(self.ring.as_ref(), idx);
         let state = StepState {
             pos: &self.pos,
             velocity: &self.vel,
@@ -492,6 +543,19 @@ impl Scorer {
 
 /// Sees every frame's record and the garment's new positions (m) during a rollout.
 pub type FrameObserver<'a> = dyn FnMut(&FrameRecord, &[[f32; 3]]) -> Result<()> + 'a;
+
+/// The body of a step from the ring slots `[previous, current, next]`.
+fn step_body(ring: Option<&BodyRing>, idx: Option<[usize; 3]>) -> Option<StepBody<'_, f64>> {
+    let (ring, [p, c, nx]) = (ring?, idx?);
+    Some(StepBody {
+        prev: ring.face_frame(p),
+        current: ring.face_frame(c),
+        next: ring.face_frame(nx),
+        query_prev: &ring.slots[p].grid as &dyn CentroidQuery,
+        query_current: &ring.slots[c].grid,
+        query_next: &ring.slots[nx].grid,
+    })
+}
 
 /// [`rollout_observed`] without an observer.
 ///
@@ -590,22 +654,79 @@ pub fn rollout_observed(
         let want_gap = stepped && options.gap_every > 0 && t % options.gap_every == 0;
         let (terms, penetrating_percent, gap) =
             scorer.score(anim, body_frames, stepped, want_gap.then_some(&options.gap_solver))?;
-        let max_speed =
-            scorer.x.iter().zip(&scorer.pos).map(|(a, b)| norm3(sub3(*a, *b))).fold(0.0f64, f64::max) / DT as f64;
-        let rec = FrameRecord {
-            frame: t,
-            kind,
-            terms,
-            penetrating_percent,
-            max_edge_strain: max_edge_strain(&scorer.cloth, &scorer.x),
-            max_speed,
-            step_ms,
-            gap,
-        };
+        let rec = scorer.record(t, kind, terms, penetrating_percent, step_ms, gap);
         if options.keep.contains(&t) {
             out.kept.push((t, after.pos.clone()));
         }
         observer(&rec, &after.pos)?;
+        out.frames.push(rec);
+    }
+    out.summary = summarise(&out.frames, out.failure.is_none());
+    Ok(out)
+}
+
+/// The implicit solver as the simulator, for comparison with models (EVALUATION.md "Accuracy
+/// against time"): from [`Animation::initial_garment`] at rest, every frame is one
+/// [`ImplicitStep`] (f64 L-BFGS under `solver`, e.g. a few iterations) on `options.objective`,
+/// pinned vertices at their targets; no start-up step. Records, gap and summary as in
+/// [`rollout_observed`] (`step_ms` is the solve's wall time); a non-finite solve ends the rollout
+/// ([`Rollout::failure`]).
+///
+/// # Errors
+/// As [`rollout_observed`] (without the runtime's).
+pub fn implicit_rollout(
+    anim: &dyn Animation,
+    frames: usize,
+    solver: &LbfgsParams,
+    options: &RolloutOptions,
+    observer: &mut FrameObserver<'_>,
+) -> Result<Rollout> {
+    if frames == 0 {
+        return Err(Error::Empty { what: "rollout frames" });
+    }
+    if frames >= anim.n_frames() {
+        return Err(Error::OutOfRange { what: "rollout frames (past the animation's last frame)", index: frames });
+    }
+    let n = anim.garment().n_vertices();
+    let pinned = anim.garment().pinned().to_vec();
+    let mut scorer = Scorer::new(anim, &options.objective)?;
+    let mut stepper = ImplicitStep::<f64>::new(n, 10);
+    let mut pos = anim.initial_garment()?;
+    let mut vel = vec![[0.0f32; 3]; n];
+    let mut targets = vec![[0.0f32; 3]; n];
+    let mut out =
+        Rollout { frames: Vec::with_capacity(frames), kept: Vec::new(), failure: None, summary: Summary::default() };
+    if options.keep.contains(&0) {
+        out.kept.push((0, pos.clone()));
+    }
+    for t in 1..=frames {
+        anim.pin_targets(t, &mut targets)?;
+        scorer.load_parts(StepKind::Stepped, &pos, &vel, &targets, &pos, &vel);
+        let body_frames = [t.saturating_sub(2), t - 1, t];
+        #[cfg(feature = "std")]
+        let clock = std::time::Instant::now();
+        scorer.solve(anim, body_frames, &mut stepper, solver)?;
+        #[cfg(feature = "std")]
+        let step_ms = clock.elapsed().as_secs_f64() * 1e3;
+        #[cfg(not(feature = "std"))]
+        let step_ms = 0.0;
+        if let Some(i) = scorer.x.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            out.failure = Some((t, Error::NonFinite { what: "implicit step output for garment vertex", index: i }));
+            break;
+        }
+        let want_gap = options.gap_every > 0 && t % options.gap_every == 0;
+        let (terms, penetrating_percent, gap) =
+            scorer.score(anim, body_frames, true, want_gap.then_some(&options.gap_solver))?;
+        let rec = scorer.record(t, StepKind::Stepped, terms, penetrating_percent, step_ms, gap);
+        for i in 0..n {
+            let x = scorer.x[i].map(|c| c as f32);
+            vel[i] = if pinned[i] { [0.0; 3] } else { [x[0] - pos[i][0], x[1] - pos[i][1], x[2] - pos[i][2]] };
+            pos[i] = x;
+        }
+        if options.keep.contains(&t) {
+            out.kept.push((t, pos.clone()));
+        }
+        observer(&rec, &pos)?;
         out.frames.push(rec);
     }
     out.summary = summarise(&out.frames, out.failure.is_none());

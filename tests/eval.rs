@@ -114,3 +114,31 @@ fn eval_cloth_without_body_and_bad_requests() {
     assert!(matches!(rollout(&model, &anim, 0, SimConfig::default(), &opts), Err(hood::Error::Empty { .. })));
     assert!(matches!(rollout(&model, &anim, 10, SimConfig::default(), &opts), Err(hood::Error::OutOfRange { .. })));
 }
+
+#[test]
+fn eval_implicit_rollout_gap_is_zero_when_converged_and_below_one_when_truncated() {
+    use hood::eval::{converged_solver, implicit_rollout};
+    use hood::solve::LbfgsParams;
+    let m = Mannequin::with_spacing(0.04).unwrap();
+    let scene = procedural(&m, GarmentKind::Skirt, 300, MotionKind::Walk, 0.5).unwrap();
+    let opts = RolloutOptions { gap_every: 2, ..RolloutOptions::default() };
+    let frames = 6;
+    // Converged solves from the same states are the optimum itself.
+    let r = implicit_rollout(&scene, frames, &converged_solver(), &opts, &mut |_, _| Ok(())).unwrap();
+    assert!(r.failure.is_none());
+    for g in r.frames.iter().filter_map(|f| f.gap) {
+        assert!(g.relative.unwrap().abs() < 1e-9, "{g:?}");
+    }
+    // Two L-BFGS iterations descend (gap ≤ 1) without reaching the optimum (gap > 0).
+    let two = LbfgsParams { max_iterations: 2, ..converged_solver() };
+    let r = implicit_rollout(&scene, frames, &two, &opts, &mut |_, _| Ok(())).unwrap();
+    assert_eq!(r.summary.gap_frames, 3);
+    for g in r.frames.iter().filter_map(|f| f.gap) {
+        let rel = g.relative.unwrap();
+        println!("2 iterations: {g:?}");
+        assert!(rel > 1e-6 && rel <= 1.0 + 1e-9, "{g:?}");
+    }
+    println!("{:?}", r.summary);
+    // The penetration and strain of a physical solve stay small.
+    assert!(r.summary.max_edge_strain < 1.0);
+}
