@@ -142,3 +142,32 @@ fn eval_implicit_rollout_gap_is_zero_when_converged_and_below_one_when_truncated
     // The penetration and strain of a physical solve stay small.
     assert!(r.summary.max_edge_strain < 1.0);
 }
+
+/// `hood simulate` end to end on a random model: the OBJ sequence and the preview strip appear.
+#[cfg(feature = "cli")]
+#[test]
+fn eval_cli_simulate_writes_obj_sequence_and_strip() {
+    let out = std::env::temp_dir().join(format!("hood-simulate-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+        .args(["simulate", "--random-model", "16", "--garment", "skirt", "--vertices", "300", "--frames", "3"])
+        .args(["--strip", "2", "--out"])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    for f in ["garment_0000.obj", "garment_0003.obj", "body_0003.obj", "preview.png"] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+    let g = hood::io::obj::Obj::read(out.join("garment_0003.obj")).unwrap();
+    assert!(g.positions.len() > 200 && g.positions.iter().all(|p| p.iter().all(|c| c.is_finite())));
+    // An unknown garment is a clear error, not a panic.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+        .args(["simulate", "--random-model", "16", "--garment", "poncho", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("unknown garment"), "{}", String::from_utf8_lossy(&o.stderr));
+    let _ = std::fs::remove_dir_all(&out);
+}
