@@ -195,16 +195,15 @@ impl Scene {
         Ok(x)
     }
 
-    /// The same scene with every garment vertex made of `material` (the hierarchy does not
-    /// change: only masses and the network's material inputs).
+    /// The scene's garment with every vertex made of `material` (same rest shape and pins, so
+    /// the same hierarchy: only masses and the network's material inputs change).
     ///
     /// # Errors
     /// Errors of [`Garment::new`].
-    pub fn with_material(&self, material: Material) -> Result<Scene> {
+    pub fn garment_with_material(&self, material: Material) -> Result<Garment> {
         let g = &self.garment;
         let materials = vec![material; g.n_vertices()];
-        let garment = Garment::new(GarmentDesc::new(g.rest(), g.faces()).pinned(g.pinned()).materials(&materials))?;
-        Ok(Scene { garment, ..self.clone() })
+        Garment::new(GarmentDesc::new(g.rest(), g.faces()).pinned(g.pinned()).materials(&materials))
     }
 }
 

@@ -400,6 +400,7 @@ fn stability_extreme_materials() {
     let random = random_model(16, 23, false);
     let trained_model = trained("stability_extreme_materials (trained bounds)");
     let frames = 15;
+    let base = Playback::record(scene, frames + 1).unwrap();
     for corner in 0..16u32 {
         let pick = |bit: u32, (lo, hi): (f32, f32)| if corner & (1 << bit) == 0 { lo } else { hi };
         let material = Material {
@@ -408,7 +409,8 @@ fn stability_extreme_materials() {
             lambda: pick(2, ranges::LAMBDA),
             bending: pick(3, ranges::BENDING),
         };
-        let s = scene.with_material(material).unwrap();
+        let mut s = base.clone();
+        s.garment = scene.garment_with_material(material).unwrap();
         let label = format!("{material:?}");
         let r = run(&random, &s, frames, SimConfig::default(), Vec::new());
         assert_finite_and_bounded(&label, &r, frames, None);

@@ -8,10 +8,13 @@ use hood::workloads::{default_shared_dir, workload, NAMES};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-#[path = "hood/report.rs"]
+#[path = "cmd/report.rs"]
 mod report;
-#[path = "hood/simulate.rs"]
+#[path = "cmd/simulate.rs"]
 mod simulate;
+#[cfg(feature = "train")]
+#[path = "cmd/train.rs"]
+mod train_cmd;
 
 #[derive(Parser)]
 #[command(name = "hood", version, about = "HOOD-style neural cloth: simulate, measure, train")]
@@ -31,6 +34,47 @@ enum Command {
     Bench(BenchArgs),
     /// Convert a reference HOOD checkpoint's state dict (as safetensors) into a `.hood` file.
     Convert(ConvertArgs),
+    /// Print a model file's shape, provenance and normaliser statistics.
+    Info(InfoArgs),
+    /// Train a model from physics alone (feature `train`); resumes the run in `--dir`.
+    #[cfg(feature = "train")]
+    Train(train_cmd::TrainArgs),
+}
+
+#[derive(Args)]
+struct InfoArgs {
+    /// The `.hood` file.
+    model: PathBuf,
+}
+
+fn info(a: InfoArgs) -> hood::Result<()> {
+    let bytes = ModelBytes::new(
+        &std::fs::read(&a.model)
+            .map_err(|e| hood::Error::Io { path: a.model.display().to_string(), message: e.to_string() })?,
+    );
+    let m = bytes.model()?;
+    let spec = m.spec();
+    println!(
+        "{}: h = {}, {} blocks, {} levels, {} parameters, bf16 weights: {}",
+        a.model.display(),
+        spec.latent,
+        spec.blocks.len(),
+        spec.levels,
+        spec.parameter_count(),
+        m.has_bf16()
+    );
+    let show = |name: &str, (mean, std): (&[f32], &[f32])| {
+        let f = |v: &[f32]| v.iter().map(|x| format!("{x:.3e}")).collect::<Vec<_>>().join(" ");
+        println!("{name} mean [{}]\n{name} std  [{}]", f(mean), f(std));
+    };
+    show("node", m.node_stats());
+    show("edge", m.edge_stats());
+    show("body edge", m.body_edge_stats());
+    show("output", m.output_stats());
+    for (k, v) in m.provenance() {
+        println!("{k}: {v}");
+    }
+    Ok(())
 }
 
 #[derive(Args)]
@@ -99,6 +143,9 @@ fn main() -> ExitCode {
         Command::Report(a) => report::report(a),
         Command::Bench(a) => bench(a),
         Command::Convert(a) => convert(a),
+        Command::Info(a) => info(a),
+        #[cfg(feature = "train")]
+        Command::Train(a) => train_cmd::train(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

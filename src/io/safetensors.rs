@@ -264,6 +264,8 @@ impl SafeTensors {
 pub enum TensorData<'a> {
     /// `f32` elements.
     F32(&'a [f32]),
+    /// `f64` elements.
+    F64(&'a [f64]),
     /// `i64` elements.
     I64(&'a [i64]),
 }
@@ -299,6 +301,11 @@ pub fn to_bytes(tensors: &[(&str, &[usize], TensorData<'_>)], metadata: &[(&str,
                 let s = data.len();
                 v.iter().for_each(|x| data.extend_from_slice(&x.to_le_bytes()));
                 ("F32", v.len(), s)
+            }
+            TensorData::F64(v) => {
+                let s = data.len();
+                v.iter().for_each(|x| data.extend_from_slice(&x.to_le_bytes()));
+                ("F64", v.len(), s)
             }
             TensorData::I64(v) => {
                 let s = data.len();

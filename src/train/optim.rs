@@ -4,11 +4,17 @@
 use alloc::vec;
 use alloc::vec::Vec;
 
-/// Learning rate at optimiser step `s` (0-based):
+/// Learning rate at optimiser step `s` (0-based) of the recipe:
 /// `5e-5 · (0.5^floor(s / 50000) + 0.01)`.
 pub fn learning_rate(step: u64) -> f64 {
-    let halvings = (step / 50_000).min(1_000) as i32;
-    5e-5 * (libm::pow(0.5, halvings as f64) + 0.01)
+    step_decay(5e-5, 50_000, step)
+}
+
+/// The recipe's schedule with another base rate and halving period:
+/// `base · (0.5^floor(s / halving) + 0.01)`.
+pub fn step_decay(base: f64, halving: u64, step: u64) -> f64 {
+    let halvings = (step / halving.max(1)).min(1_000) as i32;
+    base * (libm::pow(0.5, halvings as f64) + 0.01)
 }
 
 /// Scales `grad` so that its L2 norm is at most `max_norm`; returns the norm before clipping.

@@ -1,0 +1,270 @@
+//! `hood train`: a training run in a folder (checkpoint, exported model, logs), resumable.
+
+use clap::Args;
+use hood::model::ModelBytes;
+use hood::train::{Dataset, IterationReport, TrainConfig, Trainer, ValidationReport};
+use hood::Error;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Run folder: `checkpoint.safetensors`, `model.hood`, `log.jsonl`, `validation.jsonl`,
+    /// `config.json`. A run already there is resumed. Create a file `STOP` in it to end the run
+    /// cleanly at the next iteration.
+    #[arg(long, default_value = "~/hood-train/compact")]
+    dir: String,
+    /// Config file (JSON; every key optional, see `hood::train::TrainConfig`). Ignored when
+    /// resuming from a checkpoint (its own config is used).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Start from an exported model's weights and statistics when the folder has no
+    /// checkpoint (for example a committed `models/*.hood`).
+    #[arg(long)]
+    from_model: Option<PathBuf>,
+    /// Override the total number of iterations.
+    #[arg(long)]
+    iterations: Option<u64>,
+    /// Stop (with a checkpoint) after this many hours of wall time.
+    #[arg(long)]
+    hours: Option<f64>,
+    /// Also copy the exported model here at every checkpoint.
+    #[arg(long)]
+    export: Option<PathBuf>,
+    /// Folder holding `assets/` (default: ../shared beside the source).
+    #[arg(long)]
+    shared: Option<PathBuf>,
+    /// Start afresh even when the folder holds a checkpoint.
+    #[arg(long)]
+    fresh: bool,
+}
+
+fn io_err(path: &Path, e: std::io::Error) -> Error {
+    Error::Io { path: path.display().to_string(), message: e.to_string() }
+}
+
+fn expand(dir: &str) -> PathBuf {
+    match (dir.strip_prefix("~/"), std::env::var_os("HOME")) {
+        (Some(rest), Some(home)) => PathBuf::from(home).join(rest),
+        _ => PathBuf::from(dir),
+    }
+}
+
+fn iteration_json(r: &IterationReport, seconds: f64) -> String {
+    let steps: Vec<String> = r
+        .steps
+        .iter()
+        .map(|s| {
+            let t = &s.terms;
+            format!(
+                "{{\"total\":{:e},\"stretching\":{:e},\"bending\":{:e},\"inertia\":{:e},\"gravity\":{:e},\
+                 \"collision\":{:e},\"friction\":{:e},\"grad_norm\":{:e},\"startup\":{},\"skipped\":{}}}",
+                s.total,
+                t.stretching,
+                t.bending,
+                t.inertia,
+                t.gravity,
+                t.collision,
+                t.friction,
+                s.grad_norm,
+                s.startup,
+                s.skipped
+            )
+        })
+        .collect();
+    format!(
+        "{{\"iteration\":{},\"scene\":{},\"vertices\":{},\"warmup\":{},\"lr\":{:e},\"collision_weight\":{:e},\
+         \"seconds\":{:.1},\"steps\":[{}]}}",
+        r.iteration,
+        r.scene,
+        r.vertices,
+        r.warmup,
+        r.learning_rate,
+        r.collision_weight,
+        seconds,
+        steps.join(",")
+    )
+}
+
+fn validation_json(v: &ValidationReport) -> String {
+    let rows: Vec<String> = v
+        .rollouts
+        .iter()
+        .map(|(name, s)| match s {
+            Some(s) => format!(
+                "{{\"scene\":\"{name}\",\"finite\":true,\"total\":{:e},\"penetrating_percent\":{:.4},\
+                 \"max_edge_strain\":{:.4},\"max_speed\":{:.4}}}",
+                s.mean.total,
+                s.mean.penetrating_percent,
+                s.frames.iter().map(|f| f.max_edge_strain).fold(0.0, f64::max),
+                s.frames.iter().map(|f| f.max_speed).fold(0.0, f64::max)
+            ),
+            None => format!("{{\"scene\":\"{name}\",\"finite\":false}}"),
+        })
+        .collect();
+    let (total, pen) = v.means();
+    format!(
+        "{{\"iteration\":{},\"finite\":{},\"mean_total\":{total:e},\"mean_penetrating_percent\":{pen:.4},\
+         \"rollouts\":[{}]}}",
+        v.iteration,
+        v.finite(),
+        rows.join(",")
+    )
+}
+
+/// Keeps the lines of a JSON-lines log whose `"iteration":N` is below `limit` (so that a
+/// resumed run's log reads as if it had never stopped).
+fn truncate_log(path: &Path, limit: u64) -> hood::Result<()> {
+    let Ok(text) = std::fs::read_to_string(path) else { return Ok(()) };
+    let keep: Vec<&str> = text
+        .lines()
+        .filter(|l| {
+            l.strip_prefix("{\"iteration\":")
+                .and_then(|r| r.split(',').next())
+                .and_then(|n| n.parse::<u64>().ok())
+                .is_some_and(|n| n < limit)
+        })
+        .collect();
+    let mut out = keep.join("\n");
+    if !out.is_empty() {
+        out.push('\n');
+    }
+    std::fs::write(path, out).map_err(|e| io_err(path, e))
+}
+
+fn append(path: &Path, line: &str) -> hood::Result<()> {
+    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path).map_err(|e| io_err(path, e))?;
+    writeln!(f, "{line}").map_err(|e| io_err(path, e))
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> hood::Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, bytes).map_err(|e| io_err(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| io_err(path, e))
+}
+
+fn build_data(cfg: &TrainConfig, shared: &Path) -> hood::Result<Dataset> {
+    let t = Instant::now();
+    let data = Dataset::build(cfg, &shared.join("assets"), |name| eprint!("\rbuilding scene {name:<40}"))?;
+    eprintln!("\r{} scenes built in {:.1} s{:30}", data.scenes.len(), t.elapsed().as_secs_f64(), "");
+    for (name, why) in &data.skipped {
+        eprintln!("  skipped {name}: {why}");
+    }
+    Ok(data)
+}
+
+/// A one-line progress bar on stderr.
+fn progress(t: &Trainer, start_it: u64, started: Instant, recent_loss: f64) {
+    let total = t.cfg.iterations.max(1);
+    let done = t.iteration.min(total);
+    let width = 30;
+    let filled = (done * width / total) as usize;
+    let rate = (t.iteration - start_it) as f64 / started.elapsed().as_secs_f64().max(1e-9);
+    let eta = if rate > 0.0 { (total - done) as f64 / rate } else { 0.0 };
+    eprint!(
+        "\r[{}{}] {done}/{total} it  {:.2} it/s  loss {recent_loss:.3e}  eta {}h{:02}m   ",
+        "#".repeat(filled),
+        ".".repeat(width as usize - filled),
+        rate,
+        (eta / 3600.0) as u64,
+        ((eta % 3600.0) / 60.0) as u64
+    );
+}
+
+pub fn train(a: TrainArgs) -> hood::Result<()> {
+    let dir = expand(&a.dir);
+    std::fs::create_dir_all(&dir).map_err(|e| io_err(&dir, e))?;
+    let shared = a.shared.clone().unwrap_or_else(hood::workloads::default_shared_dir);
+    let ckpt = dir.join("checkpoint.safetensors");
+    let log = dir.join("log.jsonl");
+    let vlog = dir.join("validation.jsonl");
+    let stop = dir.join("STOP");
+    let _ = std::fs::remove_file(&stop);
+    let mut t = if ckpt.exists() && !a.fresh {
+        let st = hood::io::safetensors::SafeTensors::read(&ckpt)?;
+        let cfg = hood::train::session::checkpoint_config(&st)?;
+        let t = Trainer::resume(&ckpt, build_data(&cfg, &shared)?)?;
+        eprintln!("resumed {} at iteration {}", ckpt.display(), t.iteration);
+        t
+    } else {
+        let cfg = match &a.config {
+            Some(p) => TrainConfig::from_json(&std::fs::read_to_string(p).map_err(|e| io_err(p, e))?)?,
+            None => TrainConfig::default(),
+        };
+        let data = build_data(&cfg, &shared)?;
+        match &a.from_model {
+            Some(p) => {
+                let bytes = ModelBytes::new(&std::fs::read(p).map_err(|e| io_err(p, e))?);
+                let t = Trainer::from_model(cfg, data, &bytes.model()?)?;
+                eprintln!("continuing from {} (iteration {}, fresh optimiser)", p.display(), t.iteration);
+                t
+            }
+            None => Trainer::new(cfg, data)?,
+        }
+    };
+    if let Some(n) = a.iterations {
+        t.cfg.iterations = n;
+    }
+    truncate_log(&log, t.iteration)?;
+    truncate_log(&vlog, t.iteration + 1)?;
+    write_atomic(&dir.join("config.json"), t.cfg.to_json().as_bytes())?;
+    eprintln!(
+        "training h = {}, {} parameters, {} scenes, to iteration {} in {}",
+        t.cfg.latent,
+        t.parameter_count(),
+        t.data.scenes.len(),
+        t.cfg.iterations,
+        dir.display()
+    );
+    let started = Instant::now();
+    let start_it = t.iteration;
+    let deadline = a.hours.map(|h| h * 3600.0);
+    let mut last_print = Instant::now();
+    let mut recent = 0.0f64;
+    let save = |t: &Trainer| -> hood::Result<()> {
+        t.save_checkpoint(&ckpt)?;
+        let bytes = t.export(&[])?;
+        write_atomic(&dir.join("model.hood"), &bytes)?;
+        if let Some(p) = &a.export {
+            write_atomic(p, &bytes)?;
+        }
+        Ok(())
+    };
+    while t.iteration < t.cfg.iterations {
+        let it_start = Instant::now();
+        let r = t.iteration()?;
+        t.seconds += it_start.elapsed().as_secs_f64();
+        append(&log, &iteration_json(&r, t.seconds))?;
+        if let Some(s) = r.steps.iter().rev().find(|s| !s.skipped) {
+            let per_vertex = s.total as f64 / r.vertices.max(1) as f64;
+            recent = if recent == 0.0 { per_vertex } else { 0.98 * recent + 0.02 * per_vertex };
+        }
+        if t.iteration % t.cfg.validate_every == 0 {
+            let v = t.validate()?;
+            append(&vlog, &validation_json(&v))?;
+            let (total, pen) = v.means();
+            eprintln!(
+                "\nvalidation at {}: finite {}, mean objective {total:.4e}, penetrating {pen:.2} %",
+                t.iteration,
+                v.finite()
+            );
+        }
+        let out_of_time = deadline.is_some_and(|d| started.elapsed().as_secs_f64() > d);
+        let stopping = out_of_time || stop.exists();
+        if t.iteration % t.cfg.checkpoint_every == 0 || stopping || t.iteration == t.cfg.iterations {
+            save(&t)?;
+        }
+        if last_print.elapsed().as_secs_f64() > 1.0 {
+            progress(&t, start_it, started, recent);
+            last_print = Instant::now();
+        }
+        if stopping {
+            eprintln!("\nstopped at iteration {} (checkpoint written)", t.iteration);
+            return Ok(());
+        }
+    }
+    progress(&t, start_it, started, recent);
+    eprintln!("\ndone: {} iterations, {} optimiser steps, {:.0} s", t.iteration, t.optimiser_steps, t.seconds);
+    Ok(())
+}

@@ -1,0 +1,323 @@
+//! What a training run does: model size, the recipe's constants (MODEL.md section 7) and the
+//! data. Read from a JSON file (every key optional; defaults are the recipe's) and stored in
+//! checkpoints and exported models, so that a run can be resumed and traced.
+
+use crate::error::{Error, Result};
+use crate::io::json::Json;
+use crate::model::{ModelSpec, HOOD_SCHEDULE};
+use crate::scene::{GarmentKind, MotionKind};
+use alloc::format;
+use alloc::string::{String, ToString};
+use alloc::vec;
+use alloc::vec::Vec;
+
+/// One family of training scenes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SceneSource {
+    /// A procedural garment of about `vertices` vertices on the procedural mannequin doing
+    /// `motion` for `seconds`.
+    Procedural {
+        /// Which garment.
+        garment: GarmentKind,
+        /// Target vertex count.
+        vertices: usize,
+        /// Which motion.
+        motion: MotionKind,
+        /// Motion length, s.
+        seconds: f32,
+    },
+    /// A MakeHuman garment (`"tee"` or `"jeans"`) on the CMU walk, at most `frames` frames (the
+    /// scene is skipped with a warning when `../shared/assets` is absent).
+    MakeHuman {
+        /// `"tee"` or `"jeans"`.
+        garment: String,
+        /// Frame limit.
+        frames: usize,
+    },
+}
+
+impl SceneSource {
+    /// A short name for logs: `skirt-500/walk`, `makehuman-jeans`.
+    pub fn name(&self) -> String {
+        match self {
+            SceneSource::Procedural { garment, vertices, motion, .. } => {
+                format!("{}-{}/{}", garment.name(), vertices, motion.name())
+            }
+            SceneSource::MakeHuman { garment, .. } => format!("makehuman-{garment}"),
+        }
+    }
+}
+
+/// A training run's settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainConfig {
+    /// Latent width h.
+    pub latent: usize,
+    /// Hidden layers per MLP (the runtime needs 2).
+    pub hidden_layers: usize,
+    /// Coarse levels built per garment.
+    pub levels: usize,
+    /// Block schedule (MODEL.md section 4).
+    pub schedule: String,
+    /// Iterations (samples) to run in total.
+    pub iterations: u64,
+    /// Iterations at the start that only accumulate normaliser statistics.
+    pub warmup_iterations: u64,
+    /// Base learning rate (the recipe's 5e-5).
+    pub learning_rate: f64,
+    /// Optimiser steps per halving of the learning rate (the recipe's 50,000).
+    pub lr_halving_steps: u64,
+    /// Global gradient-norm clip.
+    pub clip: f64,
+    /// Longest rollout (optimiser steps per sample, start-up step included).
+    pub rollout_max: usize,
+    /// Iterations per increase of the rollout length (the recipe's 5,000).
+    pub rollout_every: u64,
+    /// Standard deviation of the noise on garment positions and previous positions, m.
+    pub noise: f32,
+    /// Collision weight at the start and at the end of the ramp.
+    pub collision_weight: (f64, f64),
+    /// Iterations over which the collision weight grows (log-linearly) to its final value.
+    pub collision_ramp: u64,
+    /// Draw a random material per sample (otherwise the default material).
+    pub random_materials: bool,
+    /// Draw a random hierarchy centre per sample (otherwise the first candidate).
+    pub random_centres: bool,
+    /// Scenes to sample from (uniformly).
+    pub scenes: Vec<SceneSource>,
+    /// Iterations between checkpoints (and exports).
+    pub checkpoint_every: u64,
+    /// Iterations between validations.
+    pub validate_every: u64,
+    /// Validation rollouts: number of fixed samples and frames each.
+    pub validation: (usize, usize),
+    /// Worker threads for the network passes.
+    pub threads: usize,
+    /// Seed of the model initialisation and of the sample stream.
+    pub seed: u64,
+}
+
+impl Default for TrainConfig {
+    /// The compact real-time model on small procedural garments and the MakeHuman garments.
+    fn default() -> Self {
+        let p = |garment, vertices, motion| SceneSource::Procedural { garment, vertices, motion, seconds: 6.0 };
+        TrainConfig {
+            latent: 32,
+            hidden_layers: 2,
+            levels: 3,
+            schedule: HOOD_SCHEDULE.to_string(),
+            iterations: 30_000,
+            warmup_iterations: 100,
+            learning_rate: 5e-5,
+            lr_halving_steps: 50_000,
+            clip: 1.0,
+            rollout_max: 5,
+            rollout_every: 5_000,
+            noise: 3e-3,
+            collision_weight: (5e3, 5e5),
+            collision_ramp: 20_000,
+            random_materials: true,
+            random_centres: true,
+            scenes: vec![
+                p(GarmentKind::Skirt, 500, MotionKind::Walk),
+                p(GarmentKind::Skirt, 500, MotionKind::RandomPoses(1)),
+                p(GarmentKind::Dress, 800, MotionKind::Walk),
+                p(GarmentKind::Dress, 800, MotionKind::Run),
+                p(GarmentKind::Dress, 800, MotionKind::RandomPoses(2)),
+                p(GarmentKind::Cape, 400, MotionKind::ArmSwings),
+                p(GarmentKind::Cape, 400, MotionKind::Turn),
+                p(GarmentKind::Skirt, 500, MotionKind::Jump),
+                SceneSource::MakeHuman { garment: "jeans".into(), frames: 300 },
+                SceneSource::MakeHuman { garment: "tee".into(), frames: 300 },
+            ],
+            checkpoint_every: 250,
+            validate_every: 500,
+            validation: (4, 30),
+            threads: 2,
+            seed: 1,
+        }
+    }
+}
+
+fn bad(key: &str, why: &str) -> Error {
+    Error::parse("training config", 0, format!("'{key}': {why}"))
+}
+
+fn uint(j: &Json, key: &str) -> Result<u64> {
+    let v = j.as_f64().ok_or_else(|| bad(key, "expected a number"))?;
+    if v < 0.0 || v.fract() != 0.0 || v > 1e15 {
+        return Err(bad(key, "expected a non-negative integer"));
+    }
+    Ok(v as u64)
+}
+
+fn float(j: &Json, key: &str) -> Result<f64> {
+    let v = j.as_f64().ok_or_else(|| bad(key, "expected a number"))?;
+    if !v.is_finite() {
+        return Err(bad(key, "expected a finite number"));
+    }
+    Ok(v)
+}
+
+fn boolean(j: &Json, key: &str) -> Result<bool> {
+    match j {
+        Json::Bool(b) => Ok(*b),
+        _ => Err(bad(key, "expected true or false")),
+    }
+}
+
+fn scene(j: &Json) -> Result<SceneSource> {
+    let s = |k: &str| j.get(k).and_then(Json::as_str).ok_or_else(|| bad("scenes", &format!("each needs '{k}'")));
+    let garment = s("garment")?;
+    if garment == "tee" || garment == "jeans" {
+        let frames = j.get("frames").map(|v| uint(v, "frames")).transpose()?.unwrap_or(300) as usize;
+        return Ok(SceneSource::MakeHuman { garment: garment.to_string(), frames });
+    }
+    let kind = GarmentKind::parse(garment).ok_or_else(|| bad("garment", "skirt, dress, cape, tee or jeans"))?;
+    let motion = MotionKind::parse(s("motion")?)
+        .ok_or_else(|| bad("motion", "walk, run, jump, turn, arm-swings or random-<seed>"))?;
+    let vertices = j.get("vertices").map(|v| uint(v, "vertices")).transpose()?.unwrap_or(600) as usize;
+    let seconds = j.get("seconds").map(|v| float(v, "seconds")).transpose()?.unwrap_or(6.0) as f32;
+    if seconds.is_nan() || seconds < 0.2 {
+        return Err(bad("seconds", "at least 0.2"));
+    }
+    Ok(SceneSource::Procedural { garment: kind, vertices, motion, seconds })
+}
+
+impl TrainConfig {
+    /// Reads a JSON object; absent keys keep their [`Default`] values.
+    ///
+    /// # Errors
+    /// [`Error::Parse`] naming the offending key.
+    pub fn from_json(text: &str) -> Result<TrainConfig> {
+        let j = Json::parse(text)?;
+        let obj = j.as_object().ok_or_else(|| bad("config", "expected a JSON object"))?;
+        let mut c = TrainConfig::default();
+        for (k, v) in obj {
+            let key = k.as_str();
+            match key {
+                "latent" => c.latent = uint(v, key)? as usize,
+                "hidden_layers" => c.hidden_layers = uint(v, key)? as usize,
+                "levels" => c.levels = uint(v, key)? as usize,
+                "schedule" => c.schedule = v.as_str().ok_or_else(|| bad(key, "expected a string"))?.to_string(),
+                "iterations" => c.iterations = uint(v, key)?,
+                "warmup_iterations" => c.warmup_iterations = uint(v, key)?,
+                "learning_rate" => c.learning_rate = float(v, key)?,
+                "lr_halving_steps" => c.lr_halving_steps = uint(v, key)?.max(1),
+                "clip" => c.clip = float(v, key)?,
+                "rollout_max" => c.rollout_max = uint(v, key)?.max(1) as usize,
+                "rollout_every" => c.rollout_every = uint(v, key)?.max(1),
+                "noise" => c.noise = float(v, key)? as f32,
+                "collision_weight" => {
+                    let a = v.as_f64_vec().filter(|a| a.len() == 2).ok_or_else(|| bad(key, "expected [start, end]"))?;
+                    c.collision_weight = (a[0], a[1]);
+                }
+                "collision_ramp" => c.collision_ramp = uint(v, key)?,
+                "random_materials" => c.random_materials = boolean(v, key)?,
+                "random_centres" => c.random_centres = boolean(v, key)?,
+                "scenes" => {
+                    let a = v.as_array().ok_or_else(|| bad(key, "expected an array"))?;
+                    c.scenes = a.iter().map(scene).collect::<Result<_>>()?;
+                }
+                "checkpoint_every" => c.checkpoint_every = uint(v, key)?.max(1),
+                "validate_every" => c.validate_every = uint(v, key)?.max(1),
+                "validation" => {
+                    let a = v
+                        .as_f64_vec()
+                        .filter(|a| a.len() == 2)
+                        .ok_or_else(|| bad(key, "expected [samples, frames]"))?;
+                    c.validation = (a[0].max(0.0) as usize, a[1].max(1.0) as usize);
+                }
+                "threads" => c.threads = uint(v, key)?.max(1) as usize,
+                "seed" => c.seed = uint(v, key)?,
+                _ => return Err(bad(key, "unknown key")),
+            }
+        }
+        c.spec()?;
+        if c.scenes.is_empty() {
+            return Err(bad("scenes", "at least one scene"));
+        }
+        Ok(c)
+    }
+
+    /// The model shape.
+    ///
+    /// # Errors
+    /// Errors of [`ModelSpec::with_schedule`].
+    pub fn spec(&self) -> Result<ModelSpec> {
+        ModelSpec::with_schedule(self.latent, self.hidden_layers, self.levels, &self.schedule)
+    }
+
+    /// The same settings as JSON (what [`from_json`](Self::from_json) reads back).
+    pub fn to_json(&self) -> String {
+        let scenes: Vec<String> = self
+            .scenes
+            .iter()
+            .map(|s| match s {
+                SceneSource::Procedural { garment, vertices, motion, seconds } => format!(
+                    "{{\"garment\": \"{}\", \"vertices\": {vertices}, \"motion\": \"{}\", \"seconds\": {seconds}}}",
+                    garment.name(),
+                    motion.name()
+                ),
+                SceneSource::MakeHuman { garment, frames } => {
+                    format!("{{\"garment\": \"{garment}\", \"frames\": {frames}}}")
+                }
+            })
+            .collect();
+        let schedule = &self.schedule;
+        format!(
+            "{{\n  \"latent\": {}, \"hidden_layers\": {}, \"levels\": {}, \"schedule\": \"{}\",\n  \
+             \"iterations\": {}, \"warmup_iterations\": {}, \"learning_rate\": {:e}, \"lr_halving_steps\": {}, \
+             \"clip\": {},\n  \"rollout_max\": {}, \"rollout_every\": {}, \"noise\": {:e}, \
+             \"collision_weight\": [{:e}, {:e}], \"collision_ramp\": {},\n  \"random_materials\": {}, \
+             \"random_centres\": {}, \"checkpoint_every\": {}, \"validate_every\": {}, \"validation\": [{}, {}], \
+             \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
+            self.latent,
+            self.hidden_layers,
+            self.levels,
+            schedule,
+            self.iterations,
+            self.warmup_iterations,
+            self.learning_rate,
+            self.lr_halving_steps,
+            self.clip,
+            self.rollout_max,
+            self.rollout_every,
+            self.noise,
+            self.collision_weight.0,
+            self.collision_weight.1,
+            self.collision_ramp,
+            self.random_materials,
+            self.random_centres,
+            self.checkpoint_every,
+            self.validate_every,
+            self.validation.0,
+            self.validation.1,
+            self.threads,
+            self.seed,
+            scenes.join(",\n    ")
+        )
+    }
+
+    /// Rollout length (optimiser steps, start-up included) at `iteration`:
+    /// `min(1 + iteration / rollout_every, rollout_max)`.
+    pub fn rollout_length(&self, iteration: u64) -> usize {
+        (1 + iteration / self.rollout_every).min(self.rollout_max as u64) as usize
+    }
+
+    /// Collision weight at `iteration`: log-linear from the start to the end value over
+    /// `collision_ramp` iterations, then constant.
+    pub fn collision_weight_at(&self, iteration: u64) -> f64 {
+        let (a, b) = self.collision_weight;
+        if self.collision_ramp == 0 || a <= 0.0 || b <= 0.0 {
+            return b;
+        }
+        let t = (iteration as f64 / self.collision_ramp as f64).min(1.0);
+        libm::exp(libm::log(a) + t * (libm::log(b) - libm::log(a)))
+    }
+
+    /// Learning rate at optimiser step `s`: `base · (0.5^floor(s / halving) + 0.01)`.
+    pub fn learning_rate_at(&self, s: u64) -> f64 {
+        super::optim::step_decay(self.learning_rate, self.lr_halving_steps, s)
+    }
+}

@@ -1,0 +1,529 @@
+//! A training run (MODEL.md section 7): samples drawn from the dataset, rollouts of up to
+//! `rollout_max` steps where every step takes its own optimiser step and hands its (detached)
+//! prediction to the next, normaliser statistics accumulated on every pass, checkpoints that
+//! resume exactly, validation rollouts and export to `.hood`.
+
+use super::config::TrainConfig;
+use super::data::{Dataset, Sample};
+use super::inputs::{BodyFrames, GarmentState, StepData};
+use super::layout::Layout;
+use super::loss::{LossBody, StepLoss};
+use super::network::{Network, Stats};
+use super::optim::{clip_global_norm, Adam};
+use crate::error::{Error, Result};
+use crate::features::{DT, DT_STARTUP, EDGE_WIDTH, LEVELS, NODE_TYPES, NODE_WIDTH};
+use crate::hierarchy::{CentreChoice, Hierarchy, HierarchyConfig};
+use crate::io::safetensors::{self, SafeTensors, TensorData};
+use crate::model::{write_model, Model, Normalisers, Params};
+use crate::normaliser::Normaliser;
+use crate::physics::{score_rollout, Objective, RolloutScore, Terms};
+use crate::rng::Rng;
+use crate::sim::Graph;
+use std::format;
+use std::path::Path;
+use std::string::{String, ToString};
+use std::vec;
+use std::vec::Vec;
+
+/// Checkpoint format version (metadata key `format`).
+const CHECKPOINT_FORMAT: &str = "hood-train-1";
+
+/// What one optimiser step saw.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepReport {
+    /// The objective's terms at the prediction (training form).
+    pub terms: Terms<f32>,
+    /// Their sum.
+    pub total: f32,
+    /// Gradient norm before clipping.
+    pub grad_norm: f64,
+    /// Whether this was the start-up step (static body, dt = 1/3 s).
+    pub startup: bool,
+    /// Whether the step was skipped (non-finite loss or gradient): no update was made.
+    pub skipped: bool,
+}
+
+/// What one iteration (one sample, one rollout) did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct IterationReport {
+    /// The iteration's index (0-based).
+    pub iteration: u64,
+    /// Scene index in the dataset.
+    pub scene: usize,
+    /// Garment vertices.
+    pub vertices: usize,
+    /// Warm-up iteration (statistics only, no optimiser steps).
+    pub warmup: bool,
+    /// Learning rate of the iteration's first optimiser step.
+    pub learning_rate: f64,
+    /// Collision weight.
+    pub collision_weight: f64,
+    /// One entry per optimiser step.
+    pub steps: Vec<StepReport>,
+}
+
+/// Validation figures: fixed samples rolled out with the current weights, scored in the
+/// evaluation form (EVALUATION.md).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ValidationReport {
+    /// The iteration it was taken at.
+    pub iteration: u64,
+    /// Per fixed sample: scene name and the rollout's score (`None` when it went non-finite).
+    pub rollouts: Vec<(String, Option<RolloutScore>)>,
+}
+
+impl ValidationReport {
+    /// Whether every rollout stayed finite.
+    pub fn finite(&self) -> bool {
+        self.rollouts.iter().all(|r| r.1.is_some())
+    }
+
+    /// Mean over finite rollouts of (objective total, % penetrating).
+    pub fn means(&self) -> (f64, f64) {
+        let ok: Vec<&RolloutScore> = self.rollouts.iter().filter_map(|r| r.1.as_ref()).collect();
+        let n = ok.len().max(1) as f64;
+        (
+            ok.iter().map(|s| s.mean.total).sum::<f64>() / n,
+            ok.iter().map(|s| s.mean.penetrating_percent).sum::<f64>() / n,
+        )
+    }
+}
+
+/// A training run's whole state.
+pub struct Trainer {
+    /// Settings.
+    pub cfg: TrainConfig,
+    /// The scenes.
+    pub data: Dataset,
+    net: Network,
+    /// Shape and normalisers (the weights live in `theta`).
+    params: Params,
+    theta: Vec<f32>,
+    adam: Adam,
+    rng: Rng,
+    /// Iterations done.
+    pub iteration: u64,
+    /// Optimiser steps taken.
+    pub optimiser_steps: u64,
+    /// Wall time spent training so far (restored from checkpoints), s.
+    pub seconds: f64,
+}
+
+fn noisy(rng: &mut Rng, x: &[[f32; 3]], pinned: &[bool], std: f32) -> Vec<[f32; 3]> {
+    x.iter()
+        .zip(pinned)
+        .map(|(p, &pin)| if pin || std == 0.0 { *p } else { p.map(|c| c + (rng.normal() as f32) * std) })
+        .collect()
+}
+
+fn finite(x: &[[f32; 3]]) -> bool {
+    x.iter().flatten().all(|c| c.is_finite())
+}
+
+/// Feeds one pass's features to the normalisers (MODEL.md section 3); the node normaliser sees
+/// the embedding columns as the forward writes them from the current tables.
+fn accumulate(lay: &Layout, theta: &[f32], n: &mut Normalisers, step: &StepData) {
+    let mut rows = step.node_features.clone();
+    for (r, row) in rows.chunks_exact_mut(NODE_WIDTH).enumerate() {
+        let ty = lay.node_type_embedding + step.node_type[r] as usize * NODE_TYPES;
+        row[3..3 + NODE_TYPES].copy_from_slice(&theta[ty..ty + NODE_TYPES]);
+        let lv = lay.level_embedding + step.node_level[r] as usize * LEVELS;
+        row[12..12 + LEVELS].copy_from_slice(&theta[lv..lv + LEVELS]);
+    }
+    n.node.accumulate(&rows, NODE_WIDTH);
+    for f in &step.edge_features {
+        n.edge.accumulate(f, EDGE_WIDTH);
+    }
+    n.body_edge.accumulate(&step.g2b_features, crate::features::BODY_EDGE_WIDTH);
+    n.body_edge.accumulate(&step.b2g_features, crate::features::BODY_EDGE_WIDTH);
+}
+
+/// The graph of a sample's garment with its hierarchy centre.
+fn graph_of(sample: &Sample, levels: usize) -> Result<Graph> {
+    let centre = sample.centre_seed.map_or(CentreChoice::First, CentreChoice::Seeded);
+    let h = Hierarchy::build(&sample.garment, &HierarchyConfig { levels, centre })?;
+    Graph::new(&sample.garment, &h)
+}
+
+/// Body frames (previous, current, next) and dt of rollout step `k` starting at frame `start`:
+/// the start-up step is static at `start`; step `k >= 1` goes from `start + k - 1` to
+/// `start + k`, as `Sim` does after its start-up step.
+fn frames_of(start: usize, k: usize) -> (usize, usize, usize, f32) {
+    if k == 0 {
+        (start, start, start, DT_STARTUP)
+    } else {
+        (start + k.max(2) - 2, start + k - 1, start + k, DT)
+    }
+}
+
+impl Trainer {
+    /// A fresh run: parameters initialised from `cfg.seed`, empty normalisers.
+    ///
+    /// # Errors
+    /// Errors of the spec and of the network layout.
+    pub fn new(cfg: TrainConfig, data: Dataset) -> Result<Trainer> {
+        let spec = cfg.spec()?;
+        let params = Params::init(&spec, cfg.seed)?;
+        let net = Network::of(&params)?;
+        let theta = net.layout.flatten::<f32>(&params);
+        let adam = Adam::new(theta.len());
+        let rng = Rng::new(cfg.seed ^ 0x7a1e_5eed);
+        Ok(Trainer { cfg, data, net, params, theta, adam, rng, iteration: 0, optimiser_steps: 0, seconds: 0.0 })
+    }
+
+    /// The current parameters (weights from the flat vector, current normaliser statistics).
+    pub fn params(&self) -> Params {
+        let mut p = self.params.clone();
+        self.net.layout.unflatten(&self.theta, &mut p);
+        p
+    }
+
+    /// Parameter count.
+    pub fn parameter_count(&self) -> usize {
+        self.theta.len()
+    }
+
+    /// Runs one iteration: one sample, its rollout, one optimiser step per rollout step (none
+    /// during warm-up).
+    ///
+    /// # Errors
+    /// Errors of the data, the features and the network (a non-finite loss is not an error:
+    /// the step is skipped and reported).
+    pub fn iteration(&mut self) -> Result<IterationReport> {
+        let it = self.iteration;
+        let warmup = it < self.cfg.warmup_iterations;
+        let steps = if warmup { self.cfg.rollout_max.min(3) } else { self.cfg.rollout_length(it) };
+        let sample = self.data.sample(&mut self.rng, steps, &self.cfg)?;
+        let graph = graph_of(&sample, self.cfg.levels)?;
+        let scene = &self.data.scenes[sample.scene];
+        let garment = &sample.garment;
+        let pinned = garment.pinned().to_vec();
+        let n = garment.n_vertices();
+        let cw = self.cfg.collision_weight_at(it);
+        let objective = Objective::training(cw);
+        let mut report = IterationReport {
+            iteration: it,
+            scene: sample.scene,
+            vertices: n,
+            warmup,
+            learning_rate: self.cfg.learning_rate_at(self.optimiser_steps),
+            collision_weight: cw,
+            steps: Vec::new(),
+        };
+        let x0 = scene.initial_garment(sample.start)?;
+        let mut pos = noisy(&mut self.rng, &x0, &pinned, self.cfg.noise);
+        let prev = noisy(&mut self.rng, &x0, &pinned, self.cfg.noise);
+        let mut velocity: Vec<[f32; 3]> =
+            pos.iter().zip(&prev).map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]]).collect();
+        let mut loss = StepLoss::new(garment, &scene.body)?;
+        let mut skinned = [vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]];
+        let mut grad = vec![0.0f32; self.theta.len()];
+        let spec = self.net.spec.clone();
+        for k in 0..steps {
+            let (fp, fc, fnx, dt) = frames_of(sample.start, k);
+            // The skinned garment two frames back, one back and at the next frame: true
+            // frame-to-frame differences (unlike the body frames right after the start-up step).
+            for (buf, f) in skinned.iter_mut().zip([fnx.saturating_sub(2), fnx.saturating_sub(1), fnx]) {
+                scene.skinned_garment(f, buf)?;
+            }
+            let targets = &skinned[2];
+            let gs = GarmentState { pos: &pos, velocity: &velocity, pinned: &pinned, pin_targets: targets };
+            let body = BodyFrames {
+                mesh: &scene.body,
+                prev: scene.body_frame(fp),
+                pos: scene.body_frame(fc),
+                next: scene.body_frame(fnx),
+            };
+            let step = StepData::build(&spec, garment, &graph, &gs, Some(&body), dt)?;
+            accumulate(&self.net.layout, &self.theta, &mut self.params.normalisers, &step);
+            if k > 0 {
+                // The output normaliser: linear-blend-skinning accelerations (MODEL.md section 3).
+                let acc: Vec<f32> = (0..n)
+                    .flat_map(|i| (0..3).map(move |c| (i, c)))
+                    .map(|(i, c)| skinned[2][i][c] - 2.0 * skinned[1][i][c] + skinned[0][i][c])
+                    .collect();
+                self.params.normalisers.output.accumulate(&acc, 3);
+            }
+            if warmup {
+                // Statistics only: follow the skinned garment.
+                pos.copy_from_slice(&skinned[2]);
+                for i in 0..n {
+                    velocity[i] = [0, 1, 2].map(|c| skinned[2][i][c] - skinned[1][i][c]);
+                }
+                continue;
+            }
+            let stats = Stats::<f32>::of(&self.params);
+            let tape = self.net.forward(&self.theta, &stats, &graph, &step)?;
+            let lb = LossBody { mesh: &scene.body, current: scene.body_frame(fc), next: scene.body_frame(fnx) };
+            let mut sr = StepReport { startup: k == 0, ..StepReport::default() };
+            let ok = finite(&tape.new_pos);
+            if ok {
+                let (terms, dx) = loss.eval(&objective, &lb, &step.pos, &step.velocity, dt, &tape.new_pos)?;
+                sr.terms = terms;
+                sr.total = terms.total();
+                if sr.total.is_finite() && finite(dx) {
+                    grad.iter_mut().for_each(|g| *g = 0.0);
+                    self.net.backward(&self.theta, &stats, &graph, &step, &tape, dx, &mut grad)?;
+                    sr.grad_norm = clip_global_norm(&mut grad, self.cfg.clip);
+                }
+            }
+            if !(ok && sr.total.is_finite() && sr.grad_norm.is_finite()) {
+                // A diverged prediction ends the rollout without an update.
+                sr.skipped = true;
+                report.steps.push(sr);
+                break;
+            }
+            let lr = self.cfg.learning_rate_at(self.optimiser_steps);
+            self.adam.step(&mut self.theta, &grad, lr);
+            self.optimiser_steps += 1;
+            report.steps.push(sr);
+            // Detached hand-over: the prediction becomes the next step's state.
+            for i in 0..n {
+                velocity[i] = [0, 1, 2].map(|c| tape.new_pos[i][c] - step.pos[i][c]);
+            }
+            pos.copy_from_slice(&tape.new_pos);
+        }
+        self.iteration += 1;
+        Ok(report)
+    }
+
+    /// The fixed validation samples: seeded independently of the training stream, default
+    /// material, first hierarchy centre, spread over the scenes.
+    fn validation_samples(&self) -> Result<Vec<Sample>> {
+        let (count, frames) = self.cfg.validation;
+        let mut rng = Rng::new(self.cfg.seed ^ 0x0a11_da7e);
+        let mut cfg = self.cfg.clone();
+        cfg.random_materials = false;
+        cfg.random_centres = false;
+        let mut out = Vec::new();
+        for i in 0..count {
+            let mut s = self.data.sample(&mut rng, frames, &cfg)?;
+            s.scene = i % self.data.scenes.len();
+            let sc = &self.data.scenes[s.scene];
+            s.start = rng.below(sc.n_frames().saturating_sub(frames + 1).max(1));
+            s.garment = sc.garment_with_material(s.material)?;
+            out.push(s);
+        }
+        Ok(out)
+    }
+
+    /// Rolls out the fixed validation samples (start-up step, then `frames - 1` regular steps)
+    /// with the current weights and scores them with the evaluation-form objective.
+    ///
+    /// # Errors
+    /// Errors of the data, features and scoring.
+    pub fn validate(&self) -> Result<ValidationReport> {
+        let frames = self.cfg.validation.1.max(2);
+        let stats = Stats::<f32>::of(&self.params);
+        let mut report = ValidationReport { iteration: self.iteration, rollouts: Vec::new() };
+        for sample in self.validation_samples()? {
+            let scene = &self.data.scenes[sample.scene];
+            let graph = graph_of(&sample, self.cfg.levels)?;
+            let garment = &sample.garment;
+            let pinned = garment.pinned().to_vec();
+            let n = garment.n_vertices();
+            let mut pos = scene.initial_garment(sample.start)?;
+            let mut velocity = vec![[0.0f32; 3]; n];
+            let mut targets = vec![[0.0f32; 3]; n];
+            let mut out_frames: Vec<Vec<[f32; 3]>> = Vec::new();
+            let mut body_frames: Vec<Vec<[f32; 3]>> = Vec::new();
+            let mut ok = true;
+            for k in 0..frames {
+                let (fp, fc, fnx, dt) = frames_of(sample.start, k);
+                scene.skinned_garment(fnx, &mut targets)?;
+                let gs = GarmentState { pos: &pos, velocity: &velocity, pinned: &pinned, pin_targets: &targets };
+                let body = BodyFrames {
+                    mesh: &scene.body,
+                    prev: scene.body_frame(fp),
+                    pos: scene.body_frame(fc),
+                    next: scene.body_frame(fnx),
+                };
+                let step = StepData::build(&self.net.spec, garment, &graph, &gs, Some(&body), dt)?;
+                let tape = self.net.forward(&self.theta, &stats, &graph, &step)?;
+                if !finite(&tape.new_pos) {
+                    ok = false;
+                    break;
+                }
+                for i in 0..n {
+                    velocity[i] = [0, 1, 2].map(|c| tape.new_pos[i][c] - step.pos[i][c]);
+                }
+                pos.copy_from_slice(&tape.new_pos);
+                out_frames.push(pos.clone());
+                body_frames.push(scene.body_frame(fnx).to_vec());
+            }
+            let name = self.data.names[sample.scene].clone();
+            let score = if ok {
+                score_rollout(
+                    garment,
+                    &Objective::evaluation(),
+                    &out_frames,
+                    &body_frames,
+                    scene.body.faces(),
+                    DT as f64,
+                )
+                .ok()
+                .filter(|s| s.mean.total.is_finite())
+            } else {
+                None
+            };
+            report.rollouts.push((name, score));
+        }
+        Ok(report)
+    }
+
+    /// The current model as `.hood` bytes (f32 and bf16 weights), with provenance: the config,
+    /// iterations, optimiser steps, wall time and `extra` entries.
+    ///
+    /// # Errors
+    /// Errors of [`write_model`].
+    pub fn export(&self, extra: &[(&str, &str)]) -> Result<Vec<u8>> {
+        let cfg = self.cfg.to_json();
+        let its = self.iteration.to_string();
+        let steps = self.optimiser_steps.to_string();
+        let secs = format!("{:.0}", self.seconds);
+        let scenes = self.data.names.join(", ");
+        let mut prov: Vec<(&str, &str)> = vec![
+            ("trainer", "hood train"),
+            ("config", &cfg),
+            ("iterations", &its),
+            ("optimiser_steps", &steps),
+            ("train_seconds", &secs),
+            ("scenes", &scenes),
+        ];
+        prov.extend_from_slice(extra);
+        write_model(&self.params(), true, &prov)
+    }
+
+    /// Writes the whole state to `path` (safetensors; atomically, through a temporary file).
+    ///
+    /// # Errors
+    /// [`Error::Io`].
+    pub fn save_checkpoint(&self, path: &Path) -> Result<()> {
+        let n = &self.params.normalisers;
+        let mut acc: Vec<(String, Vec<f64>)> = Vec::new();
+        for (name, norm) in [("node", &n.node), ("edge", &n.edge), ("body_edge", &n.body_edge), ("output", &n.output)] {
+            let (s, sq, c) = norm.accumulators();
+            acc.push((format!("norm.{name}.sum"), s.to_vec()));
+            acc.push((format!("norm.{name}.sum_sq"), sq.to_vec()));
+            acc.push((format!("norm.{name}.count"), vec![c]));
+        }
+        let len = [self.theta.len()];
+        let mut tensors: Vec<(&str, &[usize], TensorData<'_>)> = vec![
+            ("theta", &len, TensorData::F32(&self.theta)),
+            ("adam.m", &len, TensorData::F32(&self.adam.m)),
+            ("adam.v", &len, TensorData::F32(&self.adam.v)),
+        ];
+        let shapes: Vec<[usize; 1]> = acc.iter().map(|a| [a.1.len()]).collect();
+        for (a, s) in acc.iter().zip(&shapes) {
+            tensors.push((&a.0, s, TensorData::F64(&a.1)));
+        }
+        let rng = self.rng.state().map(|w| w.to_string()).join(",");
+        let meta = [
+            ("format", CHECKPOINT_FORMAT.to_string()),
+            ("config", self.cfg.to_json()),
+            ("iteration", self.iteration.to_string()),
+            ("optimiser_steps", self.optimiser_steps.to_string()),
+            ("adam_t", self.adam.t.to_string()),
+            ("rng", rng),
+            ("seconds", format!("{}", self.seconds)),
+        ];
+        let meta_ref: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (*k, v.as_str())).collect();
+        let bytes = safetensors::to_bytes(&tensors, &meta_ref)?;
+        let tmp = path.with_extension("tmp");
+        let io = |e: std::io::Error| Error::Io { path: path.display().to_string(), message: e.to_string() };
+        std::fs::write(&tmp, &bytes).map_err(io)?;
+        std::fs::rename(&tmp, path).map_err(io)
+    }
+
+    /// Restores a run from [`save_checkpoint`](Self::save_checkpoint)'s file; the dataset is
+    /// rebuilt by the caller from the checkpoint's config ([`checkpoint_config`]).
+    ///
+    /// # Errors
+    /// [`Error::Io`], [`Error::Parse`] for a file that is not a checkpoint of this format;
+    /// [`Error::SizeMismatch`] when its parameter count disagrees with its config.
+    pub fn resume(path: &Path, data: Dataset) -> Result<Trainer> {
+        let st = SafeTensors::read(path)?;
+        let cfg = checkpoint_config(&st)?;
+        let mut t = Trainer::new(cfg, data)?;
+        let meta = |k: &str| -> Result<String> {
+            st.metadata()
+                .iter()
+                .find(|(key, _)| key == k)
+                .map(|(_, v)| v.clone())
+                .ok_or_else(|| Error::parse("checkpoint", 0, format!("missing '{k}'")))
+        };
+        let num = |k: &str| -> Result<u64> {
+            meta(k)?.parse::<u64>().map_err(|_| Error::parse("checkpoint", 0, format!("bad '{k}'")))
+        };
+        let len = t.theta.len();
+        let vec32 = |k: &str| -> Result<Vec<f32>> {
+            let v = st.f32(k)?.data;
+            if v.len() != len {
+                return Err(Error::SizeMismatch { what: "checkpoint tensor", expected: len, got: v.len() });
+            }
+            Ok(v)
+        };
+        t.theta = vec32("theta")?;
+        t.adam.m = vec32("adam.m")?;
+        t.adam.v = vec32("adam.v")?;
+        t.adam.t = num("adam_t")?;
+        t.iteration = num("iteration")?;
+        t.optimiser_steps = num("optimiser_steps")?;
+        t.seconds = meta("seconds")?.parse().unwrap_or(0.0);
+        let words: Vec<u64> = meta("rng")?.split(',').filter_map(|w| w.parse().ok()).collect();
+        let words: [u64; 4] = words.try_into().map_err(|_| Error::parse("checkpoint", 0, "bad 'rng'"))?;
+        t.rng = Rng::from_state(words);
+        let n = &mut t.params.normalisers;
+        for (name, norm) in
+            [("node", &mut n.node), ("edge", &mut n.edge), ("body_edge", &mut n.body_edge), ("output", &mut n.output)]
+        {
+            let sum = st.f64(&format!("norm.{name}.sum"))?.data;
+            let sq = st.f64(&format!("norm.{name}.sum_sq"))?.data;
+            let c = st.f64(&format!("norm.{name}.count"))?.data;
+            if sum.len() != norm.width() || sq.len() != norm.width() || c.len() != 1 {
+                return Err(Error::SizeMismatch {
+                    what: "normaliser accumulators",
+                    expected: norm.width(),
+                    got: sum.len(),
+                });
+            }
+            *norm = Normaliser::from_accumulators(&sum, &sq, c[0]);
+        }
+        Ok(t)
+    }
+
+    /// Continues from an exported model (when the checkpoint is gone): its weights and
+    /// normaliser statistics (as accumulators of weight `count_scale` rows), a fresh optimiser,
+    /// the iteration counters from its provenance.
+    ///
+    /// # Errors
+    /// [`Error::IncompatibleModel`] when the model's shape differs from `cfg`'s.
+    pub fn from_model(cfg: TrainConfig, data: Dataset, model: &Model<'_>) -> Result<Trainer> {
+        let mut t = Trainer::new(cfg, data)?;
+        let p = model.to_params();
+        if p.spec != t.params.spec {
+            return Err(Error::IncompatibleModel { reason: "the model's shape differs from the config's" });
+        }
+        t.theta = t.net.layout.flatten::<f32>(&p);
+        t.params.normalisers = p.normalisers;
+        let prov = |k: &str| model.provenance().find(|(key, _)| *key == k).and_then(|(_, v)| v.parse::<f64>().ok());
+        t.iteration = prov("iterations").unwrap_or(0.0) as u64;
+        t.optimiser_steps = prov("optimiser_steps").unwrap_or(0.0) as u64;
+        t.seconds = prov("train_seconds").unwrap_or(0.0);
+        // A different stream from the original run's, reproducible from the iteration.
+        t.rng = Rng::new(t.cfg.seed ^ 0x7a1e_5eed ^ t.iteration.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+        Ok(t)
+    }
+}
+
+/// The config stored in a checkpoint.
+///
+/// # Errors
+/// [`Error::Parse`] when the file is not a checkpoint of this format.
+pub fn checkpoint_config(st: &SafeTensors) -> Result<TrainConfig> {
+    let get = |k: &str| st.metadata().iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+    if get("format") != Some(CHECKPOINT_FORMAT) {
+        return Err(Error::parse("checkpoint", 0, format!("not a {CHECKPOINT_FORMAT} checkpoint")));
+    }
+    TrainConfig::from_json(get("config").unwrap_or(""))
+}

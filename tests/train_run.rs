@@ -1,0 +1,123 @@
+//! Training runs: the config format, the schedules, exact resumption from a checkpoint, and the
+//! exported model running in the runtime.
+#![cfg(feature = "train")]
+
+use hood::scene::{GarmentKind, MotionKind};
+use hood::train::{Dataset, SceneSource, TrainConfig, Trainer};
+use std::path::Path;
+
+/// A run small enough for debug-mode tests: h = 8, a two-level schedule, a 64-vertex cape.
+fn tiny_config() -> TrainConfig {
+    TrainConfig {
+        latent: 8,
+        levels: 2,
+        schedule: "f,c0 | d:c0,c1 | u:f,c0".into(),
+        warmup_iterations: 2,
+        rollout_every: 2,
+        rollout_max: 3,
+        validation: (1, 4),
+        scenes: vec![SceneSource::Procedural {
+            garment: GarmentKind::Cape,
+            vertices: 64,
+            motion: MotionKind::ArmSwings,
+            seconds: 1.0,
+        }],
+        ..TrainConfig::default()
+    }
+}
+
+fn data(cfg: &TrainConfig) -> Dataset {
+    Dataset::build(cfg, Path::new("/nonexistent"), |_| {}).unwrap()
+}
+
+#[test]
+fn train_config_json_round_trip() {
+    let c = TrainConfig::default();
+    let back = TrainConfig::from_json(&c.to_json()).unwrap();
+    assert_eq!(back, c);
+    let t = tiny_config();
+    assert_eq!(TrainConfig::from_json(&t.to_json()).unwrap(), t);
+    let e = TrainConfig::from_json("{\"latnet\": 32}").unwrap_err().to_string();
+    assert!(e.contains("latnet"), "{e}");
+    assert!(TrainConfig::from_json("{\"scenes\": [{\"garment\": \"hat\", \"motion\": \"walk\"}]}").is_err());
+    assert!(TrainConfig::from_json("{\"latent\": -3}").is_err());
+}
+
+#[test]
+fn train_schedules_follow_the_recipe() {
+    let c = TrainConfig::default();
+    assert_eq!(c.rollout_length(0), 1);
+    assert_eq!(c.rollout_length(4_999), 1);
+    assert_eq!(c.rollout_length(5_000), 2);
+    assert_eq!(c.rollout_length(1_000_000), 5);
+    assert!((c.collision_weight_at(0) - 5e3).abs() < 1e-6);
+    assert!((c.collision_weight_at(c.collision_ramp / 2) - 5e4).abs() < 1e-3 * 5e4);
+    assert!((c.collision_weight_at(10 * c.collision_ramp) - 5e5).abs() < 1e-6);
+    assert!((c.learning_rate_at(0) - 5e-5 * 1.01).abs() < 1e-15);
+    assert!((c.learning_rate_at(50_000) - 5e-5 * 0.51).abs() < 1e-15);
+}
+
+#[test]
+fn train_resume_is_exact() {
+    let cfg = tiny_config();
+    let total = 7;
+    let mut straight = Trainer::new(cfg.clone(), data(&cfg)).unwrap();
+    let mut expected = Vec::new();
+    for _ in 0..total {
+        expected.push(straight.iteration().unwrap());
+    }
+    assert!(expected.iter().any(|r| r.steps.len() >= 2), "the curriculum should reach rollouts of 2+ steps");
+    assert!(expected.iter().flat_map(|r| &r.steps).all(|s| !s.skipped && s.total.is_finite()));
+
+    let dir = std::env::temp_dir().join(format!("hood-resume-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let ckpt = dir.join("checkpoint.safetensors");
+    let mut first = Trainer::new(cfg.clone(), data(&cfg)).unwrap();
+    let mut got = Vec::new();
+    for _ in 0..4 {
+        got.push(first.iteration().unwrap());
+    }
+    first.save_checkpoint(&ckpt).unwrap();
+    drop(first);
+    let mut resumed = Trainer::resume(&ckpt, data(&cfg)).unwrap();
+    assert_eq!(resumed.iteration, 4);
+    while got.len() < total {
+        got.push(resumed.iteration().unwrap());
+    }
+    for (a, b) in expected.iter().zip(&got) {
+        assert_eq!(a, b, "iteration {} differs after resuming", a.iteration);
+    }
+    assert_eq!(resumed.params(), straight.params(), "final parameters and statistics");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn train_export_runs_in_the_runtime() {
+    let cfg = tiny_config();
+    let mut t = Trainer::new(cfg.clone(), data(&cfg)).unwrap();
+    for _ in 0..4 {
+        t.iteration().unwrap();
+    }
+    let v = t.validate().unwrap();
+    assert!(v.finite(), "validation rollouts diverged: {v:?}");
+    let bytes = hood::model::ModelBytes::new(&t.export(&[("test", "yes")]).unwrap());
+    let model = bytes.model().unwrap();
+    assert_eq!(model.provenance().find(|(k, _)| *k == "iterations").map(|(_, v)| v), Some("4"));
+    assert_eq!(model.to_params().normalisers.node.stats(), t.params().normalisers.node.stats());
+    // The exported model steps the training scene in the runtime, finite.
+    let scene = &t.data.scenes[0];
+    let body = hood::sim::BodyDesc { mesh: &scene.body, positions: scene.body_frame(0) };
+    let mut sim = hood::sim::Sim::new(&model, &scene.garment, Some(body), hood::sim::SimConfig::default()).unwrap();
+    let mut targets = vec![[0.0; 3]; scene.garment.n_vertices()];
+    for f in 1..6 {
+        scene.skinned_garment(f, &mut targets).unwrap();
+        sim.set_pin_targets(&targets).unwrap();
+        let x = sim.step(scene.body_frame(f)).unwrap();
+        assert!(x.iter().flatten().all(|c| c.is_finite()), "frame {f}");
+    }
+    // Continuing from the exported model (no checkpoint) keeps its weights and counters.
+    let again = Trainer::from_model(cfg.clone(), data(&cfg), &model).unwrap();
+    assert_eq!(again.iteration, 4);
+    let (pa, pb) = (again.params(), t.params());
+    assert_eq!(pa.mlps(), pb.mlps());
+}
