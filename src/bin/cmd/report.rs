@@ -225,6 +225,14 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
          median wall time of one step on this machine (the implicit solver in f64).\n",
         a.gap_every, a.objective
     );
+    if a.objective == "evaluation" {
+        let _ = writeln!(
+            s,
+            "Under the evaluation objective the collision term (eps 1 mm, weight 1) is almost nil, so the converged \
+             optimum lets the garment sink into the body: see the penetration of the implicit rows. \
+             `--objective training` scores with the training collision weight instead.\n"
+        );
+    }
     for m in models {
         let spec = m.bytes.model().map(|x| x.spec().clone());
         if let Ok(spec) = spec {
