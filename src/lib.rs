@@ -34,6 +34,7 @@ extern crate std;
 pub mod bench;
 pub mod body;
 pub mod error;
+pub mod eval;
 pub mod features;
 pub mod hierarchy;
 #[cfg(feature = "std")]

@@ -8,6 +8,10 @@ use hood::workloads::{default_shared_dir, workload, NAMES};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+#[path = "cmd/report.rs"]
+mod report;
+#[path = "cmd/simulate.rs"]
+mod simulate;
 #[cfg(feature = "train")]
 #[path = "cmd/train.rs"]
 mod train_cmd;
@@ -21,6 +25,11 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run a model on a scene (default: the shipped model, dress on the walking mannequin):
+    /// OBJ sequence, PNG preview strip, per-step timing and objective.
+    Simulate(simulate::SimulateArgs),
+    /// Accuracy against time: variants x workloads -> docs/report.md and docs/report.svg.
+    Report(report::ReportArgs),
     /// Step latency per workload, model size, precision and thread count (EVALUATION.md).
     Bench(BenchArgs),
     /// Convert a reference HOOD checkpoint's state dict (as safetensors) into a `.hood` file.
@@ -130,6 +139,8 @@ struct BenchArgs {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Simulate(a) => simulate::simulate(a),
+        Command::Report(a) => report::report(a),
         Command::Bench(a) => bench(a),
         Command::Convert(a) => convert(a),
         Command::Info(a) => info(a),

@@ -1,0 +1,357 @@
+//! `hood report`: accuracy against time (EVALUATION.md). Variants (models and their precisions,
+//! the implicit solver at several iteration counts) x workloads -> a Markdown table and an SVG
+//! plot of the relative objective gap against ms per step.
+
+use clap::Args;
+use hood::eval::{converged_solver, implicit_rollout, rollout, Animation, Rollout, RolloutOptions};
+use hood::model::spec::format_schedule;
+use hood::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
+use hood::physics::Objective;
+use hood::rig::procedural::Mannequin;
+use hood::scene::{procedural, GarmentKind, MotionKind};
+use hood::sim::{Precision, SimConfig};
+use hood::solve::LbfgsParams;
+use hood::{Error, Result};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+#[derive(Args)]
+pub struct ReportArgs {
+    /// Model files (comma-separated); default: every `models/*.hood`, or untrained random models
+    /// (timing only) when there is none.
+    #[arg(long, value_delimiter = ',')]
+    model: Vec<PathBuf>,
+    /// Workloads: skirt, dress, cape (procedural mannequin walking), tee, jeans (MakeHuman on the
+    /// CMU walk; skipped when the assets are absent).
+    #[arg(long, value_delimiter = ',', default_value = "skirt,jeans")]
+    workload: Vec<String>,
+    /// Vertices of the procedural garments (approximate).
+    #[arg(long, default_value_t = 1000)]
+    vertices: usize,
+    /// Frames per rollout.
+    #[arg(long, default_value_t = 30)]
+    frames: usize,
+    /// The gap is computed every this many frames (each costs a converged implicit step).
+    #[arg(long, default_value_t = 5)]
+    gap_every: usize,
+    /// L-BFGS iteration counts of the implicit-solver variants.
+    #[arg(long, value_delimiter = ',', default_value = "1,3,10,30,100")]
+    iterations: Vec<usize>,
+    /// Threads of the network step.
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+    /// Objective of the frames and of the gap: `evaluation` (EVALUATION.md: collision eps 1 mm,
+    /// weight 1, which the optimum barely feels) or `training` (collision eps 2 mm at the final
+    /// training weight 5e5).
+    #[arg(long, default_value = "evaluation")]
+    objective: String,
+    /// Output folder for `report.md` and `report.svg`.
+    #[arg(long, short, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/docs"))]
+    out: PathBuf,
+    /// Folder of the MakeHuman assets (default: ../shared/assets beside the source).
+    #[arg(long)]
+    assets: Option<PathBuf>,
+}
+
+/// One measured variant on one workload.
+struct Row {
+    workload: String,
+    vertices: usize,
+    variant: String,
+    implicit: bool,
+    summary: hood::eval::Summary,
+}
+
+/// A model to report: its bytes and a label; `trained` false for random stand-ins.
+struct Candidate {
+    label: String,
+    bytes: ModelBytes,
+    trained: bool,
+}
+
+fn random(label: &str, spec: ModelSpec) -> Result<Candidate> {
+    let mut p = Params::init(&spec, 0)?;
+    p.normalisers = Normalisers::unit_scale(1);
+    let bytes = ModelBytes::new(&write_model(&p, true, &[("kind", "random, untrained")])?);
+    Ok(Candidate { label: format!("{label} (random)"), bytes, trained: false })
+}
+
+fn spec_label(s: &ModelSpec) -> String {
+    format!("h={} blocks={} levels={}", s.latent, s.blocks.len(), s.levels)
+}
+
+fn candidates(a: &ReportArgs) -> Result<Vec<Candidate>> {
+    let mut files = a.model.clone();
+    if files.is_empty() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+        if let Ok(rd) = std::fs::read_dir(&dir) {
+            files = rd
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|x| x == "hood"))
+                .collect();
+            files.sort();
+        }
+    }
+    if files.is_empty() {
+        eprintln!("no model files: timing untrained random models (their gap is meaningless)");
+        return Ok(vec![
+            random("hood h=32", ModelSpec::hood(32))?,
+            random("hood h=64", ModelSpec::hood(64))?,
+            random("flat h=32", ModelSpec::with_schedule(32, 2, 0, &["f"; 15].join(" | "))?)?,
+            random("5 blocks h=32", ModelSpec::with_schedule(32, 2, 3, "f,c0 | d:c0,c1 | d:c1 | u:c0,c1 | u:f,c0")?)?,
+        ]);
+    }
+    files
+        .iter()
+        .map(|f| {
+            let bytes = ModelBytes::read(f)?;
+            let spec = bytes.model()?.spec().clone();
+            let stem = f.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
+            Ok(Candidate { label: format!("{stem} {}", spec_label(&spec)), bytes, trained: true })
+        })
+        .collect()
+}
+
+fn workload(a: &ReportArgs, name: &str, m: &Mannequin) -> Result<Option<Box<dyn Animation>>> {
+    let seconds = (a.frames + 1) as f32 / 30.0 + 0.1;
+    if let Some(kind) = GarmentKind::parse(name) {
+        return Ok(Some(Box::new(procedural(m, kind, a.vertices, MotionKind::Walk, seconds)?)));
+    }
+    use hood::scene::{makehuman, MakeHumanGarment};
+    let which = match name {
+        "tee" => MakeHumanGarment::Tee,
+        "jeans" => MakeHumanGarment::Jeans,
+        _ => return Err(Error::parse("workload", 0, format!("unknown workload '{name}'"))),
+    };
+    let assets = a.assets.clone().unwrap_or_else(|| hood::workloads::default_shared_dir().join("assets"));
+    match makehuman(&assets, which, a.frames + 1) {
+        Ok(s) => Ok(Some(Box::new(s))),
+        Err(e @ Error::Io { .. }) => {
+            eprintln!("skipping {name}: {e}");
+            Ok(None)
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// Runs `hood report`.
+pub fn report(a: ReportArgs) -> Result<()> {
+    let models = candidates(&a)?;
+    let mannequin = Mannequin::new();
+    let objective = match a.objective.as_str() {
+        "evaluation" => Objective::evaluation(),
+        "training" => Objective::training(5e5),
+        o => return Err(Error::parse("objective", 0, format!("'{o}' (use evaluation or training)"))),
+    };
+    let opts = RolloutOptions { gap_every: a.gap_every.max(1), objective, ..RolloutOptions::default() };
+    let mut rows = Vec::new();
+    for name in &a.workload {
+        let Some(anim) = workload(&a, name, &mannequin)? else { continue };
+        let frames = a.frames.min(anim.n_frames() - 1);
+        let verts = anim.garment().n_vertices();
+        let mut push = |variant: String, implicit: bool, r: Rollout| {
+            let s = r.summary;
+            eprintln!(
+                "{name:<6} {variant:<40} {:>8.2} ms/step  gap mean {:>7}  p95 {:>7}  penetrating {:>5.2}%{}",
+                s.median_step_ms,
+                fmt_opt(s.gap_mean),
+                fmt_opt(s.gap_p95),
+                s.mean_penetrating_percent,
+                if s.finite { "" } else { "  NOT FINITE" }
+            );
+            rows.push(Row { workload: name.clone(), vertices: verts, variant, implicit, summary: s });
+        };
+        for c in &models {
+            let model = c.bytes.model()?;
+            let precisions: &[Precision] =
+                if model.has_bf16() { &[Precision::F32, Precision::Bf16] } else { &[Precision::F32] };
+            for &p in precisions {
+                let cfg = SimConfig { precision: p, threads: a.threads.max(1), ..SimConfig::default() };
+                let r = rollout(&model, &*anim, frames, cfg, &opts)?;
+                let prec = if p == Precision::Bf16 { "bf16" } else { "f32" };
+                push(format!("{} {prec}", c.label), false, r);
+            }
+        }
+        for &k in &a.iterations {
+            let solver = LbfgsParams { max_iterations: k.max(1), ..converged_solver() };
+            let r = implicit_rollout(&*anim, frames, &solver, &opts, &mut |_, _| Ok(()))?;
+            push(format!("implicit L-BFGS {k} it. (f64)"), true, r);
+        }
+    }
+    std::fs::create_dir_all(&a.out)
+        .map_err(|e| Error::Io { path: a.out.display().to_string(), message: e.to_string() })?;
+    let trained = models.iter().all(|m| m.trained);
+    let md = markdown(&a, &rows, &models, trained);
+    let svg = svg_plot(&rows);
+    for (file, text) in [("report.md", md), ("report.svg", svg)] {
+        let p = a.out.join(file);
+        std::fs::write(&p, text).map_err(|e| Error::Io { path: p.display().to_string(), message: e.to_string() })?;
+        println!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
+fn fmt_opt(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{v:.3}"))
+}
+
+fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# Accuracy against time\n");
+    let _ = writeln!(
+        s,
+        "Generated by `hood report --workload {} --vertices {} --frames {} --gap-every {} --iterations {} --threads {} \
+         --objective {}` \
+         (EVALUATION.md \"Accuracy against time\"; the figure is [report.svg](report.svg)).\n",
+        a.workload.join(","),
+        a.vertices,
+        a.frames,
+        a.gap_every,
+        a.iterations.iter().map(|k| k.to_string()).collect::<Vec<_>>().join(","),
+        a.threads,
+        a.objective
+    );
+    if !trained {
+        let _ = writeln!(
+            s,
+            "**The models here are untrained random stand-ins** (no model file was found): their step times are \
+             real, their gap (about 1, coasting) is not an accuracy figure. Rerun once `models/` holds trained models.\n"
+        );
+    }
+    let _ = writeln!(
+        s,
+        "Gap: relative objective gap (E(x) - E(x*)) / (E(x_hat) - E(x*)) against the converged implicit step from the \
+         same state (0: optimal, 1: no better than coasting), every {} frames, {} objective. ms/step: \
+         median wall time of one step on this machine (the implicit solver in f64).\n",
+        a.gap_every, a.objective
+    );
+    if a.objective == "evaluation" {
+        let _ = writeln!(
+            s,
+            "Under the evaluation objective the collision term (eps 1 mm, weight 1) is almost nil, so the converged \
+             optimum lets the garment sink into the body: see the penetration of the implicit rows. \
+             `--objective training` scores with the training collision weight instead.\n"
+        );
+    }
+    for m in models {
+        let spec = m.bytes.model().map(|x| x.spec().clone());
+        if let Ok(spec) = spec {
+            let _ = writeln!(s, "* `{}`: schedule `{}`", m.label, format_schedule(&spec.blocks));
+        }
+    }
+    let _ = writeln!(
+        s,
+        "\n| workload | vertices | variant | ms/step | gap mean | gap p95 | penetrating % (mean) | max strain | finite |"
+    );
+    let _ = writeln!(s, "|---|---:|---|---:|---:|---:|---:|---:|---|");
+    for r in rows {
+        let m = &r.summary;
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {:.2} | {} | {} | {:.2} | {:.3} | {} |",
+            r.workload,
+            r.vertices,
+            r.variant,
+            m.median_step_ms,
+            fmt_opt(m.gap_mean),
+            fmt_opt(m.gap_p95),
+            m.mean_penetrating_percent,
+            m.max_edge_strain,
+            if m.finite { "yes" } else { "no" }
+        );
+    }
+    s
+}
+
+/// Gap (mean, with a bar to the 95th percentile) against ms/step on a log axis.
+fn svg_plot(rows: &[Row]) -> String {
+    let (w, h) = (760.0f64, 460.0f64);
+    let (l, r, t, b) = (70.0, 230.0, 30.0, 50.0);
+    let pts: Vec<(&Row, f64, f64, f64)> = rows
+        .iter()
+        .filter_map(|row| {
+            let s = &row.summary;
+            Some((row, s.median_step_ms.max(1e-3), s.gap_mean?, s.gap_p95.unwrap_or(s.gap_mean?)))
+        })
+        .collect();
+    let lx = |v: f64| v.log10();
+    let (mut x0, mut x1) = pts.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(lx(p.1)), b.max(lx(p.1))));
+    if pts.is_empty() {
+        (x0, x1) = (0.0, 1.0);
+    }
+    let (x0, x1) = (x0.floor(), x1.ceil().max(x0.floor() + 1.0));
+    let y1 = pts.iter().map(|p| p.3).fold(1.1f64, f64::max).min(3.0);
+    let px = |v: f64| l + (lx(v) - x0) / (x1 - x0) * (w - l - r);
+    let py = |g: f64| t + (1.0 - g.clamp(0.0, y1) / y1) * (h - t - b);
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11">"#
+    );
+    let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
+    // Axes and grid.
+    for e in (x0 as i32)..=(x1 as i32) {
+        let x = px(10f64.powi(e));
+        let _ = writeln!(s, r##"<line x1="{x:.1}" y1="{t}" x2="{x:.1}" y2="{}" stroke="#ddd"/>"##, h - b);
+        let _ = writeln!(s, r#"<text x="{x:.1}" y="{}" text-anchor="middle">{}</text>"#, h - b + 16.0, 10f64.powi(e));
+    }
+    let mut g = 0.0;
+    while g <= y1 + 1e-9 {
+        let y = py(g);
+        let _ = writeln!(s, r##"<line x1="{l}" y1="{y:.1}" x2="{}" y2="{y:.1}" stroke="#ddd"/>"##, w - r);
+        let _ = writeln!(s, r#"<text x="{}" y="{:.1}" text-anchor="end">{g:.1}</text>"#, l - 6.0, y + 4.0);
+        g += 0.2;
+    }
+    let _ = writeln!(
+        s,
+        r#"<rect x="{l}" y="{t}" width="{}" height="{}" fill="none" stroke="black"/>"#,
+        w - l - r,
+        h - t - b
+    );
+    let _ = writeln!(
+        s,
+        r#"<text x="{}" y="{}" text-anchor="middle">ms per step (log)</text>"#,
+        l + (w - l - r) / 2.0,
+        h - 12.0
+    );
+    let _ = writeln!(
+        s,
+        r#"<text x="16" y="{}" text-anchor="middle" transform="rotate(-90 16 {})">relative objective gap (mean, bar to p95)</text>"#,
+        t + (h - t - b) / 2.0,
+        t + (h - t - b) / 2.0
+    );
+    // Points: colour per workload; squares for the implicit solver, circles for models.
+    const COLOURS: [&str; 5] = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"];
+    let mut workloads: Vec<&str> = Vec::new();
+    for row in rows {
+        if !workloads.contains(&row.workload.as_str()) {
+            workloads.push(&row.workload);
+        }
+    }
+    for (i, (row, ms, mean, p95)) in pts.iter().enumerate() {
+        let c = COLOURS[workloads.iter().position(|w| *w == row.workload).unwrap_or(0) % COLOURS.len()];
+        let (x, y, yp) = (px(*ms), py(*mean), py(*p95));
+        let _ = writeln!(s, r#"<line x1="{x:.1}" y1="{y:.1}" x2="{x:.1}" y2="{yp:.1}" stroke="{c}"/>"#);
+        if row.implicit {
+            let _ = writeln!(s, r#"<rect x="{:.1}" y="{:.1}" width="7" height="7" fill="{c}"/>"#, x - 3.5, y - 3.5);
+        } else {
+            let _ = writeln!(s, r#"<circle cx="{x:.1}" cy="{y:.1}" r="4" fill="{c}"/>"#);
+        }
+        let _ = writeln!(s, r#"<text x="{:.1}" y="{:.1}" fill="{c}" font-size="9">{}</text>"#, x + 6.0, y - 4.0, i + 1);
+    }
+    // Legend: numbered variants.
+    for (i, (row, ..)) in pts.iter().enumerate() {
+        let c = COLOURS[workloads.iter().position(|w| *w == row.workload).unwrap_or(0) % COLOURS.len()];
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="{:.1}" fill="{c}" font-size="9">{}: {} {}</text>"#,
+            w - r + 10.0,
+            t + 10.0 + 11.0 * i as f64,
+            i + 1,
+            row.workload,
+            row.variant
+        );
+    }
+    s.push_str("</svg>\n");
+    s
+}

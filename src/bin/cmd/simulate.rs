@@ -1,0 +1,281 @@
+//! `hood simulate`: run a model on a scene, write an OBJ sequence and a PNG preview strip, print
+//! per-step timing and the objective.
+
+use clap::Args;
+use hood::eval::{rollout_observed, strip_images, Animation, FrameRecord, Playback, RolloutOptions};
+use hood::io::obj::Obj;
+use hood::mesh::{Garment, GarmentDesc};
+use hood::model::ModelBytes;
+use hood::rig::procedural::Mannequin;
+use hood::scene::{procedural, GarmentKind, MotionKind};
+use hood::sim::{Precision, SimConfig};
+use hood::{Error, Result};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The shipped default model, embedded in the binary. To embed it once `models/compact.hood` is
+/// committed, replace `None` with `Some(include_bytes!("../../../models/compact.hood"))`.
+const EMBEDDED_MODEL: Option<&[u8]> = None;
+
+/// Where the default model is looked for while it is not embedded.
+const DEFAULT_MODEL_PATH: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/compact.hood");
+
+#[derive(Args)]
+pub struct SimulateArgs {
+    /// Model file (default: the shipped compact model).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Use an untrained random model of this latent width instead (tries the pipeline; the
+    /// motion it produces is garbage).
+    #[arg(long, conflicts_with = "model")]
+    random_model: Option<usize>,
+    /// Garment: skirt, dress or cape (procedural mannequin), tee or jeans (MakeHuman body on the
+    /// CMU walk, from --assets).
+    #[arg(long, default_value = "dress")]
+    garment: String,
+    /// Vertices of a procedural garment (approximate).
+    #[arg(long, default_value_t = 4000)]
+    vertices: usize,
+    /// Procedural motion: walk, run, jump, turn, arm-swings, random-<seed>.
+    #[arg(long, default_value = "walk")]
+    motion: String,
+    /// Frames to simulate (30 per second).
+    #[arg(long, default_value_t = 90)]
+    frames: usize,
+    /// Output folder (OBJ sequence `garment_NNNN.obj`, `body_NNNN.obj`, `preview.png`).
+    #[arg(long, short, default_value = "hood-out")]
+    out: PathBuf,
+    /// Threads of the step.
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+    /// Network arithmetic: f32 or bf16.
+    #[arg(long, default_value = "f32")]
+    precision: String,
+    /// A garment OBJ (metres, y up) to simulate instead of the built-in scenes; needs --body-obj.
+    #[arg(long, requires = "body_obj")]
+    garment_obj: Option<PathBuf>,
+    /// The body as an OBJ sequence: a folder whose `.obj` files (same topology, sorted by name)
+    /// are the frames at 30 Hz.
+    #[arg(long, requires = "garment_obj")]
+    body_obj: Option<PathBuf>,
+    /// Folder of the MakeHuman assets (default: ../shared/assets beside the source).
+    #[arg(long)]
+    assets: Option<PathBuf>,
+    /// Also compute the relative objective gap to the converged implicit step every this many
+    /// frames (slow; 0: never).
+    #[arg(long, default_value_t = 0)]
+    gap_every: usize,
+    /// Frames in the preview strip.
+    #[arg(long, default_value_t = 6)]
+    strip: usize,
+    /// Do not write the OBJ sequence.
+    #[arg(long)]
+    no_obj: bool,
+}
+
+fn io_err(path: &Path, e: std::io::Error) -> Error {
+    Error::Io { path: path.display().to_string(), message: e.to_string() }
+}
+
+/// The default model: embedded, else read from the source tree.
+fn default_model() -> Result<ModelBytes> {
+    if let Some(bytes) = EMBEDDED_MODEL {
+        return Ok(ModelBytes::new(bytes));
+    }
+    let path = Path::new(DEFAULT_MODEL_PATH);
+    if !path.exists() {
+        return Err(Error::Io {
+            path: path.display().to_string(),
+            message: "the default model is not there yet (no trained model shipped in models/); pass --model FILE"
+                .into(),
+        });
+    }
+    ModelBytes::read(path)
+}
+
+fn random_model(h: usize) -> Result<ModelBytes> {
+    use hood::model::{write_model, ModelSpec, Normalisers, Params};
+    let mut p = Params::init(&ModelSpec::hood(h), 0)?;
+    p.normalisers = Normalisers::unit_scale(1);
+    Ok(ModelBytes::new(&write_model(&p, true, &[("kind", "random, untrained")])?))
+}
+
+pub fn parse_precision(p: &str) -> Result<Precision> {
+    match p {
+        "f32" => Ok(Precision::F32),
+        "bf16" => Ok(Precision::Bf16),
+        _ => Err(Error::parse("precision", 0, format!("'{p}' (use f32 or bf16)"))),
+    }
+}
+
+/// The OBJ files of a folder, sorted by name.
+fn obj_sequence(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| io_err(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("obj")))
+        .collect();
+    files.sort();
+    if files.len() < 2 {
+        return Err(Error::Empty { what: "body OBJ sequence (needs at least two frames)" });
+    }
+    Ok(files)
+}
+
+/// A garment OBJ on a body OBJ sequence: no pins; the garment starts at its rest shape pushed
+/// out of the body at the first frame.
+fn files_scene(garment_obj: &Path, body_dir: &Path) -> Result<Playback> {
+    let g = Obj::read(garment_obj)?;
+    let garment = Garment::new(GarmentDesc::new(&g.positions, &g.triangles))?;
+    let files = obj_sequence(body_dir)?;
+    let first = Obj::read(&files[0])?;
+    let body = hood::body::BodyMesh::new(first.positions.len(), &first.triangles)?;
+    let mut body_frames = vec![first.positions];
+    for f in &files[1..] {
+        let o = Obj::read(f)?;
+        if o.positions.len() != body.n_vertices() {
+            return Err(Error::SizeMismatch {
+                what: "body OBJ frame vertices",
+                expected: body.n_vertices(),
+                got: o.positions.len(),
+            });
+        }
+        body_frames.push(o.positions);
+    }
+    let mut initial = garment.rest().to_vec();
+    hood::scene::push_out_of(&body, &body_frames[0], &mut initial, garment.pinned())?;
+    let frames = body_frames.len();
+    Ok(Playback { garment, body: Some(body), body_frames, pin_targets: Vec::new(), initial, frames })
+}
+
+/// The scene the arguments name, as a boxed animation, and its description.
+fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
+    if let (Some(g), Some(b)) = (&a.garment_obj, &a.body_obj) {
+        let p = files_scene(g, b)?;
+        return Ok((Box::new(p), format!("{} on {}", g.display(), b.display())));
+    }
+    let seconds = (a.frames + 1) as f32 / 30.0 + 0.1;
+    if let Some(kind) = GarmentKind::parse(&a.garment) {
+        let motion = MotionKind::parse(&a.motion)
+            .ok_or_else(|| Error::parse("motion", 0, format!("unknown motion '{}'", a.motion)))?;
+        let s = procedural(&Mannequin::new(), kind, a.vertices, motion, seconds)?;
+        let name = s.name.clone();
+        return Ok((Box::new(s), name));
+    }
+    use hood::scene::{makehuman, MakeHumanGarment};
+    let which = match a.garment.as_str() {
+        "tee" => MakeHumanGarment::Tee,
+        "jeans" => MakeHumanGarment::Jeans,
+        other => {
+            return Err(Error::parse(
+                "garment",
+                0,
+                format!("unknown garment '{other}' (skirt, dress, cape, tee, jeans)"),
+            ))
+        }
+    };
+    let assets = a.assets.clone().unwrap_or_else(|| hood::workloads::default_shared_dir().join("assets"));
+    let s = makehuman(&assets, which, a.frames + 1)?;
+    let name = s.name.clone();
+    Ok((Box::new(s), name))
+}
+
+fn print_frame(r: &FrameRecord, frames: usize) {
+    let t = r.terms.unwrap_or_default();
+    let gap = r.gap.and_then(|g| g.relative).map_or(String::new(), |g| format!("  gap {g:.3}"));
+    println!(
+        "frame {:>4}/{frames}  {:>7.2} ms  objective {:>10.4} J (stretch {:.4}, bend {:.2e}, inertia {:.4}, gravity {:.4}, collision {:.2e}, friction {:.2e})  penetrating {:>5.2}%  strain {:.3}  speed {:.2} m/s{gap}{}",
+        r.frame,
+        r.step_ms,
+        t.total(),
+        t.stretching,
+        t.bending,
+        t.inertia,
+        t.gravity,
+        t.collision,
+        t.friction,
+        r.penetrating_percent,
+        r.max_edge_strain,
+        r.max_speed,
+        match r.kind {
+            hood::eval::StepKind::Stepped => "",
+            hood::eval::StepKind::StartUp => "  (with start-up step)",
+            hood::eval::StepKind::Teleported => "  (teleported)",
+            hood::eval::StepKind::Slept => "  (asleep)",
+        }
+    );
+}
+
+/// Runs `hood simulate`.
+pub fn simulate(a: SimulateArgs) -> Result<()> {
+    let bytes = match (&a.model, a.random_model) {
+        (Some(p), _) => ModelBytes::read(p)?,
+        (None, Some(h)) => random_model(h)?,
+        (None, None) => default_model()?,
+    };
+    let model = bytes.model()?;
+    let precision = parse_precision(&a.precision)?;
+    let clock = Instant::now();
+    let (anim, name) = scene(&a)?;
+    let frames = a.frames.min(anim.n_frames().saturating_sub(1));
+    eprintln!(
+        "scene: {name}, garment {} vertices, body {} vertices, {frames} frames (built in {:.1} s)",
+        anim.garment().n_vertices(),
+        anim.body_mesh().map_or(0, |b| b.n_vertices()),
+        clock.elapsed().as_secs_f64()
+    );
+    std::fs::create_dir_all(&a.out).map_err(|e| io_err(&a.out, e))?;
+    let k = a.strip.max(1);
+    let keep: Vec<usize> = if k == 1 { vec![frames] } else { (0..k).map(|i| i * frames / (k - 1)).collect() };
+    let opts = RolloutOptions { gap_every: a.gap_every, keep, ..RolloutOptions::default() };
+    let cfg = SimConfig { threads: a.threads.max(1), precision, ..SimConfig::default() };
+    let faces = anim.garment().faces().to_vec();
+    let body_faces = anim.body_mesh().map(|b| b.faces().to_vec());
+    let write_obj = |stem: &str, f: usize, pos: &[[f32; 3]], tris: &[[u32; 3]]| -> Result<()> {
+        hood::io::obj::write(a.out.join(format!("{stem}_{f:04}.obj")), pos, tris, None)
+    };
+    if !a.no_obj {
+        write_obj("garment", 0, &anim.initial_garment()?, &faces)?;
+        if let Some(bf) = &body_faces {
+            write_obj("body", 0, anim.body_frame(0), bf)?;
+        }
+    }
+    let r = rollout_observed(&model, &*anim, frames, cfg, &opts, &mut |rec, pos| {
+        print_frame(rec, frames);
+        if !a.no_obj {
+            write_obj("garment", rec.frame, pos, &faces)?;
+            if let Some(bf) = &body_faces {
+                write_obj("body", rec.frame, anim.body_frame(rec.frame), bf)?;
+            }
+        }
+        Ok(())
+    })?;
+    let strip = a.out.join("preview.png");
+    hood::io::png::write_strip(&strip, &strip_images(&*anim, &r.kept, 240, 420))?;
+    let s = &r.summary;
+    if let Some((f, e)) = &r.failure {
+        eprintln!("stopped at frame {f}: {e}");
+    }
+    println!(
+        "{} frames, {}: step median {:.2} ms (mean {:.2}); objective mean {:.4} J; penetrating mean {:.2}% (max {:.2}%); largest strain {:.3}, speed {:.2} m/s{}",
+        s.frames,
+        if s.finite { "finite throughout" } else { "NOT finite" },
+        s.median_step_ms,
+        s.mean_step_ms,
+        s.mean_total,
+        s.mean_penetrating_percent,
+        s.max_penetrating_percent,
+        s.max_edge_strain,
+        s.max_speed,
+        match (s.gap_mean, s.gap_p95) {
+            (Some(m), Some(p)) => format!("; relative gap mean {m:.3}, p95 {p:.3} ({} frames)", s.gap_frames),
+            _ => String::new(),
+        }
+    );
+    println!(
+        "wrote {}{}",
+        strip.display(),
+        if a.no_obj { String::new() } else { format!(" and the OBJ sequence in {}", a.out.display()) }
+    );
+    Ok(())
+}

@@ -1,0 +1,173 @@
+//! Rollout evaluation on procedural scenes with small random models: what is recorded, that the
+//! per-frame objective agrees with the physics module's independent rollout scoring, and that the
+//! objective gap is ordered (optimum ≤ model, optimum ≤ coasting).
+
+mod common;
+use common::random_model;
+use hood::eval::{rollout, rollout_observed, strip_images, Playback, RolloutOptions, StepKind};
+use hood::physics::{score_rollout, Objective};
+use hood::rig::procedural::Mannequin;
+use hood::scene::{procedural, GarmentKind, MotionKind};
+use hood::sim::SimConfig;
+
+#[test]
+fn eval_rollout_records_every_frame_and_orders_the_gap() {
+    let scene = procedural(&Mannequin::new(), GarmentKind::Skirt, 300, MotionKind::Walk, 0.5).unwrap();
+    let bytes = random_model(16, 7, false);
+    let model = bytes.model().unwrap();
+    let frames = 8;
+    let opts = RolloutOptions { gap_every: 3, keep: vec![0, 4, 8, 99], ..RolloutOptions::default() };
+    let mut seen = Vec::new();
+    let r = rollout_observed(&model, &scene, frames, SimConfig::default(), &opts, &mut |rec, pos| {
+        assert_eq!(pos.len(), scene.garment.n_vertices());
+        seen.push(rec.frame);
+        Ok(())
+    })
+    .unwrap();
+    if let Some((f, e)) = &r.failure {
+        println!("random model refused at frame {f}: {e}");
+    }
+    let reached = r.frames.len();
+    assert_eq!(seen, (1..=reached).collect::<Vec<_>>());
+    assert_eq!(r.summary.frames, reached);
+    assert_eq!(r.summary.finite, r.failure.is_none());
+    assert_eq!(r.frames[0].kind, StepKind::StartUp);
+    assert!(r.frames[1..].iter().all(|f| f.kind == StepKind::Stepped));
+    let kept: Vec<usize> = r.kept.iter().map(|k| k.0).collect();
+    assert_eq!(kept, [0, 4, 8].into_iter().filter(|&f| f <= reached).collect::<Vec<_>>());
+    for f in &r.frames {
+        let t = f.terms.expect("stepped frames are scored");
+        assert!(t.total().is_finite() && t.stretching >= 0.0 && t.bending >= 0.0 && t.inertia >= 0.0);
+        assert!((0.0..=100.0).contains(&f.penetrating_percent));
+        assert!(f.max_edge_strain.is_finite() && f.max_speed.is_finite());
+        assert_eq!(f.gap.is_some(), f.frame % 3 == 0, "frame {}", f.frame);
+        if let Some(g) = f.gap {
+            // The model's total is the scored total; the optimum is no worse than either.
+            assert!((g.model - t.total()).abs() <= 1e-12 * g.model.abs().max(1.0));
+            let tol = 1e-9 * g.coasting.abs().max(1.0);
+            assert!(g.optimum <= g.coasting + tol, "{g:?}");
+            assert!(g.optimum <= g.model + tol, "{g:?}");
+            println!("frame {}: {g:?}", f.frame);
+        }
+    }
+    if reached >= 6 {
+        assert_eq!(r.summary.gap_frames, 2);
+        let (m, p) = (r.summary.gap_mean.unwrap(), r.summary.gap_p95.unwrap());
+        assert!(m >= -1e-6 && p >= m - 1e-12, "mean {m}, p95 {p}");
+    }
+    let images = strip_images(&scene, &r.kept, 60, 100);
+    assert_eq!(images.len(), r.kept.len());
+    // Something other than background was drawn.
+    assert!(images.iter().all(|im| im.rgb.chunks(3).any(|c| c != [245, 245, 240])));
+}
+
+#[test]
+fn eval_frame_objective_matches_the_physics_rollout_score() {
+    // Without pins, from frame 3 on the runtime's velocity is the frame difference that
+    // `score_rollout` derives: both scorings must agree (to f32 rounding of the velocity).
+    let frames = 6;
+    let scene = procedural(&Mannequin::new(), GarmentKind::Dress, 300, MotionKind::Walk, 0.5).unwrap();
+    let mut scene = Playback::record(&scene, frames + 1).unwrap();
+    let n = scene.garment.n_vertices();
+    scene.garment.set_pinned(&vec![false; n]).unwrap();
+    let bytes = random_model(16, 11, false);
+    let model = bytes.model().unwrap();
+    let opts = RolloutOptions { keep: (0..=frames).collect(), ..RolloutOptions::default() };
+    let r = rollout(&model, &scene, frames, SimConfig::default(), &opts).unwrap();
+    assert!(r.failure.is_none(), "{:?}", r.failure);
+    let garment: Vec<Vec<[f32; 3]>> = r.kept.iter().map(|k| k.1.clone()).collect();
+    let body: Vec<Vec<[f32; 3]>> = scene.body_frames.clone();
+    let s = score_rollout(
+        &scene.garment,
+        &Objective::evaluation(),
+        &garment,
+        &body,
+        scene.body.as_ref().unwrap().faces(),
+        1.0 / 30.0,
+    )
+    .unwrap();
+    for t in 3..=frames {
+        let ours = r.frames[t - 1].terms.unwrap();
+        let theirs = s.frames[t - 1].terms;
+        for ((name, a), (_, b)) in ours.named().iter().zip(theirs.named()) {
+            assert!((a - b).abs() <= 1e-4 * b.abs().max(1e-6), "frame {t} {name}: {a} vs {b}");
+        }
+        let (pa, pb) = (r.frames[t - 1].penetrating_percent, s.frames[t - 1].penetrating_percent);
+        assert!((pa - pb).abs() < 1e-9, "frame {t} penetration {pa} vs {pb}");
+        assert!((r.frames[t - 1].max_edge_strain - s.frames[t - 1].max_edge_strain).abs() < 1e-9);
+    }
+}
+
+#[test]
+fn eval_cloth_without_body_and_bad_requests() {
+    let (rest, faces) = hood::mesh::shapes::grid(6, 6, 0.5, 0.5, 1.0);
+    let mut pinned = vec![false; rest.len()];
+    pinned[0] = true;
+    let g = hood::mesh::Garment::new(hood::mesh::GarmentDesc::new(&rest, &faces).pinned(&pinned)).unwrap();
+    let anim = Playback::cloth_only(g, 10);
+    let bytes = random_model(16, 3, false);
+    let model = bytes.model().unwrap();
+    let opts = RolloutOptions { gap_every: 2, ..RolloutOptions::default() };
+    let r = rollout(&model, &anim, 5, SimConfig::default(), &opts).unwrap();
+    assert!(r.frames.iter().all(|f| f.penetrating_percent == 0.0));
+    assert!(r.frames.iter().all(|f| f.terms.unwrap().collision == 0.0 && f.terms.unwrap().friction == 0.0));
+    assert!(matches!(rollout(&model, &anim, 0, SimConfig::default(), &opts), Err(hood::Error::Empty { .. })));
+    assert!(matches!(rollout(&model, &anim, 10, SimConfig::default(), &opts), Err(hood::Error::OutOfRange { .. })));
+}
+
+#[test]
+fn eval_implicit_rollout_gap_is_zero_when_converged_and_below_one_when_truncated() {
+    use hood::eval::{converged_solver, implicit_rollout};
+    use hood::solve::LbfgsParams;
+    let m = Mannequin::with_spacing(0.04).unwrap();
+    let scene = procedural(&m, GarmentKind::Skirt, 300, MotionKind::Walk, 0.5).unwrap();
+    let opts = RolloutOptions { gap_every: 2, ..RolloutOptions::default() };
+    let frames = 6;
+    // Converged solves from the same states are the optimum itself.
+    let r = implicit_rollout(&scene, frames, &converged_solver(), &opts, &mut |_, _| Ok(())).unwrap();
+    assert!(r.failure.is_none());
+    for g in r.frames.iter().filter_map(|f| f.gap) {
+        assert!(g.relative.unwrap().abs() < 1e-9, "{g:?}");
+    }
+    // Two L-BFGS iterations descend (gap ≤ 1) without reaching the optimum (gap > 0).
+    let two = LbfgsParams { max_iterations: 2, ..converged_solver() };
+    let r = implicit_rollout(&scene, frames, &two, &opts, &mut |_, _| Ok(())).unwrap();
+    assert_eq!(r.summary.gap_frames, 3);
+    for g in r.frames.iter().filter_map(|f| f.gap) {
+        let rel = g.relative.unwrap();
+        println!("2 iterations: {g:?}");
+        assert!(rel > 1e-6 && rel <= 1.0 + 1e-9, "{g:?}");
+    }
+    println!("{:?}", r.summary);
+    // The penetration and strain of a physical solve stay small.
+    assert!(r.summary.max_edge_strain < 1.0);
+}
+
+/// `hood simulate` end to end on a random model: the OBJ sequence and the preview strip appear.
+#[cfg(feature = "cli")]
+#[test]
+fn eval_cli_simulate_writes_obj_sequence_and_strip() {
+    let out = std::env::temp_dir().join(format!("hood-simulate-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+        .args(["simulate", "--random-model", "16", "--garment", "skirt", "--vertices", "300", "--frames", "3"])
+        .args(["--strip", "2", "--out"])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    for f in ["garment_0000.obj", "garment_0003.obj", "body_0003.obj", "preview.png"] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+    let g = hood::io::obj::Obj::read(out.join("garment_0003.obj")).unwrap();
+    assert!(g.positions.len() > 200 && g.positions.iter().all(|p| p.iter().all(|c| c.is_finite())));
+    // An unknown garment is a clear error, not a panic.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+        .args(["simulate", "--random-model", "16", "--garment", "poncho", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("unknown garment"), "{}", String::from_utf8_lossy(&o.stderr));
+    let _ = std::fs::remove_dir_all(&out);
+}
