@@ -15,7 +15,7 @@ use std::time::Instant;
 
 /// The shipped default model, embedded in the binary. To embed it once `models/compact.hood` is
 /// committed, replace `None` with `Some(include_bytes!("../../../models/compact.hood"))`.
-const EMBEDDED_MODEL: Option<&[u8]> = None;
+const EMBEDDED_MODEL: Option<&[u8]> = Some(include_bytes!("../../../models/compact.hood"));
 
 /// Where the default model is looked for while it is not embedded.
 const DEFAULT_MODEL_PATH: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/compact.hood");
