@@ -31,7 +31,7 @@ const DIFFUSION_VOXEL: f32 = 0.01;
 pub enum GarmentKind {
     /// A skirt, waist pinned.
     Skirt,
-    /// A long dress hanging from the shoulders (no pins).
+    /// A long dress hanging from the shoulders (its top ring pinned).
     Dress,
     /// A cape, shoulders pinned.
     Cape,
