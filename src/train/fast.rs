@@ -13,7 +13,7 @@ use super::inputs::StepData;
 use super::layout::MlpAt;
 use super::network::{Network, Stats};
 use crate::error::{Error, Result};
-use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, EDGE_WIDTH, LEVELS, NODE_NORMALISED, NODE_TYPES, NODE_WIDTH};
+use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, EDGE_WIDTH, NODE_NORMALISED, NODE_WIDTH};
 use crate::model::params::LAYER_NORM_EPS;
 use crate::model::EdgeKey;
 use crate::sim::{Executor, Graph};
@@ -728,12 +728,7 @@ impl Network {
         let nf = &mut t.node_in;
         nf.clear();
         nf.extend_from_slice(&step.node_features);
-        for (r, row) in nf.chunks_exact_mut(NODE_WIDTH).enumerate() {
-            let ty = step.node_type[r] as usize * NODE_TYPES + lay.node_type_embedding;
-            row[3..3 + NODE_TYPES].copy_from_slice(&theta[ty..ty + NODE_TYPES]);
-            let lv = step.node_level[r] as usize * LEVELS + lay.level_embedding;
-            row[12..12 + LEVELS].copy_from_slice(&theta[lv..lv + LEVELS]);
-        }
+        lay.fill_embeddings(theta, &step.node_type, &step.node_level, nf);
         normalise(nf, NODE_WIDTH, &stats.node, NODE_NORMALISED);
         let x = &mut tmp.x;
         fit(x, rows * h);
@@ -1013,16 +1008,7 @@ impl Network {
             });
         }
         let nstd = &stats.node.1;
-        for (r, row) in tmp.dnf.chunks_exact(NODE_WIDTH).enumerate() {
-            let ty = step.node_type[r] as usize * NODE_TYPES + lay.node_type_embedding;
-            for j in 0..NODE_TYPES {
-                grad[ty + j] += row[3 + j] / nstd[3 + j];
-            }
-            let lv = step.node_level[r] as usize * LEVELS + lay.level_embedding;
-            for j in 0..LEVELS {
-                grad[lv + j] += row[12 + j] / nstd[12 + j];
-            }
-        }
+        lay.embedding_backward(&tmp.dnf, nstd, &step.node_type, &step.node_level, grad);
         Ok(())
     }
 }

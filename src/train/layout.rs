@@ -2,7 +2,7 @@
 //! vector (Adam, clipping and gradients then work on plain slices), with the offsets of each
 //! tensor.
 
-use crate::features::{LEVELS, NODE_TYPES};
+use crate::features::{LEVELS, NODE_TYPES, NODE_WIDTH};
 use crate::math::Real;
 use crate::model::{Mlp, ModelSpec, Params};
 use alloc::format;
@@ -69,6 +69,35 @@ pub struct Layout {
     pub level_embedding: usize,
     /// Total length.
     pub len: usize,
+}
+
+impl Layout {
+    /// Writes the embedding columns (3..12: node type, 12..16: vertex level) of every node row
+    /// (`NODE_WIDTH` wide) from the current tables in `theta`.
+    pub fn fill_embeddings<R: Real>(&self, theta: &[R], types: &[u8], levels: &[u8], rows: &mut [R]) {
+        for (r, row) in rows.chunks_exact_mut(NODE_WIDTH).enumerate() {
+            let ty = self.node_type_embedding + types[r] as usize * NODE_TYPES;
+            row[3..3 + NODE_TYPES].copy_from_slice(&theta[ty..ty + NODE_TYPES]);
+            let lv = self.level_embedding + levels[r] as usize * LEVELS;
+            row[12..12 + LEVELS].copy_from_slice(&theta[lv..lv + LEVELS]);
+        }
+    }
+
+    /// The backward of [`fill_embeddings`](Self::fill_embeddings) followed by normalisation
+    /// with standard deviations `std`: adds each row's gradient of the (normalised) embedding
+    /// columns in `d_rows` to its table rows in `grad`.
+    pub fn embedding_backward<R: Real>(&self, d_rows: &[R], std: &[R], types: &[u8], levels: &[u8], grad: &mut [R]) {
+        for (r, row) in d_rows.chunks_exact(NODE_WIDTH).enumerate() {
+            let ty = self.node_type_embedding + types[r] as usize * NODE_TYPES;
+            for j in 0..NODE_TYPES {
+                grad[ty + j] += row[3 + j] / std[3 + j];
+            }
+            let lv = self.level_embedding + levels[r] as usize * LEVELS;
+            for j in 0..LEVELS {
+                grad[lv + j] += row[12 + j] / std[12 + j];
+            }
+        }
+    }
 }
 
 struct Alloc(usize);

@@ -6,7 +6,7 @@ use super::inputs::StepData;
 use super::layout::{Layout, MlpAt};
 use super::ops::{self, MlpCache, Part};
 use crate::error::{Error, Result};
-use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, EDGE_WIDTH, LEVELS, NODE_NORMALISED, NODE_TYPES, NODE_WIDTH};
+use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, EDGE_WIDTH, NODE_NORMALISED, NODE_WIDTH};
 use crate::math::Real;
 use crate::model::{EdgeKey, ModelSpec, Params};
 use crate::sim::Graph;
@@ -256,12 +256,7 @@ impl Network {
         let mut t = Tape::<R>::default();
         // Node features: the embedding columns from the current tables, then normalise, encode.
         let mut nf = to_real::<R>(&step.node_features);
-        for (r, row) in nf.chunks_exact_mut(NODE_WIDTH).enumerate() {
-            let ty = step.node_type[r] as usize * NODE_TYPES + lay.node_type_embedding;
-            row[3..3 + NODE_TYPES].copy_from_slice(&theta[ty..ty + NODE_TYPES]);
-            let lv = step.node_level[r] as usize * LEVELS + lay.level_embedding;
-            row[12..12 + LEVELS].copy_from_slice(&theta[lv..lv + LEVELS]);
-        }
+        lay.fill_embeddings(theta, &step.node_type, &step.node_level, &mut nf);
         normalise(&mut nf, NODE_WIDTH, &stats.node, NODE_NORMALISED);
         let mut x = vec![R::ZERO; rows * h];
         t.node_enc = ops::mlp_forward(theta, &lay.node_encoder, &[&nf], rows, &mut x, false);
@@ -485,16 +480,7 @@ impl Network {
         let mut dnf = vec![R::ZERO; tape.node_in.len()];
         ops::mlp_backward(theta, grad, &lay.node_encoder, &tape.node_enc, &[&tape.node_in], &dx, &mut [Some(&mut dnf)]);
         let nstd = &stats.node.1;
-        for (r, row) in dnf.chunks_exact(NODE_WIDTH).enumerate() {
-            let ty = step.node_type[r] as usize * NODE_TYPES + lay.node_type_embedding;
-            for j in 0..NODE_TYPES {
-                grad[ty + j] += row[3 + j] / nstd[3 + j];
-            }
-            let lv = step.node_level[r] as usize * LEVELS + lay.level_embedding;
-            for j in 0..LEVELS {
-                grad[lv + j] += row[12 + j] / nstd[12 + j];
-            }
-        }
+        lay.embedding_backward(&dnf, nstd, &step.node_type, &step.node_level, grad);
         Ok(())
     }
 }

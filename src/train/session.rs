@@ -12,7 +12,7 @@ use super::loss::{LossBody, StepLoss};
 use super::network::{Network, Stats};
 use super::optim::{clip_global_norm, Adam};
 use crate::error::{Error, Result};
-use crate::features::{DT, DT_STARTUP, EDGE_WIDTH, LEVELS, NODE_TYPES, NODE_WIDTH};
+use crate::features::{DT, DT_STARTUP, EDGE_WIDTH, NODE_WIDTH};
 use crate::hierarchy::{CentreChoice, Hierarchy, HierarchyConfig};
 use crate::io::safetensors::{self, SafeTensors, TensorData};
 use crate::model::{write_model, Model, Normalisers, Params};
@@ -130,12 +130,7 @@ fn finite(x: &[[f32; 3]]) -> bool {
 /// the embedding columns as the forward writes them from the current tables.
 fn accumulate(lay: &Layout, theta: &[f32], n: &mut Normalisers, step: &StepData) {
     let mut rows = step.node_features.clone();
-    for (r, row) in rows.chunks_exact_mut(NODE_WIDTH).enumerate() {
-        let ty = lay.node_type_embedding + step.node_type[r] as usize * NODE_TYPES;
-        row[3..3 + NODE_TYPES].copy_from_slice(&theta[ty..ty + NODE_TYPES]);
-        let lv = lay.level_embedding + step.node_level[r] as usize * LEVELS;
-        row[12..12 + LEVELS].copy_from_slice(&theta[lv..lv + LEVELS]);
-    }
+    lay.fill_embeddings(theta, &step.node_type, &step.node_level, &mut rows);
     n.node.accumulate(&rows, NODE_WIDTH);
     for f in &step.edge_features {
         n.edge.accumulate(f, EDGE_WIDTH);
