@@ -8,6 +8,8 @@ use hood::workloads::{default_shared_dir, workload, NAMES};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+#[path = "cmd/objective.rs"]
+mod objective;
 #[path = "cmd/report.rs"]
 mod report;
 #[path = "cmd/simulate.rs"]

@@ -31,9 +31,11 @@ pub(crate) fn round_bf16(x: f32) -> f32 {
 }
 
 /// `Σ f(y_i)` in 8 interleaved partial sums, so the compiler can keep them in one vector (a
-/// single serial sum would be a latency chain as long as the row).
+/// single serial sum would be a latency chain as long as the row). The tail (`len % 8`) is summed
+/// apart: folding it into the partial sums made the compiler keep them on the stack with masked
+/// stores, which cannot forward to the next load and stalled every LayerNorm row.
 #[inline(always)]
-fn lane_sum(y: &[f32], f: impl Fn(f32) -> f32) -> f32 {
+pub(crate) fn lane_sum(y: &[f32], f: impl Fn(f32) -> f32) -> f32 {
     let mut acc = [0.0f32; 8];
     let chunks = y.chunks_exact(8);
     let tail = chunks.remainder();
@@ -42,10 +44,24 @@ fn lane_sum(y: &[f32], f: impl Fn(f32) -> f32) -> f32 {
             *a += f(*v);
         }
     }
-    for (a, v) in acc.iter_mut().zip(tail) {
-        *a += f(*v);
+    let rest = tail.iter().fold(0.0f32, |t, v| t + f(*v));
+    (((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]))) + rest
+}
+
+/// `Σ a_i·b_i` over the shorter of the two, in the partial sums of [`lane_sum`].
+#[inline(always)]
+pub(crate) fn lane_dot(a: &[f32], b: &[f32]) -> f32 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0f32; 8];
+    for (ca, cb) in a.chunks_exact(8).zip(b.chunks_exact(8)) {
+        for ((s, x), y) in acc.iter_mut().zip(ca).zip(cb) {
+            *s += x * y;
+        }
     }
-    ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]))
+    let t = n - n % 8;
+    let rest = a[t..].iter().zip(&b[t..]).fold(0.0f32, |s, (x, y)| s + x * y);
+    (((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]))) + rest
 }
 
 /// Mean and inverse standard deviation of one row (two-pass, eps [`LN_EPS`]).
@@ -170,22 +186,13 @@ pub(crate) enum Segs<'a> {
     Bf16(&'a [SegBf16]),
 }
 
-/// Gathered addends for the split first edge layer: rows `tgt[i]` of `pt` and `src[i]` of `ps`
-/// are added to output row `i` (row stride `ld`).
-#[derive(Clone, Copy)]
-pub(crate) struct Gather {
-    pub pt: *const f32,
-    pub ps: *const f32,
-    pub ld: usize,
-    pub tgt: *const u32,
-    pub src: *const u32,
-}
-
-/// The fused epilogue of a tile: `+ bias`, `+ gathered rows`, ReLU, then store or add.
+/// The fused epilogue of a tile: `+ bias`, `+ addend row`, ReLU, then store or add.
 #[derive(Clone, Copy)]
 pub(crate) struct TileEpi {
     pub bias: *const f32,
-    pub gather: Option<Gather>,
+    /// Null, or rows of `n` values (stride `n`) added to output row `i` after the bias: the
+    /// gathered node projections of the split first edge layer, summed once per block.
+    pub addend: *const f32,
     pub relu: bool,
     pub accumulate: bool,
 }
@@ -293,9 +300,7 @@ unsafe fn store_tile<S: Simd, const R: usize, const NV: usize>(
         for (r, acc_r) in acc.iter().enumerate() {
             let row = row0 + r;
             let o = out.add(row * ldo);
-            let g = epi
-                .gather
-                .map(|g| (g.pt.add(*g.tgt.add(row) as usize * g.ld), g.ps.add(*g.src.add(row) as usize * g.ld)));
+            let g = if epi.addend.is_null() { None } else { Some(epi.addend.add(row * n)) };
             if c0 + width <= n {
                 for (v, &a) in acc_r.iter().enumerate() {
                     let c = c0 + v * S::LANES;
@@ -303,8 +308,8 @@ unsafe fn store_tile<S: Simd, const R: usize, const NV: usize>(
                     if !epi.bias.is_null() {
                         y = s.add(y, s.load(epi.bias.add(c)));
                     }
-                    if let Some((pt, ps)) = g {
-                        y = s.add(y, s.add(s.load(pt.add(c)), s.load(ps.add(c))));
+                    if let Some(g) = g {
+                        y = s.add(y, s.load(g.add(c)));
                     }
                     if epi.relu {
                         y = s.max(y, s.zero());
@@ -325,8 +330,8 @@ unsafe fn store_tile<S: Simd, const R: usize, const NV: usize>(
                     if !epi.bias.is_null() {
                         y += *epi.bias.add(c);
                     }
-                    if let Some((pt, ps)) = g {
-                        y += *pt.add(c) + *ps.add(c);
+                    if let Some(g) = g {
+                        y += *g.add(c);
                     }
                     if epi.relu {
                         y = y.max(0.0);
@@ -500,7 +505,7 @@ pub(crate) unsafe fn linear<S: Simd>(
             Segs::F32(&f32_segs[..ops.len()])
         };
         let out_blk = &mut out[b0 * n..(b0 + br) * n];
-        let tepi = TileEpi { bias: bias_ptr(bias), gather: None, relu: epi.relu, accumulate: false };
+        let tepi = TileEpi { bias: bias_ptr(bias), addend: core::ptr::null(), relu: epi.relu, accumulate: false };
         match (&epi.layer_norm, epi.residual) {
             (None, residual) => {
                 let tepi = TileEpi { accumulate: residual, ..tepi };
@@ -602,14 +607,16 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
     let mut e0 = 0;
     while e0 < n_edges {
         let br = (n_edges - e0).min(EDGE_BLOCK);
-        let gather = Gather {
-            pt: edges.p_target.as_ptr(),
-            ps: edges.p_source.as_ptr(),
-            ld: h,
-            // SAFETY: `e0 < n_edges`, in bounds of both index arrays.
-            tgt: unsafe { edges.target.as_ptr().add(e0) },
-            src: unsafe { edges.source.as_ptr().add(e0) },
-        };
+        // The split first layer's node projections, gathered and summed once per edge: the
+        // loads of random node rows overlap here, instead of stalling each column pass's
+        // epilogue. (`pt + ps` is the same sum the epilogue formed before, so results are
+        // unchanged.)
+        for (i, g) in buf_b[..br * h].chunks_exact_mut(h).enumerate() {
+            let (t, src) = (edges.target[e0 + i] as usize * h, edges.source[e0 + i] as usize * h);
+            for ((g, a), b) in g.iter_mut().zip(&edges.p_target[t..t + h]).zip(&edges.p_source[src..src + h]) {
+                *g = a + b;
+            }
+        }
         // The gathered projection rows are random accesses into node arrays that outgrow L2:
         // request the next block's rows now, so they arrive while this block computes.
         for e in e0 + br..(e0 + 2 * br).min(n_edges) {
@@ -624,9 +631,10 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
             }
         }
         let lat = &mut latent[e0 * k_e..(e0 + br) * k_e];
-        let epi1 = TileEpi { bias: mlp.b1.as_ptr(), gather: Some(gather), relu: true, accumulate: false };
-        let epi2 = TileEpi { bias: mlp.b2.as_ptr(), gather: None, relu: true, accumulate: false };
-        let epi3 = TileEpi { bias: mlp.b3.as_ptr(), gather: None, relu: false, accumulate: false };
+        let none = core::ptr::null();
+        let epi1 = TileEpi { bias: mlp.b1.as_ptr(), addend: buf_b.as_ptr(), relu: true, accumulate: false };
+        let epi2 = TileEpi { bias: mlp.b2.as_ptr(), addend: none, relu: true, accumulate: false };
+        let epi3 = TileEpi { bias: mlp.b3.as_ptr(), addend: none, relu: false, accumulate: false };
         // SAFETY: shapes validated by `Kernels::edge_mlp` (indices checked against the projection
         // rows); scratch buffers hold `EDGE_BLOCK` rows of their widths; the CPU supports `S`.
         unsafe {

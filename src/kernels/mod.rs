@@ -16,6 +16,9 @@
 //! All kernels write into caller buffers and never allocate.
 
 mod frame;
+
+/// Row statistics shared with the trainer, so both normalise with the same arithmetic.
+pub(crate) use frame::{lane_dot, lane_sum, layer_norm_stats};
 mod pack;
 #[cfg(feature = "std")]
 pub mod peak;

@@ -42,8 +42,8 @@ pub struct LayerNorm {
     pub beta: Vec<f32>,
 }
 
-/// LayerNorm's epsilon (PyTorch default).
-pub const LAYER_NORM_EPS: f32 = 1e-5;
+/// LayerNorm's epsilon (PyTorch default): the kernels' [`crate::kernels::LN_EPS`].
+pub const LAYER_NORM_EPS: f32 = crate::kernels::LN_EPS;
 
 /// Linear-ReLU-...-Linear, optionally followed by LayerNorm.
 #[derive(Clone, Debug, PartialEq)]

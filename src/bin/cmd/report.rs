@@ -3,10 +3,10 @@
 //! plot of the relative objective gap against ms per step.
 
 use clap::Args;
+use crate::objective::ObjectiveArg;
 use hood::eval::{converged_solver, implicit_rollout, rollout, Animation, Rollout, RolloutOptions};
 use hood::model::spec::format_schedule;
 use hood::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
-use hood::physics::Objective;
 use hood::rig::procedural::Mannequin;
 use hood::scene::{procedural, GarmentKind, MotionKind};
 use hood::sim::{Precision, SimConfig};
@@ -40,11 +40,9 @@ pub struct ReportArgs {
     /// Threads of the network step.
     #[arg(long, default_value_t = 1)]
     threads: usize,
-    /// Objective of the frames and of the gap: `evaluation` (EVALUATION.md: collision eps 1 mm,
-    /// weight 1, which the optimum barely feels) or `training` (collision eps 2 mm at the final
-    /// training weight 5e5).
-    #[arg(long, default_value = "evaluation")]
-    objective: String,
+    /// Objective of the frames and of the gap.
+    #[arg(long, value_enum, default_value_t = ObjectiveArg::Evaluation)]
+    objective: ObjectiveArg,
     /// Output folder for `report.md` and `report.svg`.
     #[arg(long, short, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/docs"))]
     out: PathBuf,
@@ -138,12 +136,8 @@ fn workload(a: &ReportArgs, name: &str, m: &Mannequin) -> Result<Option<Box<dyn 
 pub fn report(a: ReportArgs) -> Result<()> {
     let models = candidates(&a)?;
     let mannequin = Mannequin::new();
-    let objective = match a.objective.as_str() {
-        "evaluation" => Objective::evaluation(),
-        "training" => Objective::training(5e5),
-        o => return Err(Error::parse("objective", 0, format!("'{o}' (use evaluation or training)"))),
-    };
-    let opts = RolloutOptions { gap_every: a.gap_every.max(1), objective, ..RolloutOptions::default() };
+    let opts =
+        RolloutOptions { gap_every: a.gap_every.max(1), objective: a.objective.objective(), ..RolloutOptions::default() };
     let mut rows = Vec::new();
     for name in &a.workload {
         let Some(anim) = workload(&a, name, &mannequin)? else { continue };
@@ -209,7 +203,7 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
         a.gap_every,
         a.iterations.iter().map(|k| k.to_string()).collect::<Vec<_>>().join(","),
         a.threads,
-        a.objective
+        a.objective.name()
     );
     if !trained {
         let _ = writeln!(
@@ -223,9 +217,10 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
         "Gap: relative objective gap (E(x) - E(x*)) / (E(x_hat) - E(x*)) against the converged implicit step from the \
          same state (0: optimal, 1: no better than coasting), every {} frames, {} objective. ms/step: \
          median wall time of one step on this machine (the implicit solver in f64).\n",
-        a.gap_every, a.objective
+        a.gap_every,
+        a.objective.name()
     );
-    if a.objective == "evaluation" {
+    if a.objective == ObjectiveArg::Evaluation {
         let _ = writeln!(
             s,
             "Under the evaluation objective the collision term (eps 1 mm, weight 1) is almost nil, so the converged \

@@ -2,6 +2,7 @@
 //! per-step timing and the objective.
 
 use clap::Args;
+use crate::objective::ObjectiveArg;
 use hood::eval::{rollout_observed, strip_images, Animation, FrameRecord, Playback, RolloutOptions};
 use hood::io::obj::Obj;
 use hood::mesh::{Garment, GarmentDesc};
@@ -65,6 +66,9 @@ pub struct SimulateArgs {
     /// frames (slow; 0: never).
     #[arg(long, default_value_t = 0)]
     gap_every: usize,
+    /// Objective of the printed figures and of the gap.
+    #[arg(long, value_enum, default_value_t = ObjectiveArg::Evaluation)]
+    objective: ObjectiveArg,
     /// Frames in the preview strip.
     #[arg(long, default_value_t = 6)]
     strip: usize,
@@ -227,7 +231,8 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out).map_err(|e| io_err(&a.out, e))?;
     let k = a.strip.max(1);
     let keep: Vec<usize> = if k == 1 { vec![frames] } else { (0..k).map(|i| i * frames / (k - 1)).collect() };
-    let opts = RolloutOptions { gap_every: a.gap_every, keep, ..RolloutOptions::default() };
+    let opts =
+        RolloutOptions { gap_every: a.gap_every, keep, objective: a.objective.objective(), ..RolloutOptions::default() };
     let cfg = SimConfig { threads: a.threads.max(1), precision, ..SimConfig::default() };
     let faces = anim.garment().faces().to_vec();
     let body_faces = anim.body_mesh().map(|b| b.faces().to_vec());
