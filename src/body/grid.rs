@@ -18,15 +18,17 @@ use crate::error::{Error, Result};
 use crate::math::finite3;
 use alloc::vec;
 use alloc::vec::Vec;
-use glam::Vec4;
 
 /// Cells per block edge.
 pub const BLOCK: usize = 4;
 const BLOCK_CELLS: usize = BLOCK * BLOCK * BLOCK;
 const NONE: u32 = u32::MAX;
+/// Points compared at once; the sorted arrays carry this many padding entries, so that a scan
+/// may read a whole group past the end of its range.
+const LANES: usize = 8;
 /// A radius search whose ball spans at most this many rows of cells scans them directly,
 /// without visiting blocks.
-const DIRECT_ROWS: usize = 36;
+const DIRECT_ROWS: usize = 100;
 /// Queries farther than this many cells outside the point bounds start from one point per block.
 const FAR_CELLS: f32 = 8.0;
 
@@ -61,17 +63,24 @@ pub struct PointGrid {
     /// Slack added to every pruning bound, so that rounding in cell assignment never prunes a
     /// point that could win.
     pad: f32,
-    /// `cell_start[s]..cell_start[s + 1]` are the sorted points of cell slot `s`.
+    /// Whether the scans use AVX2 (checked once at creation).
+    avx2: bool,
+    /// `cell_start[s]..cell_start[s + 1]` are the sorted points of cell `s` (x fastest, then y,
+    /// then z), so that a row of cells is one contiguous range.
     cell_start: Vec<u32>,
-    /// Scratch: the cell slot of every input point.
+    /// Scratch: the cell of every input point.
     point_slot: Vec<u32>,
-    /// Sorted point coordinates, one array per axis (the scan takes four points at once).
+    /// Sorted point coordinates, one array per axis, `LANES` padding entries after the points
+    /// (NaN, so that they never win).
     sorted: [Vec<f32>; 3],
     sorted_index: Vec<u32>,
     /// `rank[i]`: where input point `i` went in the sorted arrays (to read a hint's position).
     rank: Vec<u32>,
+    /// Tight box of the points of every block of `BLOCK`³ cells (`lo > hi` when empty).
     block_lo: Vec<[f32; 3]>,
     block_hi: Vec<[f32; 3]>,
+    /// One input point of every non-empty block (seeds for queries far outside).
+    block_any: Vec<u32>,
 }
 
 impl PointGrid {
@@ -85,10 +94,11 @@ impl PointGrid {
         if max_cells < BLOCK_CELLS || max_cells > u32::MAX as usize {
             return Err(Error::OutOfRange { what: "grid max_cells", index: max_cells });
         }
-        if capacity >= u32::MAX as usize {
+        if capacity >= u32::MAX as usize - LANES {
             return Err(Error::OutOfRange { what: "grid capacity", index: capacity });
         }
         let max_blocks = max_cells / BLOCK_CELLS;
+        let padded = capacity + LANES;
         Ok(PointGrid {
             capacity,
             max_cells,
@@ -100,13 +110,15 @@ impl PointGrid {
             inv_cell: 1.0,
             blocks: [1; 3],
             pad: 0.0,
+            avx2: has_avx2(),
             cell_start: vec![0; max_blocks * BLOCK_CELLS + 1],
             point_slot: vec![0; capacity],
-            sorted: [vec![0.0; capacity], vec![0.0; capacity], vec![0.0; capacity]],
-            sorted_index: vec![0; capacity],
+            sorted: [vec![f32::NAN; padded], vec![f32::NAN; padded], vec![f32::NAN; padded]],
+            sorted_index: vec![NONE; padded],
             rank: vec![0; capacity],
             block_lo: vec![[0.0; 3]; max_blocks],
             block_hi: vec![[0.0; 3]; max_blocks],
+            block_any: vec![NONE; max_blocks],
         })
     }
 
@@ -118,6 +130,12 @@ impl PointGrid {
         }
         self.cells_per_point = cells_per_point;
         Ok(())
+    }
+
+    /// Uses the portable scans even where AVX2 exists (to test the two against each other).
+    #[cfg(test)]
+    pub(super) fn force_portable(&mut self) {
+        self.avx2 = false;
     }
 
     /// Maximum number of points.
@@ -185,44 +203,72 @@ impl PointGrid {
         let scale = ext.iter().chain(lo.iter()).chain(hi.iter()).fold(0.0f32, |m, &v| m.max(v.abs()));
         self.pad = 1e-5 * scale + f32::MIN_POSITIVE;
 
-        let slots = self.n_blocks() * BLOCK_CELLS;
+        let n_blocks = self.n_blocks();
+        let slots = n_blocks * BLOCK_CELLS;
+        let dims = self.cells();
         let start = &mut self.cell_start[..slots + 1];
         start.fill(0);
         // Counts into start[s], inclusive prefix sums (start[s] = end of slot s), then a reverse
         // scatter that decrements start[s] down to the beginning of s: stable, no extra pass.
         for (p, slot) in points.iter().zip(self.point_slot.iter_mut()) {
             let c = cell_of(*p, lo, self.inv_cell, self.blocks);
-            *slot = slot_of(c, self.blocks) as u32;
+            *slot = (c[0] + dims[0] * (c[1] + dims[1] * c[2])) as u32;
             start[*slot as usize] += 1;
         }
         for s in 1..slots {
             start[s] += start[s - 1];
         }
         start[slots] = n as u32;
+        let [xs, ys, zs] = &mut self.sorted;
         for (i, (p, &slot)) in points.iter().zip(self.point_slot.iter()).enumerate().rev() {
             start[slot as usize] -= 1;
             let at = start[slot as usize] as usize;
-            for (axis, &c) in self.sorted.iter_mut().zip(p) {
-                axis[at] = c;
-            }
+            xs[at] = p[0];
+            ys[at] = p[1];
+            zs[at] = p[2];
             self.sorted_index[at] = i as u32;
             self.rank[i] = at as u32;
         }
+        // The padding after the points: NaN never wins (and stale points of a larger earlier
+        // rebuild must not be read).
+        for axis in self.sorted.iter_mut() {
+            axis[n..n + LANES].fill(f32::NAN);
+        }
+        self.sorted_index[n..n + LANES].fill(NONE);
+        self.block_boxes(n_blocks);
+        self.n_points = n;
+        Ok(())
+    }
 
-        for b in 0..slots / BLOCK_CELLS {
-            let (p0, p1) = (start[b * BLOCK_CELLS] as usize, start[(b + 1) * BLOCK_CELLS] as usize);
+    /// The box and one point of every block, from its 16 rows of cells (each contiguous).
+    fn block_boxes(&mut self, n_blocks: usize) {
+        let dims = self.cells();
+        let [xs, ys, zs] = &self.sorted;
+        for b in 0..n_blocks {
+            let (bx, rest) = (b % self.blocks[0], b / self.blocks[0]);
+            let (by, bz) = (rest % self.blocks[1], rest / self.blocks[1]);
             let (mut blo, mut bhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-            for a in 0..3 {
-                for &c in &self.sorted[a][p0..p1] {
-                    blo[a] = fmin(blo[a], c);
-                    bhi[a] = fmax(bhi[a], c);
+            let mut any = NONE;
+            for z in bz * BLOCK..(bz + 1) * BLOCK {
+                for y in by * BLOCK..(by + 1) * BLOCK {
+                    let row = bx * BLOCK + dims[0] * (y + dims[1] * z);
+                    let (p0, p1) = (self.cell_start[row] as usize, self.cell_start[row + BLOCK] as usize);
+                    if p0 < p1 {
+                        any = self.sorted_index[p0];
+                    }
+                    for k in p0..p1 {
+                        let p = [xs[k], ys[k], zs[k]];
+                        for a in 0..3 {
+                            blo[a] = fmin(blo[a], p[a]);
+                            bhi[a] = fmax(bhi[a], p[a]);
+                        }
+                    }
                 }
             }
             self.block_lo[b] = blo;
             self.block_hi[b] = bhi;
+            self.block_any[b] = any;
         }
-        self.n_points = n;
-        Ok(())
     }
 
     fn n_blocks(&self) -> usize {
@@ -265,6 +311,7 @@ impl PointGrid {
     /// As [`nearest_within_one`](Self::nearest_within_one), starting from a guess: the point
     /// `hint` (e.g. last frame's answer; any index `>= len()` means no guess). The result is the
     /// same whatever the hint; a good one makes the search faster.
+    #[inline(always)]
     pub fn nearest_within_one_hinted(&self, q: [f32; 3], radius: f32, hint: u32) -> Option<Nearest> {
         if self.n_points == 0 || radius.is_nan() || radius < 0.0 {
             return None;
@@ -301,6 +348,7 @@ impl PointGrid {
     /// As [`nearest_one`](Self::nearest_one), starting from a guess: the point `hint` (e.g. last
     /// frame's answer; any index `>= len()` means no guess). The result is the same whatever the
     /// hint; a good one replaces the growing radii by a single search within the hint's distance.
+    #[inline(always)]
     pub fn nearest_one_hinted(&self, q: [f32; 3], hint: u32) -> Option<Nearest> {
         if self.n_points == 0 {
             return None;
@@ -316,11 +364,9 @@ impl PointGrid {
             // Far outside: the nearest of one point per block bounds the answer within about a
             // block; the block boxes then prune most blocks.
             let mut guess = (NONE, f32::INFINITY);
-            for b in 0..self.n_blocks() {
-                let at = self.cell_start[b * BLOCK_CELLS] as usize;
-                if at < self.cell_start[(b + 1) * BLOCK_CELLS] as usize {
-                    let p = [self.sorted[0][at], self.sorted[1][at], self.sorted[2][at]];
-                    consider(&mut guess, dist2(p, q), self.sorted_index[at]);
+            for &i in &self.block_any[..self.n_blocks()] {
+                if let Some(p) = self.point(i) {
+                    consider(&mut guess, dist2(p, q), i);
                 }
             }
             if guess.1.is_finite() {
@@ -381,6 +427,17 @@ impl PointGrid {
         if !(radius >= 0.0 && radius.is_finite()) {
             return Err(Error::OutOfRange { what: "query radius", index: 0 });
         }
+        self.within_batch(queries, radius, hints, out)
+    }
+
+    #[inline(always)]
+    fn within_batch(
+        &self,
+        queries: &[[f32; 3]],
+        radius: f32,
+        hints: &[u32],
+        out: &mut [Option<Nearest>],
+    ) -> Result<()> {
         for (i, (q, o)) in queries.iter().zip(out.iter_mut()).enumerate() {
             if !finite3(*q) {
                 return Err(Error::NonFinite { what: "query point", index: i });
@@ -413,6 +470,11 @@ impl PointGrid {
         if self.n_points == 0 {
             return Err(Error::Empty { what: "point grid" });
         }
+        self.nearest_batch(queries, hints, out)
+    }
+
+    #[inline(always)]
+    fn nearest_batch(&self, queries: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
         for (i, (q, o)) in queries.iter().zip(out.iter_mut()).enumerate() {
             if !finite3(*q) {
                 return Err(Error::NonFinite { what: "query point", index: i });
@@ -433,44 +495,48 @@ impl PointGrid {
 
     /// The best `(index, squared distance)` among `best` (a guess, or `NONE` with the limit) and
     /// the points within `sqrt(best.1)` of `q`.
-    fn search(&self, q: [f32; 3], mut best: (u32, f32)) -> (u32, f32) {
+    #[inline(always)]
+    fn search(&self, q: [f32; 3], best: (u32, f32)) -> (u32, f32) {
+        let mut lanes = Lanes::new(best.1);
+        lanes.offer(best.1, best.0);
         let limit2 = best.1;
         let qcell = cell_of_clamped(q, self.lo, self.inv_cell, self.blocks);
         if limit2.is_finite() {
-            // A small ball: scan its cells directly, the query's own cell first.
+            // A small ball: scan its rows directly, the query's own row first.
             let (lo, hi) = self.cell_range(q, limit2);
             if (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1) <= DIRECT_ROWS {
-                self.scan_ball(q, qcell, lo, hi, &mut best);
-                return best;
+                self.scan_ball(q, qcell, lo, hi, &mut lanes);
+                return lanes.best();
             }
         }
         let start = qcell.map(|c| c / BLOCK);
         let last = self.blocks.map(|b| b - 1);
         let mut k = 0usize;
         loop {
+            let bound = lanes.bound();
             if k > 0 {
                 let vlo = [0, 1, 2].map(|a| start[a].saturating_sub(k - 1));
                 let vhi = [0, 1, 2].map(|a| (start[a] + k - 1).min(last[a]));
                 if vlo == [0; 3] && vhi == last {
                     break;
                 }
-                if self.unseen_bound2(q, vlo, vhi) > self.padded(best.1) {
+                if self.unseen_bound2(q, vlo, vhi) > self.padded(bound) {
                     break;
                 }
             }
             let mut rlo = [0, 1, 2].map(|a| start[a].saturating_sub(k));
             let mut rhi = [0, 1, 2].map(|a| (start[a] + k).min(last[a]));
-            if best.1.is_finite() {
-                let (alo, ahi) = self.cell_range(q, best.1);
+            if bound.is_finite() {
+                let (alo, ahi) = self.cell_range(q, bound);
                 for a in 0..3 {
                     rlo[a] = rlo[a].max(alo[a] / BLOCK);
                     rhi[a] = rhi[a].min(ahi[a] / BLOCK);
                 }
             }
-            self.visit_shell(q, qcell, k, rlo, rhi, &mut best);
+            self.visit_shell(q, qcell, k, rlo, rhi, &mut lanes);
             k += 1;
         }
-        best
+        lanes.best()
     }
 
     /// Visits the blocks at Chebyshev distance exactly `k` from the block of `qcell` inside
@@ -482,7 +548,7 @@ impl PointGrid {
         k: usize,
         rlo: [usize; 3],
         rhi: [usize; 3],
-        best: &mut (u32, f32),
+        lanes: &mut Lanes,
     ) {
         if (0..3).any(|a| rlo[a] > rhi[a]) {
             return;
@@ -492,18 +558,18 @@ impl PointGrid {
             for by in rlo[1]..=rhi[1] {
                 if bz.abs_diff(start[2]) == k || by.abs_diff(start[1]) == k {
                     for bx in rlo[0]..=rhi[0] {
-                        self.visit_block(q, qcell, [bx, by, bz], best);
+                        self.visit_block(q, qcell, [bx, by, bz], lanes);
                     }
                 } else {
                     // Only the two ends of the row are on the shell.
                     if let Some(bx) = start[0].checked_sub(k) {
                         if bx >= rlo[0] && bx <= rhi[0] {
-                            self.visit_block(q, qcell, [bx, by, bz], best);
+                            self.visit_block(q, qcell, [bx, by, bz], lanes);
                         }
                     }
                     let bx = start[0] + k;
                     if k > 0 && bx >= rlo[0] && bx <= rhi[0] {
-                        self.visit_block(q, qcell, [bx, by, bz], best);
+                        self.visit_block(q, qcell, [bx, by, bz], lanes);
                     }
                 }
             }
@@ -513,28 +579,30 @@ impl PointGrid {
     /// Scans the cells of block `b` that the current best ball reaches: the query's own cell
     /// first (a small ball early), then row by row, skipping rows beyond the ball and trimming
     /// each row to the ball's chord.
-    fn visit_block(&self, q: [f32; 3], qcell: [usize; 3], b: [usize; 3], best: &mut (u32, f32)) {
+    fn visit_block(&self, q: [f32; 3], qcell: [usize; 3], b: [usize; 3], lanes: &mut Lanes) {
         let bi = b[0] + self.blocks[0] * (b[1] + self.blocks[1] * b[2]);
-        let base = bi * BLOCK_CELLS;
-        let (p0, p1) = (self.cell_start[base] as usize, self.cell_start[base + BLOCK_CELLS] as usize);
-        if p0 == p1 || box_dist2(q, self.block_lo[bi], self.block_hi[bi]) > self.padded(best.1) {
+        let (blo, bhi) = (self.block_lo[bi], self.block_hi[bi]);
+        // An empty block has lo > hi, hence an infinite distance.
+        if blo[0] > bhi[0] || box_dist2(q, blo, bhi) > self.padded(lanes.bound()) {
             return;
         }
-        let own = qcell.map(|c| c / BLOCK) == b;
-        if own {
-            let s = base + local_of(qcell);
-            self.scan(q, (self.cell_start[s] as usize, self.cell_start[s + 1] as usize), best);
-        }
-        if !best.1.is_finite() {
-            // Only for limits beyond f32 range: no ball to prune with.
-            self.scan(q, (p0, p1), best);
-            return;
-        }
+        let dims = self.cells();
         let origin = b.map(|x| x * BLOCK);
-        let pb = self.padded(best.1);
-        let (clo, chi) = self.cell_range(q, best.1);
-        let lo = [0, 1, 2].map(|a| clo[a].max(origin[a]));
-        let hi = [0, 1, 2].map(|a| chi[a].min(origin[a] + BLOCK - 1));
+        if qcell.map(|c| c / BLOCK) == b {
+            let s = qcell[0] + dims[0] * (qcell[1] + dims[1] * qcell[2]);
+            self.scan(q, self.cell_start[s] as usize, self.cell_start[s + 1] as usize, lanes);
+        }
+        let bound = lanes.bound();
+        let (lo, hi, pb) = if bound.is_finite() {
+            let (clo, chi) = self.cell_range(q, bound);
+            let lo = [0, 1, 2].map(|a| clo[a].max(origin[a]));
+            let hi = [0, 1, 2].map(|a| chi[a].min(origin[a] + BLOCK - 1));
+            (lo, hi, self.padded(bound))
+        } else {
+            // Only for limits beyond f32 range: no ball to prune with.
+            (origin, origin.map(|o| o + BLOCK - 1), f32::INFINITY)
+        };
+        let last = (origin[0] + BLOCK - 1) as f32;
         for z in lo[2]..=hi[2] {
             let dz = self.gap(q, 2, z);
             let dz2 = dz * dz;
@@ -548,34 +616,28 @@ impl PointGrid {
                     continue;
                 }
                 let r = libm::sqrtf(rest);
-                let last = (origin[0] + BLOCK - 1) as f32;
                 let x0 = (clamp_cell((q[0] - r - self.lo[0]) * self.inv_cell, last) as usize).max(origin[0]);
                 let x1 = clamp_cell((q[0] + r - self.lo[0]) * self.inv_cell, last) as usize;
                 if x0 > x1 {
                     continue;
                 }
-                // Cells of one row are consecutive slots, so their points are contiguous.
-                let s0 = base + local_of([x0, y, z]);
-                let s1 = base + local_of([x1, y, z]) + 1;
-                if own && y == qcell[1] && z == qcell[2] && (x0..=x1).contains(&qcell[0]) {
-                    // Skip the own cell, scanned above.
-                    let s = base + local_of(qcell);
-                    self.scan(q, (self.cell_start[s0] as usize, self.cell_start[s] as usize), best);
-                    self.scan(q, (self.cell_start[s + 1] as usize, self.cell_start[s1] as usize), best);
-                } else {
-                    self.scan(q, (self.cell_start[s0] as usize, self.cell_start[s1] as usize), best);
-                }
+                // Cells of one row are consecutive, so their points are contiguous.
+                let row = dims[0] * (y + dims[1] * z);
+                self.scan(q, self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize, lanes);
             }
         }
     }
 
     /// Scans the rows of cells in `[lo, hi]` (cell coordinates) that the best ball reaches,
-    /// each row trimmed to the ball's chord and split where it crosses blocks.
-    /// Rows are visited from the query's row outwards, so that the ball shrinks early.
-    fn scan_ball(&self, q: [f32; 3], c: [usize; 3], lo: [usize; 3], hi: [usize; 3], best: &mut (u32, f32)) {
-        let last = (self.blocks[0] * BLOCK - 1) as f32;
+    /// each row trimmed to the ball's chord. Rows are visited from the query's row outwards, so
+    /// that the ball shrinks early.
+    #[inline(always)]
+    fn scan_ball(&self, q: [f32; 3], c: [usize; 3], lo: [usize; 3], hi: [usize; 3], lanes: &mut Lanes) {
+        let dims = self.cells();
+        let last = (dims[0] - 1) as f32;
         // The padded best, recomputed only when the best changes.
-        let (mut seen, mut pb) = (best.1, self.padded(best.1));
+        let mut bound = lanes.bound();
+        let mut pb = self.padded(bound);
         for z in CenterOut::new(c[2], lo[2], hi[2]) {
             let dz = self.gap(q, 2, z);
             let dz2 = dz * dz;
@@ -583,9 +645,6 @@ impl PointGrid {
                 continue;
             }
             for y in CenterOut::new(c[1], lo[1], hi[1]) {
-                if best.1 != seen {
-                    (seen, pb) = (best.1, self.padded(best.1));
-                }
                 let dy = self.gap(q, 1, y);
                 let rest = pb - dz2 - dy * dy;
                 if rest < 0.0 {
@@ -594,18 +653,14 @@ impl PointGrid {
                 let r = libm::sqrtf(rest);
                 let x0 = clamp_cell((q[0] - r - self.lo[0]) * self.inv_cell, last) as usize;
                 let x1 = clamp_cell((q[0] + r - self.lo[0]) * self.inv_cell, last) as usize;
-                let row = self.blocks[0] * ((y / BLOCK) + self.blocks[1] * (z / BLOCK));
-                let local_yz = BLOCK * ((y % BLOCK) + BLOCK * (z % BLOCK));
-                let mut x = x0;
-                while x <= x1 {
-                    let bx = x / BLOCK;
-                    let end = x1.min(bx * BLOCK + BLOCK - 1);
-                    let base = (row + bx) * BLOCK_CELLS + local_yz;
-                    let (p0, p1) = (self.cell_start[base + x % BLOCK], self.cell_start[base + end % BLOCK + 1]);
-                    if p1 > p0 {
-                        self.scan(q, (p0 as usize, p1 as usize), best);
+                let row = dims[0] * (y + dims[1] * z);
+                let (p0, p1) = (self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize);
+                if p1 > p0 {
+                    let b = self.scan(q, p0, p1, lanes);
+                    if b < bound {
+                        bound = b;
+                        pb = self.padded(b);
                     }
-                    x = end + 1;
                 }
             }
         }
@@ -619,46 +674,26 @@ impl PointGrid {
         fmax(fmax(lo - q[a], q[a] - hi), 0.0)
     }
 
-    /// Scans the sorted points `p0..p1`, four at a time.
+    /// Offers the sorted points `p0..p1` (and up to `LANES - 1` after them, harmless: every
+    /// point offered is a real candidate, or NaN padding) to `lanes`; returns the new bound.
     #[inline(always)]
-    fn scan(&self, q: [f32; 3], (p0, p1): (usize, usize), best: &mut (u32, f32)) {
-        let (xs, ys, zs) = (&self.sorted[0][p0..p1], &self.sorted[1][p0..p1], &self.sorted[2][p0..p1]);
-        let idx = &self.sorted_index[p0..p1];
-        let n = idx.len();
-        if n < 4 {
-            for k in 0..n {
-                consider(best, dist2([xs[k], ys[k], zs[k]], q), idx[k]);
-            }
-            return;
+    fn scan(&self, q: [f32; 3], p0: usize, p1: usize, lanes: &mut Lanes) -> f32 {
+        if p1 <= p0 {
+            return lanes.bound();
         }
-        let (qx, qy, qz) = (Vec4::splat(q[0]), Vec4::splat(q[1]), Vec4::splat(q[2]));
-        let mut group = |x: &[f32; 4], y: &[f32; 4], z: &[f32; 4], i: &[u32; 4]| {
-            let (dx, dy, dz) = (Vec4::from_array(*x) - qx, Vec4::from_array(*y) - qy, Vec4::from_array(*z) - qz);
-            let d2 = dx * dx + dy * dy + dz * dz;
-            if d2.min_element() <= best.1 {
-                for (&d, &i) in d2.to_array().iter().zip(i) {
-                    consider(best, d, i);
-                }
-            }
-        };
-        let chunks = xs.chunks_exact(4).zip(ys.chunks_exact(4)).zip(zs.chunks_exact(4)).zip(idx.chunks_exact(4));
-        for (((x, y), z), i) in chunks {
-            if let (Ok(x), Ok(y), Ok(z), Ok(i)) = (x.try_into(), y.try_into(), z.try_into(), i.try_into()) {
-                group(x, y, z, i);
-            }
+        let end = p0 + (p1 - p0).next_multiple_of(LANES);
+        let [xs, ys, zs] = &self.sorted;
+        let pts = (&xs[p0..end], &ys[p0..end], &zs[p0..end], &self.sorted_index[p0..end]);
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
+            return unsafe { x86::scan(pts, q, lanes) };
         }
-        if !n.is_multiple_of(4) {
-            // The last four points, overlapping the group before: points seen twice change
-            // nothing (same distance, same index).
-            if let (Some(x), Some(y), Some(z), Some(i)) =
-                (xs.last_chunk(), ys.last_chunk(), zs.last_chunk(), idx.last_chunk())
-            {
-                group(x, y, z, i);
-            }
-        }
+        scan_portable(pts, q, lanes)
     }
 
     /// Cell coordinates (clamped into the grid) of the box around `q` reaching `sqrt(d2)`.
+    #[inline(always)]
     fn cell_range(&self, q: [f32; 3], d2: f32) -> ([usize; 3], [usize; 3]) {
         let r = libm::sqrtf(self.padded(d2));
         let lo = cell_of_clamped([q[0] - r, q[1] - r, q[2] - r], self.lo, self.inv_cell, self.blocks);
@@ -825,13 +860,124 @@ fn cell_of_clamped(p: [f32; 3], lo: [f32; 3], inv_cell: f32, blocks: [usize; 3])
     ]
 }
 
-#[inline(always)]
-fn local_of(c: [usize; 3]) -> usize {
-    (c[0] % BLOCK) + BLOCK * ((c[1] % BLOCK) + BLOCK * (c[2] % BLOCK))
+/// Eight candidate `(squared distance, index)` pairs, one per lane, each the lexicographic
+/// minimum of the points offered to its lane; the answer is the minimum over the lanes. A lane
+/// starts at `(limit², NONE)`, so that a point exactly at the limit is taken (inclusive).
+#[derive(Clone, Copy)]
+#[repr(C, align(32))]
+struct Lanes {
+    d2: [f32; LANES],
+    index: [u32; LANES],
 }
 
+impl Lanes {
+    #[inline(always)]
+    fn new(limit2: f32) -> Lanes {
+        Lanes { d2: [limit2; LANES], index: [NONE; LANES] }
+    }
+
+    /// Offers one point to lane `l`.
+    #[inline(always)]
+    fn take(&mut self, l: usize, d2: f32, i: u32) {
+        if d2 < self.d2[l] || (d2 == self.d2[l] && i < self.index[l]) {
+            self.d2[l] = d2;
+            self.index[l] = i;
+        }
+    }
+
+    /// Offers one point (to lane 0).
+    #[inline(always)]
+    fn offer(&mut self, d2: f32, i: u32) {
+        self.take(0, d2, i);
+    }
+
+    /// The smallest squared distance held: no farther point can win.
+    #[inline(always)]
+    fn bound(&self) -> f32 {
+        self.d2.iter().fold(f32::INFINITY, |m, &d| fmin(m, d))
+    }
+
+    /// The winner `(index, squared distance)`: lowest distance, then lowest index.
+    #[inline(always)]
+    fn best(&self) -> (u32, f32) {
+        let mut best = (self.index[0], self.d2[0]);
+        for l in 1..LANES {
+            if self.d2[l] < best.1 || (self.d2[l] == best.1 && self.index[l] < best.0) {
+                best = (self.index[l], self.d2[l]);
+            }
+        }
+        best
+    }
+}
+
+/// Sorted coordinates `x, y, z` and point indices of one scan, a multiple of `LANES` long.
+type ScanPoints<'a> = (&'a [f32], &'a [f32], &'a [f32], &'a [u32]);
+
+/// The portable twin of [`x86::scan`]: the same lane updates, one lane at a time.
 #[inline(always)]
-fn slot_of(c: [usize; 3], blocks: [usize; 3]) -> usize {
-    let b = [c[0] / BLOCK, c[1] / BLOCK, c[2] / BLOCK];
-    (b[0] + blocks[0] * (b[1] + blocks[1] * b[2])) * BLOCK_CELLS + local_of(c)
+fn scan_portable((xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3], lanes: &mut Lanes) -> f32 {
+    let groups = xs.chunks_exact(LANES).zip(ys.chunks_exact(LANES)).zip(zs.chunks_exact(LANES));
+    for (((x, y), z), i) in groups.zip(idx.chunks_exact(LANES)) {
+        for l in 0..LANES {
+            lanes.take(l, dist2([x[l], y[l], z[l]], q), i[l]);
+        }
+    }
+    lanes.bound()
+}
+
+/// Whether the scans may use AVX2: checked at run time under `std`, else by the compile-time
+/// target features.
+fn has_avx2() -> bool {
+    #[cfg(all(target_arch = "x86_64", feature = "std"))]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(all(target_arch = "x86_64", feature = "std")))]
+    {
+        cfg!(target_feature = "avx2")
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use super::{Lanes, ScanPoints, LANES};
+    use core::arch::x86_64::*;
+
+    /// [`super::scan_portable`] eight points at a time. Distances are `(dx² + dy²) + dz²` in
+    /// that order, without FMA, so they equal the scalar ones bit for bit.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn scan((xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3], lanes: &mut Lanes) -> f32 {
+        let n = xs.len().min(ys.len()).min(zs.len()).min(idx.len()) / LANES * LANES;
+        let (qx, qy, qz) = (_mm256_set1_ps(q[0]), _mm256_set1_ps(q[1]), _mm256_set1_ps(q[2]));
+        let sign = _mm256_set1_epi32(i32::MIN);
+        // SAFETY: `Lanes` is 32-byte aligned with 8 f32 then 8 u32; every load reads
+        // `k..k + 8` with `k + 8 <= n`, inside all four slices.
+        unsafe {
+            let mut bd = _mm256_load_ps(lanes.d2.as_ptr());
+            let mut bi = _mm256_load_si256(lanes.index.as_ptr().cast());
+            let mut k = 0;
+            while k < n {
+                let dx = _mm256_sub_ps(_mm256_loadu_ps(xs.as_ptr().add(k)), qx);
+                let dy = _mm256_sub_ps(_mm256_loadu_ps(ys.as_ptr().add(k)), qy);
+                let dz = _mm256_sub_ps(_mm256_loadu_ps(zs.as_ptr().add(k)), qz);
+                let d =
+                    _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy)), _mm256_mul_ps(dz, dz));
+                let i = _mm256_loadu_si256(idx.as_ptr().add(k).cast());
+                let lt = _mm256_cmp_ps::<_CMP_LT_OQ>(d, bd);
+                let eq = _mm256_cmp_ps::<_CMP_EQ_OQ>(d, bd);
+                // Unsigned `i < bi` as a signed compare of sign-flipped values.
+                let lower = _mm256_cmpgt_epi32(_mm256_xor_si256(bi, sign), _mm256_xor_si256(i, sign));
+                let take = _mm256_or_ps(lt, _mm256_and_ps(eq, _mm256_castsi256_ps(lower)));
+                bd = _mm256_blendv_ps(bd, d, take);
+                bi = _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bi), _mm256_castsi256_ps(i), take));
+                k += LANES;
+            }
+            _mm256_store_ps(lanes.d2.as_mut_ptr(), bd);
+            _mm256_store_si256(lanes.index.as_mut_ptr().cast(), bi);
+            let m = _mm_min_ps(_mm256_castps256_ps128(bd), _mm256_extractf128_ps::<1>(bd));
+            let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
+            _mm_cvtss_f32(_mm_min_ss(m, _mm_shuffle_ps::<1>(m, m)))
+        }
+    }
 }
