@@ -325,8 +325,23 @@ impl PointGrid {
     /// As [`nearest_within_one`](Self::nearest_within_one), starting from a guess: the point
     /// `hint` (e.g. last frame's answer; any index `>= len()` means no guess). The result is the
     /// same whatever the hint; a good one makes the search faster.
-    #[inline(always)]
     pub fn nearest_within_one_hinted(&self, q: [f32; 3], radius: f32, hint: u32) -> Option<Nearest> {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
+            return unsafe { self.within_one_avx2(q, radius, hint) };
+        }
+        self.within_one::<Lanes>(q, radius, hint)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn within_one_avx2(&self, q: [f32; 3], radius: f32, hint: u32) -> Option<Nearest> {
+        self.within_one::<x86::Avx2Best>(q, radius, hint)
+    }
+
+    #[inline(always)]
+    fn within_one<B: Best>(&self, q: [f32; 3], radius: f32, hint: u32) -> Option<Nearest> {
         if self.n_points == 0 || radius.is_nan() || radius < 0.0 {
             return None;
         }
@@ -338,7 +353,7 @@ impl PointGrid {
         if let Some(p) = self.point(hint) {
             consider(&mut best, dist2(p, q), hint);
         }
-        found(self.search(q, best))
+        found(self.search::<B>(q, best))
     }
 
     /// The nearest point to `q`, lowest index on ties, with no distance limit; `None` only when
@@ -362,18 +377,33 @@ impl PointGrid {
     /// As [`nearest_one`](Self::nearest_one), starting from a guess: the point `hint` (e.g. last
     /// frame's answer; any index `>= len()` means no guess). The result is the same whatever the
     /// hint; a good one replaces the growing radii by a single search within the hint's distance.
-    #[inline(always)]
     pub fn nearest_one_hinted(&self, q: [f32; 3], hint: u32) -> Option<Nearest> {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
+            return unsafe { self.nearest_one_avx2(q, hint) };
+        }
+        self.nearest_one_with::<Lanes>(q, hint)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn nearest_one_avx2(&self, q: [f32; 3], hint: u32) -> Option<Nearest> {
+        self.nearest_one_with::<x86::Avx2Best>(q, hint)
+    }
+
+    #[inline(always)]
+    fn nearest_one_with<B: Best>(&self, q: [f32; 3], hint: u32) -> Option<Nearest> {
         if self.n_points == 0 {
             return None;
         }
         if let Some(p) = self.point(hint) {
             let d2 = dist2(p, q);
             if d2.is_finite() {
-                return found(self.search(q, (hint, d2)));
+                return found(self.search::<B>(q, (hint, d2)));
             }
         }
-        let lower = libm::sqrtf(box_dist2(q, self.lo, self.hi));
+        let lower = sqrt(box_dist2(q, self.lo, self.hi));
         if lower > FAR_CELLS * self.cell {
             // Far outside: the nearest of one point per block bounds the answer within about a
             // block; the block boxes then prune most blocks.
@@ -384,7 +414,7 @@ impl PointGrid {
                 }
             }
             if guess.1.is_finite() {
-                return found(self.search(q, guess));
+                return found(self.search::<B>(q, guess));
             }
         }
         if lower <= self.cell {
@@ -394,27 +424,27 @@ impl PointGrid {
             let dims = self.cells();
             let row = dims[0] * (c[1] + dims[1] * c[2]);
             let (x0, x1) = (c[0].saturating_sub(SEED_CELLS), (c[0] + SEED_CELLS).min(dims[0] - 1));
-            let mut lanes = Lanes::new(f32::INFINITY);
+            let mut seed = B::new(f32::INFINITY);
             let d2 =
-                self.scan(q, self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize, &mut lanes);
+                self.scan(q, self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize, &mut seed);
             if d2.is_finite() {
-                return found(self.search(q, lanes.best()));
+                return found(self.search::<B>(q, seed.best()));
             }
         }
         // Radius searches with a growing radius: the first that finds a point has found the
         // nearest.
         let ext = [self.hi[0] - self.lo[0], self.hi[1] - self.lo[1], self.hi[2] - self.lo[2]];
-        let diag = libm::sqrtf(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]);
+        let diag = sqrt(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]);
         let mut step = 2.0 * self.cell;
         loop {
             let r = lower + step;
-            let best = self.search(q, (NONE, r * r));
+            let best = self.search::<B>(q, (NONE, r * r));
             if best.0 != NONE {
                 return found(best);
             }
             if step.is_nan() || step > 2.0 * diag + self.cell || !(r * r).is_finite() {
                 // Every point is within `lower + diag`; only overflow or NaN ends up here.
-                return found(self.search(q, (NONE, f32::INFINITY)));
+                return found(self.search::<B>(q, (NONE, f32::INFINITY)));
             }
             step *= 2.0;
         }
@@ -455,11 +485,29 @@ impl PointGrid {
         if !(radius >= 0.0 && radius.is_finite()) {
             return Err(Error::OutOfRange { what: "query radius", index: 0 });
         }
-        self.within_batch(queries, radius, hints, out)
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
+            return unsafe { self.within_batch_avx2(queries, radius, hints, out) };
+        }
+        self.within_batch::<Lanes>(queries, radius, hints, out)
+    }
+
+    /// The batch loop compiled with AVX2, so that the whole search inlines around the scans.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn within_batch_avx2(
+        &self,
+        queries: &[[f32; 3]],
+        radius: f32,
+        hints: &[u32],
+        out: &mut [Option<Nearest>],
+    ) -> Result<()> {
+        self.within_batch::<x86::Avx2Best>(queries, radius, hints, out)
     }
 
     #[inline(always)]
-    fn within_batch(
+    fn within_batch<B: Best>(
         &self,
         queries: &[[f32; 3]],
         radius: f32,
@@ -470,7 +518,7 @@ impl PointGrid {
             if !finite3(*q) {
                 return Err(Error::NonFinite { what: "query point", index: i });
             }
-            *o = self.nearest_within_one_hinted(*q, radius, hints.get(i).copied().unwrap_or(NONE));
+            *o = self.within_one::<B>(*q, radius, hints.get(i).copied().unwrap_or(NONE));
         }
         Ok(())
     }
@@ -498,18 +546,30 @@ impl PointGrid {
         if self.n_points == 0 {
             return Err(Error::Empty { what: "point grid" });
         }
-        self.nearest_batch(queries, hints, out)
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
+            return unsafe { self.nearest_batch_avx2(queries, hints, out) };
+        }
+        self.nearest_batch::<Lanes>(queries, hints, out)
+    }
+
+    /// The batch loop compiled with AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn nearest_batch_avx2(&self, queries: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
+        self.nearest_batch::<x86::Avx2Best>(queries, hints, out)
     }
 
     #[inline(always)]
-    fn nearest_batch(&self, queries: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
+    fn nearest_batch<B: Best>(&self, queries: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
         for (i, (q, o)) in queries.iter().zip(out.iter_mut()).enumerate() {
             if !finite3(*q) {
                 return Err(Error::NonFinite { what: "query point", index: i });
             }
             // Non-empty grid and finite query: the search always returns a point.
             let hint = hints.get(i).copied().unwrap_or(NONE);
-            *o = self.nearest_one_hinted(*q, hint).unwrap_or(Nearest { index: 0, distance: f32::INFINITY });
+            *o = self.nearest_one_with::<B>(*q, hint).unwrap_or(Nearest { index: 0, distance: f32::INFINITY });
         }
         Ok(())
     }
@@ -517,15 +577,15 @@ impl PointGrid {
     /// A squared distance widened by the rounding slack, for pruning comparisons.
     #[inline(always)]
     fn padded(&self, d2: f32) -> f32 {
-        let d = libm::sqrtf(d2) * (1.0 + 1e-5) + self.pad;
+        let d = sqrt(d2) * (1.0 + 1e-5) + self.pad;
         d * d
     }
 
     /// The best `(index, squared distance)` among `best` (a guess, or `NONE` with the limit) and
     /// the points within `sqrt(best.1)` of `q`.
     #[inline(always)]
-    fn search(&self, q: [f32; 3], best: (u32, f32)) -> (u32, f32) {
-        let mut lanes = Lanes::new(best.1);
+    fn search<B: Best>(&self, q: [f32; 3], best: (u32, f32)) -> (u32, f32) {
+        let mut lanes = B::new(best.1);
         lanes.offer(best.1, best.0);
         let limit2 = best.1;
         let qcell = cell_of_clamped(q, self.lo, self.inv_edge, self.blocks);
@@ -533,7 +593,7 @@ impl PointGrid {
             // A small ball: scan its rows directly, the query's own row first.
             let (lo, hi) = self.cell_range(q, limit2);
             if (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1) <= DIRECT_ROWS {
-                self.scan_ball(q, qcell, lo, hi, &mut lanes);
+                self.scan_ball(q, qcell, lo, hi, &mut lanes, best.0 != NONE);
                 return lanes.best();
             }
         }
@@ -569,14 +629,15 @@ impl PointGrid {
 
     /// Visits the blocks at Chebyshev distance exactly `k` from the block of `qcell` inside
     /// `[rlo, rhi]`.
-    fn visit_shell(
+    #[inline(always)]
+    fn visit_shell<B: Best>(
         &self,
         q: [f32; 3],
         qcell: [usize; 3],
         k: usize,
         rlo: [usize; 3],
         rhi: [usize; 3],
-        lanes: &mut Lanes,
+        lanes: &mut B,
     ) {
         if (0..3).any(|a| rlo[a] > rhi[a]) {
             return;
@@ -607,7 +668,8 @@ impl PointGrid {
     /// Scans the cells of block `b` that the current best ball reaches: the query's own cell
     /// first (a small ball early), then row by row, skipping rows beyond the ball and trimming
     /// each row to the ball's chord.
-    fn visit_block(&self, q: [f32; 3], qcell: [usize; 3], b: [usize; 3], lanes: &mut Lanes) {
+    #[inline(always)]
+    fn visit_block<B: Best>(&self, q: [f32; 3], qcell: [usize; 3], b: [usize; 3], lanes: &mut B) {
         let bi = b[0] + self.blocks[0] * (b[1] + self.blocks[1] * b[2]);
         let (blo, bhi) = (self.block_lo[bi], self.block_hi[bi]);
         // An empty block has lo > hi, hence an infinite distance.
@@ -643,7 +705,7 @@ impl PointGrid {
                 if rest < 0.0 {
                     continue;
                 }
-                let r = libm::sqrtf(rest);
+                let r = sqrt(rest);
                 let x0 = (clamp_cell((q[0] - r - self.lo[0]) * self.inv_edge[0], last) as usize).max(origin[0]);
                 let x1 = clamp_cell((q[0] + r - self.lo[0]) * self.inv_edge[0], last) as usize;
                 if x0 > x1 {
@@ -660,7 +722,17 @@ impl PointGrid {
     /// each row trimmed to the ball's chord. Rows are visited from the query's row outwards, so
     /// that the ball shrinks early.
     #[inline(always)]
-    fn scan_ball(&self, q: [f32; 3], c: [usize; 3], lo: [usize; 3], hi: [usize; 3], lanes: &mut Lanes) {
+    /// `seeded`: the search starts from a candidate, so its bound is already close.
+    fn scan_ball<B: Best>(
+        &self,
+        q: [f32; 3],
+        c: [usize; 3],
+        lo: [usize; 3],
+        hi: [usize; 3],
+        lanes: &mut B,
+        seeded: bool,
+    ) {
+        let mut tight = seeded;
         let dims = self.cells();
         let last = (dims[0] - 1) as f32;
         // The padded best, recomputed only when the best changes.
@@ -678,13 +750,15 @@ impl PointGrid {
                 if rest < 0.0 {
                     continue;
                 }
-                let r = libm::sqrtf(rest);
+                let r = sqrt(rest);
                 let x0 = clamp_cell((q[0] - r - self.lo[0]) * self.inv_edge[0], last) as usize;
                 let x1 = clamp_cell((q[0] + r - self.lo[0]) * self.inv_edge[0], last) as usize;
                 let row = dims[0] * (y + dims[1] * z);
                 let (p0, p1) = (self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize);
                 if p1 > p0 {
-                    let b = self.scan(q, p0, p1, lanes);
+                    let b = self.scan_with(q, p0, p1, lanes, tight);
+                    // After the query's own row the bound is close to the answer.
+                    tight = true;
                     if b < bound {
                         bound = b;
                         pb = self.padded(b);
@@ -705,25 +779,30 @@ impl PointGrid {
     /// Offers the sorted points `p0..p1` (and up to `LANES - 1` after them, harmless: every
     /// point offered is a real candidate, or NaN padding) to `lanes`; returns the new bound.
     #[inline(always)]
-    fn scan(&self, q: [f32; 3], p0: usize, p1: usize, lanes: &mut Lanes) -> f32 {
+    fn scan<B: Best>(&self, q: [f32; 3], p0: usize, p1: usize, best: &mut B) -> f32 {
+        self.scan_with(q, p0, p1, best, false)
+    }
+
+    /// As [`scan`](Self::scan); `tight` when the bound is already close to the answer.
+    #[inline(always)]
+    fn scan_with<B: Best>(&self, q: [f32; 3], p0: usize, p1: usize, best: &mut B, tight: bool) -> f32 {
         if p1 <= p0 {
-            return lanes.bound();
+            return best.bound();
         }
         let end = p0 + (p1 - p0).next_multiple_of(LANES);
         let [xs, ys, zs] = &self.sorted;
         let pts = (&xs[p0..end], &ys[p0..end], &zs[p0..end], &self.sorted_index[p0..end]);
-        #[cfg(target_arch = "x86_64")]
-        if self.avx2 {
-            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
-            return unsafe { x86::scan(pts, q, lanes) };
+        if tight {
+            best.scan_tight(pts, q)
+        } else {
+            best.scan(pts, q)
         }
-        scan_portable(pts, q, lanes)
     }
 
     /// Cell coordinates (clamped into the grid) of the box around `q` reaching `sqrt(d2)`.
     #[inline(always)]
     fn cell_range(&self, q: [f32; 3], d2: f32) -> ([usize; 3], [usize; 3]) {
-        let r = libm::sqrtf(self.padded(d2));
+        let r = sqrt(self.padded(d2));
         let lo = cell_of_clamped([q[0] - r, q[1] - r, q[2] - r], self.lo, self.inv_edge, self.blocks);
         let hi = cell_of_clamped([q[0] + r, q[1] + r, q[2] + r], self.lo, self.inv_edge, self.blocks);
         (lo, hi)
@@ -836,7 +915,7 @@ fn check_batch(queries: usize, hints: usize, out: usize) -> Result<()> {
 /// A search result as a [`Nearest`].
 #[inline(always)]
 fn found((i, d2): (u32, f32)) -> Option<Nearest> {
-    (i != NONE).then(|| Nearest { index: i, distance: libm::sqrtf(d2) })
+    (i != NONE).then(|| Nearest { index: i, distance: sqrt(d2) })
 }
 
 /// Takes `(i, d2)` if it is nearer, or as near with a lower index.
@@ -898,12 +977,61 @@ struct Lanes {
     index: [u32; LANES],
 }
 
-impl Lanes {
+/// The running answer of one search: candidates `(squared distance, index)` whose lexicographic
+/// minimum is the answer, starting at `(limit², NONE)` (a point exactly at the limit is taken).
+/// Two implementations, [`Lanes`] (portable) and `x86::Avx2Best`, give identical answers.
+trait Best {
+    fn new(limit2: f32) -> Self;
+    /// Offers one point.
+    fn offer(&mut self, d2: f32, i: u32);
+    /// Offers every point of `pts` (a multiple of `LANES` long); returns the new bound.
+    fn scan(&mut self, pts: ScanPoints<'_>, q: [f32; 3]) -> f32;
+    /// As [`scan`](Self::scan), faster when few points beat the bound (a tight bound).
+    fn scan_tight(&mut self, pts: ScanPoints<'_>, q: [f32; 3]) -> f32 {
+        self.scan(pts, q)
+    }
+    /// The smallest squared distance held: no farther point can win.
+    fn bound(&self) -> f32;
+    /// The winner `(index, squared distance)`: lowest distance, then lowest index.
+    fn best(&self) -> (u32, f32);
+}
+
+impl Best for Lanes {
     #[inline(always)]
     fn new(limit2: f32) -> Lanes {
         Lanes { d2: [limit2; LANES], index: [NONE; LANES] }
     }
+    #[inline(always)]
+    fn offer(&mut self, d2: f32, i: u32) {
+        self.take(0, d2, i);
+    }
+    #[inline(always)]
+    fn scan(&mut self, pts: ScanPoints<'_>, q: [f32; 3]) -> f32 {
+        scan_portable(pts, q, self)
+    }
+    #[inline(always)]
+    fn bound(&self) -> f32 {
+        self.d2.iter().fold(f32::INFINITY, |m, &d| fmin(m, d))
+    }
+    #[inline(always)]
+    fn best(&self) -> (u32, f32) {
+        lexicographic_min(&self.d2, &self.index)
+    }
+}
 
+/// The lowest `(d2, index)` over eight lanes.
+#[inline(always)]
+fn lexicographic_min(d2: &[f32; LANES], index: &[u32; LANES]) -> (u32, f32) {
+    let mut best = (index[0], d2[0]);
+    for l in 1..LANES {
+        if d2[l] < best.1 || (d2[l] == best.1 && index[l] < best.0) {
+            best = (index[l], d2[l]);
+        }
+    }
+    best
+}
+
+impl Lanes {
     /// Offers one point to lane `l`.
     #[inline(always)]
     fn take(&mut self, l: usize, d2: f32, i: u32) {
@@ -911,30 +1039,6 @@ impl Lanes {
             self.d2[l] = d2;
             self.index[l] = i;
         }
-    }
-
-    /// Offers one point (to lane 0).
-    #[inline(always)]
-    fn offer(&mut self, d2: f32, i: u32) {
-        self.take(0, d2, i);
-    }
-
-    /// The smallest squared distance held: no farther point can win.
-    #[inline(always)]
-    fn bound(&self) -> f32 {
-        self.d2.iter().fold(f32::INFINITY, |m, &d| fmin(m, d))
-    }
-
-    /// The winner `(index, squared distance)`: lowest distance, then lowest index.
-    #[inline(always)]
-    fn best(&self) -> (u32, f32) {
-        let mut best = (self.index[0], self.d2[0]);
-        for l in 1..LANES {
-            if self.d2[l] < best.1 || (self.d2[l] == best.1 && self.index[l] < best.0) {
-                best = (self.index[l], self.d2[l]);
-            }
-        }
-        best
     }
 }
 
@@ -968,64 +1072,158 @@ fn has_avx2() -> bool {
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
-    use super::{Lanes, ScanPoints, LANES};
+    use super::{lexicographic_min, Best, ScanPoints, LANES, NONE};
     use core::arch::x86_64::*;
 
-    /// [`super::scan_portable`] eight points at a time. Distances are `(dx² + dy²) + dz²` in
-    /// that order, without FMA, so they equal the scalar ones bit for bit.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    pub(super) fn scan((xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3], lanes: &mut Lanes) -> f32 {
-        let n = xs.len().min(ys.len()).min(zs.len()).min(idx.len()) / LANES * LANES;
-        let (qx, qy, qz) = (_mm256_set1_ps(q[0]), _mm256_set1_ps(q[1]), _mm256_set1_ps(q[2]));
-        // SAFETY: `Lanes` is 32-byte aligned with 8 f32 then 8 u32; every load reads
-        // `k..k + 8` with `k + 8 <= n`, inside all four slices.
-        unsafe {
-            let group = |k: usize| {
-                let dx = _mm256_sub_ps(_mm256_loadu_ps(xs.as_ptr().add(k)), qx);
-                let dy = _mm256_sub_ps(_mm256_loadu_ps(ys.as_ptr().add(k)), qy);
-                let dz = _mm256_sub_ps(_mm256_loadu_ps(zs.as_ptr().add(k)), qz);
-                let d =
-                    _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy)), _mm256_mul_ps(dz, dz));
-                (d, _mm256_loadu_si256(idx.as_ptr().add(k).cast()))
-            };
-            let mut bd = _mm256_load_ps(lanes.d2.as_ptr());
-            let mut bi = _mm256_load_si256(lanes.index.as_ptr().cast());
-            // Two accumulators, so that consecutive groups do not wait on each other's blends.
-            let (mut bd1, mut bi1) = (bd, bi);
-            let mut k = 0;
-            while k + 2 * LANES <= n {
-                let (d, i) = group(k);
-                (bd, bi) = merge(bd, bi, d, i);
-                let (d, i) = group(k + LANES);
-                (bd1, bi1) = merge(bd1, bi1, d, i);
-                k += 2 * LANES;
+    /// [`super::Lanes`] in two AVX2 registers. Only made inside functions compiled with AVX2
+    /// (the `*_avx2` entry points of the grid, reached only when the CPU has it), into which all
+    /// of its methods inline.
+    #[derive(Clone, Copy)]
+    pub(super) struct Avx2Best {
+        d2: __m256,
+        index: __m256i,
+    }
+
+    impl Best for Avx2Best {
+        #[inline(always)]
+        fn new(limit2: f32) -> Avx2Best {
+            // SAFETY (every `unsafe` of this impl): AVX2 instructions, executed only on a CPU
+            // that has them (see the type's comment); loads and stores as commented.
+            unsafe { Avx2Best { d2: _mm256_set1_ps(limit2), index: _mm256_set1_epi32(NONE as i32) } }
+        }
+
+        #[inline(always)]
+        fn offer(&mut self, d2: f32, i: u32) {
+            // Every lane takes the point if it is better: the minimum over lanes is the same.
+            unsafe {
+                (self.d2, self.index) = merge(self.d2, self.index, _mm256_set1_ps(d2), _mm256_set1_epi32(i as i32));
             }
-            if k < n {
-                let (d, i) = group(k);
-                (bd, bi) = merge(bd, bi, d, i);
+        }
+
+        /// [`super::scan_portable`] eight points at a time. Distances are `(dx² + dy²) + dz²` in
+        /// that order, without FMA, so they equal the scalar ones bit for bit.
+        #[inline(always)]
+        fn scan(&mut self, (xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3]) -> f32 {
+            let n = xs.len().min(ys.len()).min(zs.len()).min(idx.len()) / LANES * LANES;
+            // Loads read `k..k + 8` with `k + 8 <= n`, inside all four slices.
+            unsafe {
+                let (qx, qy, qz) = (_mm256_set1_ps(q[0]), _mm256_set1_ps(q[1]), _mm256_set1_ps(q[2]));
+                // A macro rather than a closure: closures do not inline into the AVX2 callers.
+                macro_rules! group {
+                    ($k:expr) => {{
+                        let k = $k;
+                        let dx = _mm256_sub_ps(_mm256_loadu_ps(xs.as_ptr().add(k)), qx);
+                        let dy = _mm256_sub_ps(_mm256_loadu_ps(ys.as_ptr().add(k)), qy);
+                        let dz = _mm256_sub_ps(_mm256_loadu_ps(zs.as_ptr().add(k)), qz);
+                        let d = _mm256_add_ps(
+                            _mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy)),
+                            _mm256_mul_ps(dz, dz),
+                        );
+                        (d, _mm256_loadu_si256(idx.as_ptr().add(k).cast()))
+                    }};
+                }
+                let (mut bd, mut bi) = (self.d2, self.index);
+                // Two accumulators, so that consecutive groups do not wait on each other's blends.
+                let (mut bd1, mut bi1) = (bd, bi);
+                let mut k = 0;
+                while k + 2 * LANES <= n {
+                    let (d, i) = group!(k);
+                    (bd, bi) = merge(bd, bi, d, i);
+                    let (d, i) = group!(k + LANES);
+                    (bd1, bi1) = merge(bd1, bi1, d, i);
+                    k += 2 * LANES;
+                }
+                if k < n {
+                    let (d, i) = group!(k);
+                    (bd, bi) = merge(bd, bi, d, i);
+                }
+                (self.d2, self.index) = merge(bd, bi, bd1, bi1);
             }
-            (bd, bi) = merge(bd, bi, bd1, bi1);
-            _mm256_store_ps(lanes.d2.as_mut_ptr(), bd);
-            _mm256_store_si256(lanes.index.as_mut_ptr().cast(), bi);
-            let m = _mm_min_ps(_mm256_castps256_ps128(bd), _mm256_extractf128_ps::<1>(bd));
-            let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
-            _mm_cvtss_f32(_mm_min_ss(m, _mm_shuffle_ps::<1>(m, m)))
+            self.bound()
+        }
+
+        /// Groups with no point within the bound cost one compare; only the others are merged
+        /// into the lanes (a point beyond the lowest lane can never be the answer).
+        #[inline(always)]
+        fn scan_tight(&mut self, (xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3]) -> f32 {
+            let n = xs.len().min(ys.len()).min(zs.len()).min(idx.len()) / LANES * LANES;
+            // Loads read `k..k + 8` with `k + 8 <= n`, inside all four slices.
+            unsafe {
+                let (qx, qy, qz) = (_mm256_set1_ps(q[0]), _mm256_set1_ps(q[1]), _mm256_set1_ps(q[2]));
+                let mut bound = _mm256_set1_ps(self.bound());
+                let mut k = 0;
+                while k < n {
+                    let dx = _mm256_sub_ps(_mm256_loadu_ps(xs.as_ptr().add(k)), qx);
+                    let dy = _mm256_sub_ps(_mm256_loadu_ps(ys.as_ptr().add(k)), qy);
+                    let dz = _mm256_sub_ps(_mm256_loadu_ps(zs.as_ptr().add(k)), qz);
+                    let d = _mm256_add_ps(
+                        _mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy)),
+                        _mm256_mul_ps(dz, dz),
+                    );
+                    if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(d, bound)) != 0 {
+                        let i = _mm256_loadu_si256(idx.as_ptr().add(k).cast());
+                        (self.d2, self.index) = merge(self.d2, self.index, d, i);
+                        bound = _mm256_set1_ps(self.bound());
+                    }
+                    k += LANES;
+                }
+                _mm256_cvtss_f32(bound)
+            }
+        }
+
+        #[inline(always)]
+        fn bound(&self) -> f32 {
+            unsafe {
+                let d = self.d2;
+                let m = _mm_min_ps(_mm256_castps256_ps128(d), _mm256_extractf128_ps::<1>(d));
+                let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
+                _mm_cvtss_f32(_mm_min_ss(m, _mm_shuffle_ps::<1>(m, m)))
+            }
+        }
+
+        #[inline(always)]
+        fn best(&self) -> (u32, f32) {
+            let (mut d2, mut index) = ([0.0f32; LANES], [0u32; LANES]);
+            // Stores of 8 lanes into arrays of 8.
+            unsafe {
+                _mm256_storeu_ps(d2.as_mut_ptr(), self.d2);
+                _mm256_storeu_si256(index.as_mut_ptr().cast(), self.index);
+            }
+            lexicographic_min(&d2, &index)
         }
     }
 
-    // Lane-wise lexicographic minimum of `(bd, bi)` and `(d, i)`.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    fn merge(bd: __m256, bi: __m256i, d: __m256, i: __m256i) -> (__m256, __m256i) {
-        let sign = _mm256_set1_epi32(i32::MIN);
-        let lt = _mm256_cmp_ps::<_CMP_LT_OQ>(d, bd);
-        let eq = _mm256_cmp_ps::<_CMP_EQ_OQ>(d, bd);
-        // Unsigned `i < bi` as a signed compare of sign-flipped values.
-        let lower = _mm256_cmpgt_epi32(_mm256_xor_si256(bi, sign), _mm256_xor_si256(i, sign));
-        let take = _mm256_or_ps(lt, _mm256_and_ps(eq, _mm256_castsi256_ps(lower)));
-        let bd = _mm256_blendv_ps(bd, d, take);
-        let bi = _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bi), _mm256_castsi256_ps(i), take));
-        (bd, bi)
+    /// Lane-wise lexicographic minimum of `(bd, bi)` and `(d, i)`.
+    #[inline(always)]
+    unsafe fn merge(bd: __m256, bi: __m256i, d: __m256, i: __m256i) -> (__m256, __m256i) {
+        // SAFETY: AVX2 instructions, only reached on a CPU that has them.
+        unsafe {
+            let sign = _mm256_set1_epi32(i32::MIN);
+            let lt = _mm256_cmp_ps::<_CMP_LT_OQ>(d, bd);
+            let eq = _mm256_cmp_ps::<_CMP_EQ_OQ>(d, bd);
+            // Unsigned `i < bi` as a signed compare of sign-flipped values.
+            let lower = _mm256_cmpgt_epi32(_mm256_xor_si256(bi, sign), _mm256_xor_si256(i, sign));
+            let take = _mm256_or_ps(lt, _mm256_and_ps(eq, _mm256_castsi256_ps(lower)));
+            let bd = _mm256_blendv_ps(bd, d, take);
+            let bi = _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bi), _mm256_castsi256_ps(i), take));
+            (bd, bi)
+        }
+    }
+}
+
+/// `√x` by the `sqrtss` instruction (the same IEEE result as `libm::sqrtf`), as an intrinsic so
+/// that it takes the VEX form inside the AVX2 search: the legacy form there stalls on the
+/// upper halves of the vector registers.
+#[inline(always)]
+fn sqrt(x: f32) -> f32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use core::arch::x86_64::{_mm_cvtss_f32, _mm_set_ss, _mm_sqrt_ss};
+        // SAFETY: SSE is part of the x86-64 baseline.
+        unsafe { _mm_cvtss_f32(_mm_sqrt_ss(_mm_set_ss(x))) }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        libm::sqrtf(x)
     }
 }
