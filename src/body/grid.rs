@@ -990,7 +990,6 @@ fn cell_of_clamped(p: [f32; 3], lo: [f32; 3], inv_edge: [f32; 3], blocks: [usize
 /// minimum of the points offered to its lane; the answer is the minimum over the lanes. A lane
 /// starts at `(limit², NONE)`, so that a point exactly at the limit is taken (inclusive).
 #[derive(Clone, Copy)]
-#[repr(C, align(32))]
 struct Lanes {
     d2: [f32; LANES],
     index: [u32; LANES],
@@ -1064,7 +1063,8 @@ impl Lanes {
 /// Sorted coordinates `x, y, z` and point indices of one scan, a multiple of `LANES` long.
 type ScanPoints<'a> = (&'a [f32], &'a [f32], &'a [f32], &'a [u32]);
 
-/// The portable twin of [`x86::scan`]: the same lane updates, one lane at a time.
+/// The portable twin of the AVX2 scan (`x86::Avx2Best`): the same lane updates, one lane at a
+/// time.
 #[inline(always)]
 fn scan_portable((xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3], lanes: &mut Lanes) -> f32 {
     let groups = xs.chunks_exact(LANES).zip(ys.chunks_exact(LANES)).zip(zs.chunks_exact(LANES));

@@ -310,7 +310,8 @@ fn body_query_geometry_of_an_ellipsoid() {
     for (i, tri) in f.iter().enumerate() {
         let [a, b, cc] = tri.map(|k| v[k as usize]);
         for ax in 0..3 {
-            assert!((cen[i][ax] - (a[ax] + b[ax] + cc[ax]) / 3.0).abs() < 1e-6);
+            // Bit for bit the documented formula (the divisions run as a separate pass).
+            assert_eq!(cen[i][ax], (a[ax] + b[ax] + cc[ax]) / 3.0);
         }
         let n = fnrm[i];
         assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() - 1.0).abs() < 1e-5);
