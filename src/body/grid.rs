@@ -1091,7 +1091,7 @@ fn has_avx2() -> bool {
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
-    use super::{lexicographic_min, Best, ScanPoints, LANES, NONE};
+    use super::{Best, ScanPoints, LANES, NONE};
     use core::arch::x86_64::*;
 
     /// [`super::Lanes`] in two AVX2 registers. Only made inside functions compiled with AVX2
@@ -1200,15 +1200,17 @@ mod x86 {
             }
         }
 
+        /// Merges the lanes with themselves permuted (halves, pairs, neighbours swapped): every
+        /// lane then holds the minimum, without branches.
         #[inline(always)]
         fn best(&self) -> (u32, f32) {
-            let (mut d2, mut index) = ([0.0f32; LANES], [0u32; LANES]);
-            // Stores of 8 lanes into arrays of 8.
             unsafe {
-                _mm256_storeu_ps(d2.as_mut_ptr(), self.d2);
-                _mm256_storeu_si256(index.as_mut_ptr().cast(), self.index);
+                let (mut d, mut i) = (self.d2, self.index);
+                (d, i) = merge(d, i, _mm256_permute2f128_ps::<0x01>(d, d), _mm256_permute2f128_si256::<0x01>(i, i));
+                (d, i) = merge(d, i, _mm256_permute_ps::<0x4E>(d), _mm256_shuffle_epi32::<0x4E>(i));
+                (d, i) = merge(d, i, _mm256_permute_ps::<0xB1>(d), _mm256_shuffle_epi32::<0xB1>(i));
+                (_mm256_extract_epi32::<0>(i) as u32, _mm256_cvtss_f32(d))
             }
-            lexicographic_min(&d2, &index)
         }
     }
 
