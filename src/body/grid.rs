@@ -1,15 +1,20 @@
 //! A uniform grid over a point set (body vertices or face centroids), rebuilt every frame without
 //! allocation, answering exact nearest-point queries.
 //!
-//! Layout: the cells (edge [`PointGrid::cell_size`], metres) are grouped in blocks of
-//! [`BLOCK`]³ cells and numbered block by block, so that the points of one block, and of one row
-//! of cells inside a block, are contiguous after the counting sort. Each block also keeps the tight
-//! bounding box of its points. A query visits blocks in shells (Chebyshev rings) around the block
-//! of the query (clamped into the grid), skips blocks whose box is farther than the best distance
-//! so far, and inside a block scans only the rows of cells that the current best-distance ball
-//! reaches. It stops when every point not yet seen lies, by a lower bound, strictly farther than
+//! Layout: cells are numbered x fastest, then y, then z, so that the points of a row of cells
+//! along x are one contiguous range after the counting sort; cells are [`X_SPLIT`] times thinner
+//! along x (edge [`PointGrid::cell_size`] along y and z, metres), which trims each row to the
+//! search ball's chord at no cost in rows. Coordinates are stored one array per axis, padded, and
+//! scanned eight points at a time (AVX2 where the CPU has it, checked once; a portable twin
+//! otherwise), each lane keeping its lexicographically lowest `(squared distance, index)`.
+//!
+//! A search with a bound (a radius, a hint's distance or a seed's) that spans few rows scans them
+//! from the query's row outwards, trimming each row to the chord of the shrinking ball. A larger
+//! one visits blocks of [`BLOCK`]³ cells in shells (Chebyshev rings) around the query's block
+//! (clamped into the grid), skipping empty blocks and blocks whose box is farther than the best
+//! so far, and stops when every point not yet seen lies, by a lower bound, strictly farther than
 //! the best found (see [`PointGrid::nearest_one`]), so results are exact, also for queries far
-//! outside the grid, where the per-block boxes keep the number of points scanned small.
+//! outside the grid.
 //!
 //! Ties: among points at the same squared distance (computed in `f32` as `dx² + dy² + dz²`) the
 //! lowest point index wins. Results do not depend on the grid resolution.
@@ -18,17 +23,25 @@ use crate::error::{Error, Result};
 use crate::math::finite3;
 use alloc::vec;
 use alloc::vec::Vec;
-use glam::Vec4;
 
 /// Cells per block edge.
 pub const BLOCK: usize = 4;
 const BLOCK_CELLS: usize = BLOCK * BLOCK * BLOCK;
 const NONE: u32 = u32::MAX;
+/// Points compared at once; the sorted arrays carry this many padding entries, so that a scan
+/// may read a whole group past the end of its range.
+const LANES: usize = 8;
 /// A radius search whose ball spans at most this many rows of cells scans them directly,
 /// without visiting blocks.
-const DIRECT_ROWS: usize = 36;
+const DIRECT_ROWS: usize = 100;
 /// Queries farther than this many cells outside the point bounds start from one point per block.
 const FAR_CELLS: f32 = 8.0;
+/// Cells along x are this many times thinner than along y and z: a row of cells (along x) is one
+/// contiguous range of points whatever its length, so thin x cells trim rows to the ball's chord
+/// more tightly at no cost in rows visited.
+pub const X_SPLIT: usize = 8;
+/// Cells either side of the query's own cell that seed an unbounded nearest search.
+const SEED_CELLS: usize = 1;
 
 /// Default number of cells per point the grid aims for (see [`PointGrid::set_cells_per_point`]).
 pub const DEFAULT_CELLS_PER_POINT: f32 = 2.0;
@@ -54,29 +67,41 @@ pub struct PointGrid {
     /// Tight bounds of the points of the frame.
     lo: [f32; 3],
     hi: [f32; 3],
+    /// Cell edge along y and z (metres); along x cells are `X_SPLIT` times thinner.
     cell: f32,
-    inv_cell: f32,
+    /// Cell edge per axis and its inverse.
+    edge: [f32; 3],
+    inv_edge: [f32; 3],
     /// Blocks per axis; cells per axis are `BLOCK` times as many.
     blocks: [usize; 3],
     /// Slack added to every pruning bound, so that rounding in cell assignment never prunes a
     /// point that could win.
     pad: f32,
-    /// `cell_start[s]..cell_start[s + 1]` are the sorted points of cell slot `s`.
+    /// Whether the scans use AVX2 (checked once at creation).
+    avx2: bool,
+    /// `cell_start[s]..cell_start[s + 1]` are the sorted points of cell `s` (x fastest, then y,
+    /// then z), so that a row of cells is one contiguous range.
     cell_start: Vec<u32>,
-    /// Scratch: the cell slot of every input point.
+    /// Scratch: the cell of every input point.
     point_slot: Vec<u32>,
-    /// Sorted point coordinates, one array per axis (the scan takes four points at once).
+    /// Scratch: the sorted points as records `x, y, z, index bits`, so that the counting sort
+    /// writes one record per point at a random place rather than four values.
+    records: Vec<[f32; 4]>,
+    /// Sorted point coordinates, one array per axis, `LANES` padding entries after the points
+    /// (NaN, so that they never win).
     sorted: [Vec<f32>; 3],
     sorted_index: Vec<u32>,
-    /// `rank[i]`: where input point `i` went in the sorted arrays (to read a hint's position).
-    rank: Vec<u32>,
-    block_lo: Vec<[f32; 3]>,
-    block_hi: Vec<[f32; 3]>,
+    /// The points of the last rebuild in input order (to read a hint's position): a sequential
+    /// copy is cheaper than recording where each point was sorted to.
+    input: Vec<[f32; 3]>,
+    /// One point (input index) of every block of `BLOCK`³ cells, `NONE` for an empty block:
+    /// empty blocks are skipped, and these points seed queries far outside.
+    block_any: Vec<u32>,
 }
 
 impl PointGrid {
     /// A grid for up to `capacity` points using at most `max_cells` cells (memory: about
-    /// `4·max_cells + 32·capacity` bytes).
+    /// `4·max_cells + 48·capacity` bytes).
     ///
     /// # Errors
     /// [`Error::OutOfRange`] when `max_cells` is below one block (`BLOCK³ = 64` cells) or when
@@ -85,10 +110,11 @@ impl PointGrid {
         if max_cells < BLOCK_CELLS || max_cells > u32::MAX as usize {
             return Err(Error::OutOfRange { what: "grid max_cells", index: max_cells });
         }
-        if capacity >= u32::MAX as usize {
+        if capacity >= u32::MAX as usize - LANES {
             return Err(Error::OutOfRange { what: "grid capacity", index: capacity });
         }
         let max_blocks = max_cells / BLOCK_CELLS;
+        let padded = capacity + LANES;
         Ok(PointGrid {
             capacity,
             max_cells,
@@ -97,16 +123,18 @@ impl PointGrid {
             lo: [0.0; 3],
             hi: [0.0; 3],
             cell: 1.0,
-            inv_cell: 1.0,
+            edge: [1.0; 3],
+            inv_edge: [1.0; 3],
             blocks: [1; 3],
             pad: 0.0,
+            avx2: has_avx2(),
             cell_start: vec![0; max_blocks * BLOCK_CELLS + 1],
             point_slot: vec![0; capacity],
-            sorted: [vec![0.0; capacity], vec![0.0; capacity], vec![0.0; capacity]],
-            sorted_index: vec![0; capacity],
-            rank: vec![0; capacity],
-            block_lo: vec![[0.0; 3]; max_blocks],
-            block_hi: vec![[0.0; 3]; max_blocks],
+            records: vec![[0.0; 4]; capacity],
+            sorted: [vec![f32::NAN; padded], vec![f32::NAN; padded], vec![f32::NAN; padded]],
+            sorted_index: vec![NONE; padded],
+            input: vec![[0.0; 3]; capacity],
+            block_any: vec![NONE; max_blocks],
         })
     }
 
@@ -118,6 +146,12 @@ impl PointGrid {
         }
         self.cells_per_point = cells_per_point;
         Ok(())
+    }
+
+    /// Uses the portable scans even where AVX2 exists (to test the two against each other).
+    #[cfg(test)]
+    pub(super) fn force_portable(&mut self) {
+        self.avx2 = false;
     }
 
     /// Maximum number of points.
@@ -136,7 +170,8 @@ impl PointGrid {
     pub fn is_empty(&self) -> bool {
         self.n_points == 0
     }
-    /// Cell edge of the last rebuild, metres.
+    /// Cell edge of the last rebuild along y and z, metres (along x it is [`X_SPLIT`] times
+    /// shorter).
     pub fn cell_size(&self) -> f32 {
         self.cell
     }
@@ -150,7 +185,7 @@ impl PointGrid {
     }
 
     /// Re-sorts the grid around `points` (the frame's positions, metres): refits the bounds,
-    /// picks the cell size, counting-sorts the points into cells and computes the block boxes.
+    /// picks the cell size, counting-sorts the points into cells and picks one point per block.
     /// Allocates nothing.
     ///
     /// # Errors
@@ -166,14 +201,19 @@ impl PointGrid {
             return Ok(());
         }
         let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for (i, p) in points.iter().enumerate() {
-            if !finite3(*p) {
-                return Err(Error::NonFinite { what: "grid point", index: i });
-            }
+        // Branch-free: NaN is flagged, infinities show in the bounds.
+        let mut nan = false;
+        for (p, copy) in points.iter().zip(self.input.iter_mut()) {
+            *copy = *p;
+            nan |= p[0].is_nan() | p[1].is_nan() | p[2].is_nan();
             for a in 0..3 {
                 lo[a] = fmin(lo[a], p[a]);
                 hi[a] = fmax(hi[a], p[a]);
             }
+        }
+        if nan || !finite3(lo) || !finite3(hi) {
+            let i = points.iter().position(|p| !finite3(*p)).unwrap_or(0);
+            return Err(Error::NonFinite { what: "grid point", index: i });
         }
         let ext = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
         if !finite3(ext) {
@@ -185,14 +225,16 @@ impl PointGrid {
         let scale = ext.iter().chain(lo.iter()).chain(hi.iter()).fold(0.0f32, |m, &v| m.max(v.abs()));
         self.pad = 1e-5 * scale + f32::MIN_POSITIVE;
 
-        let slots = self.n_blocks() * BLOCK_CELLS;
+        let n_blocks = self.n_blocks();
+        let slots = n_blocks * BLOCK_CELLS;
+        let dims = self.cells();
         let start = &mut self.cell_start[..slots + 1];
         start.fill(0);
         // Counts into start[s], inclusive prefix sums (start[s] = end of slot s), then a reverse
         // scatter that decrements start[s] down to the beginning of s: stable, no extra pass.
         for (p, slot) in points.iter().zip(self.point_slot.iter_mut()) {
-            let c = cell_of(*p, lo, self.inv_cell, self.blocks);
-            *slot = slot_of(c, self.blocks) as u32;
+            let c = cell_of(*p, lo, self.inv_edge, self.blocks);
+            *slot = (c[0] + dims[0] * (c[1] + dims[1] * c[2])) as u32;
             start[*slot as usize] += 1;
         }
         for s in 1..slots {
@@ -201,28 +243,47 @@ impl PointGrid {
         start[slots] = n as u32;
         for (i, (p, &slot)) in points.iter().zip(self.point_slot.iter()).enumerate().rev() {
             start[slot as usize] -= 1;
-            let at = start[slot as usize] as usize;
-            for (axis, &c) in self.sorted.iter_mut().zip(p) {
-                axis[at] = c;
-            }
-            self.sorted_index[at] = i as u32;
-            self.rank[i] = at as u32;
+            self.records[start[slot as usize] as usize] = [p[0], p[1], p[2], f32::from_bits(i as u32)];
         }
-
-        for b in 0..slots / BLOCK_CELLS {
-            let (p0, p1) = (start[b * BLOCK_CELLS] as usize, start[(b + 1) * BLOCK_CELLS] as usize);
-            let (mut blo, mut bhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-            for a in 0..3 {
-                for &c in &self.sorted[a][p0..p1] {
-                    blo[a] = fmin(blo[a], c);
-                    bhi[a] = fmax(bhi[a], c);
-                }
-            }
-            self.block_lo[b] = blo;
-            self.block_hi[b] = bhi;
+        let [xs, ys, zs] = &mut self.sorted;
+        let sorted = xs.iter_mut().zip(ys.iter_mut()).zip(zs.iter_mut()).zip(self.sorted_index.iter_mut());
+        for (r, (((x, y), z), i)) in self.records[..n].iter().zip(sorted) {
+            (*x, *y, *z, *i) = (r[0], r[1], r[2], r[3].to_bits());
         }
+        // The padding after the points: NaN never wins (and stale points of a larger earlier
+        // rebuild must not be read).
+        for axis in self.sorted.iter_mut() {
+            axis[n..n + LANES].fill(f32::NAN);
+        }
+        self.sorted_index[n..n + LANES].fill(NONE);
+        self.block_points(n_blocks);
         self.n_points = n;
         Ok(())
+    }
+
+    /// One point of every block: the first of its first non-empty row of cells (each row is
+    /// contiguous), without reading the points.
+    fn block_points(&mut self, n_blocks: usize) {
+        let dims = self.cells();
+        for b in 0..n_blocks {
+            let (bx, rest) = (b % self.blocks[0], b / self.blocks[0]);
+            let (by, bz) = (rest % self.blocks[1], rest / self.blocks[1]);
+            let rows = (bz * BLOCK..(bz + 1) * BLOCK).flat_map(|z| (by * BLOCK..(by + 1) * BLOCK).map(move |y| (y, z)));
+            self.block_any[b] = rows
+                .map(|(y, z)| bx * BLOCK + dims[0] * (y + dims[1] * z))
+                .find(|&row| self.cell_start[row] < self.cell_start[row + BLOCK])
+                .map_or(NONE, |row| self.sorted_index[self.cell_start[row] as usize]);
+        }
+    }
+
+    /// The box of block `b`: its cells, clipped to the point bounds. Cell assignment rounds, so a
+    /// point may lie outside by a rounding error; [`padded`](Self::padded) bounds cover that.
+    #[inline(always)]
+    fn block_box(&self, b: [usize; 3]) -> ([f32; 3], [f32; 3]) {
+        let edge = self.edge.map(|e| e * BLOCK as f32);
+        let lo = [0, 1, 2].map(|a| fmax(self.lo[a] + b[a] as f32 * edge[a], self.lo[a]));
+        let hi = [0, 1, 2].map(|a| fmin(self.lo[a] + (b[a] + 1) as f32 * edge[a], self.hi[a]));
+        (lo, hi)
     }
 
     fn n_blocks(&self) -> usize {
@@ -236,16 +297,19 @@ impl PointGrid {
         let max_blocks = self.max_cells / BLOCK_CELLS;
         if emax <= 0.0 {
             self.cell = 1.0;
-            self.inv_cell = 1.0;
+            self.edge = [1.0; 3];
+            self.inv_edge = [1.0; 3];
             self.blocks = [1; 3];
             return;
         }
         let target = (self.cells_per_point as f64 * n as f64).clamp(1.0, self.max_cells as f64);
         // Flat or thin point sets: treat the thin axes as 1/1000 of the widest for the volume.
         let vol: f64 = ext.iter().map(|&e| e.max(emax * 1e-3) as f64).product();
-        let mut cell = libm::cbrt(vol / target).max(emax as f64 * 1e-6);
+        let split = X_SPLIT as f64;
+        let mut cell = libm::cbrt(split * vol / target).max(emax as f64 * 1e-6);
         loop {
-            let blocks = ext.map(|e| ((e as f64 / cell) as usize + 1).div_ceil(BLOCK));
+            let per_axis = [split, 1.0, 1.0];
+            let blocks = [0, 1, 2].map(|a| ((ext[a] as f64 * per_axis[a] / cell) as usize + 1).div_ceil(BLOCK));
             if blocks[0].saturating_mul(blocks[1]).saturating_mul(blocks[2]) <= max_blocks {
                 self.blocks = blocks;
                 break;
@@ -253,7 +317,8 @@ impl PointGrid {
             cell *= 1.25;
         }
         self.cell = cell as f32;
-        self.inv_cell = (1.0 / cell) as f32;
+        self.edge = [(cell / split) as f32, cell as f32, cell as f32];
+        self.inv_edge = [(split / cell) as f32, (1.0 / cell) as f32, (1.0 / cell) as f32];
     }
 
     /// The nearest point within `radius` (metres) of `q`, distance `<= radius` inclusive (in
@@ -266,6 +331,22 @@ impl PointGrid {
     /// `hint` (e.g. last frame's answer; any index `>= len()` means no guess). The result is the
     /// same whatever the hint; a good one makes the search faster.
     pub fn nearest_within_one_hinted(&self, q: [f32; 3], radius: f32, hint: u32) -> Option<Nearest> {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
+            return unsafe { self.within_one_avx2(q, radius, hint) };
+        }
+        self.within_one::<Lanes>(q, radius, hint)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn within_one_avx2(&self, q: [f32; 3], radius: f32, hint: u32) -> Option<Nearest> {
+        self.within_one::<x86::Avx2Best>(q, radius, hint)
+    }
+
+    #[inline(always)]
+    fn within_one<B: Best>(&self, q: [f32; 3], radius: f32, hint: u32) -> Option<Nearest> {
         if self.n_points == 0 || radius.is_nan() || radius < 0.0 {
             return None;
         }
@@ -277,7 +358,7 @@ impl PointGrid {
         if let Some(p) = self.point(hint) {
             consider(&mut best, dist2(p, q), hint);
         }
-        found(self.search(q, best))
+        found(self.search::<B>(q, best))
     }
 
     /// The nearest point to `q`, lowest index on ties, with no distance limit; `None` only when
@@ -302,45 +383,73 @@ impl PointGrid {
     /// frame's answer; any index `>= len()` means no guess). The result is the same whatever the
     /// hint; a good one replaces the growing radii by a single search within the hint's distance.
     pub fn nearest_one_hinted(&self, q: [f32; 3], hint: u32) -> Option<Nearest> {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
+            return unsafe { self.nearest_one_avx2(q, hint) };
+        }
+        self.nearest_one_with::<Lanes>(q, hint)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn nearest_one_avx2(&self, q: [f32; 3], hint: u32) -> Option<Nearest> {
+        self.nearest_one_with::<x86::Avx2Best>(q, hint)
+    }
+
+    #[inline(always)]
+    fn nearest_one_with<B: Best>(&self, q: [f32; 3], hint: u32) -> Option<Nearest> {
         if self.n_points == 0 {
             return None;
         }
         if let Some(p) = self.point(hint) {
             let d2 = dist2(p, q);
             if d2.is_finite() {
-                return found(self.search(q, (hint, d2)));
+                return found(self.search::<B>(q, (hint, d2)));
             }
         }
-        let lower = libm::sqrtf(box_dist2(q, self.lo, self.hi));
+        let lower = sqrt(box_dist2(q, self.lo, self.hi));
         if lower > FAR_CELLS * self.cell {
             // Far outside: the nearest of one point per block bounds the answer within about a
             // block; the block boxes then prune most blocks.
             let mut guess = (NONE, f32::INFINITY);
-            for b in 0..self.n_blocks() {
-                let at = self.cell_start[b * BLOCK_CELLS] as usize;
-                if at < self.cell_start[(b + 1) * BLOCK_CELLS] as usize {
-                    let p = [self.sorted[0][at], self.sorted[1][at], self.sorted[2][at]];
-                    consider(&mut guess, dist2(p, q), self.sorted_index[at]);
+            for &i in &self.block_any[..self.n_blocks()] {
+                if let Some(p) = self.point(i) {
+                    consider(&mut guess, dist2(p, q), i);
                 }
             }
             if guess.1.is_finite() {
-                return found(self.search(q, guess));
+                return found(self.search::<B>(q, guess));
+            }
+        }
+        if lower <= self.cell {
+            // Near the points: the query's own row of cells, a few cells either side, usually
+            // holds a point; its distance bounds one ball search.
+            let c = cell_of_clamped(q, self.lo, self.inv_edge, self.blocks);
+            let dims = self.cells();
+            let row = dims[0] * (c[1] + dims[1] * c[2]);
+            let (x0, x1) = (c[0].saturating_sub(SEED_CELLS), (c[0] + SEED_CELLS).min(dims[0] - 1));
+            let mut seed = B::new(f32::INFINITY);
+            let d2 =
+                self.scan(q, self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize, &mut seed);
+            if d2.is_finite() {
+                return found(self.search::<B>(q, seed.best()));
             }
         }
         // Radius searches with a growing radius: the first that finds a point has found the
         // nearest.
         let ext = [self.hi[0] - self.lo[0], self.hi[1] - self.lo[1], self.hi[2] - self.lo[2]];
-        let diag = libm::sqrtf(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]);
+        let diag = sqrt(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]);
         let mut step = 2.0 * self.cell;
         loop {
             let r = lower + step;
-            let best = self.search(q, (NONE, r * r));
+            let best = self.search::<B>(q, (NONE, r * r));
             if best.0 != NONE {
                 return found(best);
             }
             if step.is_nan() || step > 2.0 * diag + self.cell || !(r * r).is_finite() {
                 // Every point is within `lower + diag`; only overflow or NaN ends up here.
-                return found(self.search(q, (NONE, f32::INFINITY)));
+                return found(self.search::<B>(q, (NONE, f32::INFINITY)));
             }
             step *= 2.0;
         }
@@ -349,8 +458,7 @@ impl PointGrid {
     /// The position of input point `i` of the last rebuild, if there is one.
     #[inline(always)]
     fn point(&self, i: u32) -> Option<[f32; 3]> {
-        let at = *self.rank[..self.n_points].get(i as usize)? as usize;
-        Some([self.sorted[0][at], self.sorted[1][at], self.sorted[2][at]])
+        self.input[..self.n_points].get(i as usize).copied()
     }
 
     /// For every query point (metres), the nearest point within `radius`, see
@@ -381,11 +489,40 @@ impl PointGrid {
         if !(radius >= 0.0 && radius.is_finite()) {
             return Err(Error::OutOfRange { what: "query radius", index: 0 });
         }
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
+            return unsafe { self.within_batch_avx2(queries, radius, hints, out) };
+        }
+        self.within_batch::<Lanes>(queries, radius, hints, out)
+    }
+
+    /// The batch loop compiled with AVX2, so that the whole search inlines around the scans.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn within_batch_avx2(
+        &self,
+        queries: &[[f32; 3]],
+        radius: f32,
+        hints: &[u32],
+        out: &mut [Option<Nearest>],
+    ) -> Result<()> {
+        self.within_batch::<x86::Avx2Best>(queries, radius, hints, out)
+    }
+
+    #[inline(always)]
+    fn within_batch<B: Best>(
+        &self,
+        queries: &[[f32; 3]],
+        radius: f32,
+        hints: &[u32],
+        out: &mut [Option<Nearest>],
+    ) -> Result<()> {
         for (i, (q, o)) in queries.iter().zip(out.iter_mut()).enumerate() {
             if !finite3(*q) {
                 return Err(Error::NonFinite { what: "query point", index: i });
             }
-            *o = self.nearest_within_one_hinted(*q, radius, hints.get(i).copied().unwrap_or(NONE));
+            *o = self.within_one::<B>(*q, radius, hints.get(i).copied().unwrap_or(NONE));
         }
         Ok(())
     }
@@ -413,13 +550,30 @@ impl PointGrid {
         if self.n_points == 0 {
             return Err(Error::Empty { what: "point grid" });
         }
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
+            return unsafe { self.nearest_batch_avx2(queries, hints, out) };
+        }
+        self.nearest_batch::<Lanes>(queries, hints, out)
+    }
+
+    /// The batch loop compiled with AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn nearest_batch_avx2(&self, queries: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
+        self.nearest_batch::<x86::Avx2Best>(queries, hints, out)
+    }
+
+    #[inline(always)]
+    fn nearest_batch<B: Best>(&self, queries: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
         for (i, (q, o)) in queries.iter().zip(out.iter_mut()).enumerate() {
             if !finite3(*q) {
                 return Err(Error::NonFinite { what: "query point", index: i });
             }
             // Non-empty grid and finite query: the search always returns a point.
             let hint = hints.get(i).copied().unwrap_or(NONE);
-            *o = self.nearest_one_hinted(*q, hint).unwrap_or(Nearest { index: 0, distance: f32::INFINITY });
+            *o = self.nearest_one_with::<B>(*q, hint).unwrap_or(Nearest { index: 0, distance: f32::INFINITY });
         }
         Ok(())
     }
@@ -427,62 +581,67 @@ impl PointGrid {
     /// A squared distance widened by the rounding slack, for pruning comparisons.
     #[inline(always)]
     fn padded(&self, d2: f32) -> f32 {
-        let d = libm::sqrtf(d2) * (1.0 + 1e-5) + self.pad;
+        let d = sqrt(d2) * (1.0 + 1e-5) + self.pad;
         d * d
     }
 
     /// The best `(index, squared distance)` among `best` (a guess, or `NONE` with the limit) and
     /// the points within `sqrt(best.1)` of `q`.
-    fn search(&self, q: [f32; 3], mut best: (u32, f32)) -> (u32, f32) {
+    #[inline(always)]
+    fn search<B: Best>(&self, q: [f32; 3], best: (u32, f32)) -> (u32, f32) {
+        let mut lanes = B::new(best.1);
+        lanes.offer(best.1, best.0);
         let limit2 = best.1;
-        let qcell = cell_of_clamped(q, self.lo, self.inv_cell, self.blocks);
+        let qcell = cell_of_clamped(q, self.lo, self.inv_edge, self.blocks);
         if limit2.is_finite() {
-            // A small ball: scan its cells directly, the query's own cell first.
+            // A small ball: scan its rows directly, the query's own row first.
             let (lo, hi) = self.cell_range(q, limit2);
             if (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1) <= DIRECT_ROWS {
-                self.scan_ball(q, qcell, lo, hi, &mut best);
-                return best;
+                self.scan_ball(q, qcell, lo, hi, &mut lanes, best.0 != NONE);
+                return lanes.best();
             }
         }
         let start = qcell.map(|c| c / BLOCK);
         let last = self.blocks.map(|b| b - 1);
         let mut k = 0usize;
         loop {
+            let bound = lanes.bound();
             if k > 0 {
                 let vlo = [0, 1, 2].map(|a| start[a].saturating_sub(k - 1));
                 let vhi = [0, 1, 2].map(|a| (start[a] + k - 1).min(last[a]));
                 if vlo == [0; 3] && vhi == last {
                     break;
                 }
-                if self.unseen_bound2(q, vlo, vhi) > self.padded(best.1) {
+                if self.unseen_bound2(q, vlo, vhi) > self.padded(bound) {
                     break;
                 }
             }
             let mut rlo = [0, 1, 2].map(|a| start[a].saturating_sub(k));
             let mut rhi = [0, 1, 2].map(|a| (start[a] + k).min(last[a]));
-            if best.1.is_finite() {
-                let (alo, ahi) = self.cell_range(q, best.1);
+            if bound.is_finite() {
+                let (alo, ahi) = self.cell_range(q, bound);
                 for a in 0..3 {
                     rlo[a] = rlo[a].max(alo[a] / BLOCK);
                     rhi[a] = rhi[a].min(ahi[a] / BLOCK);
                 }
             }
-            self.visit_shell(q, qcell, k, rlo, rhi, &mut best);
+            self.visit_shell(q, qcell, k, rlo, rhi, &mut lanes);
             k += 1;
         }
-        best
+        lanes.best()
     }
 
     /// Visits the blocks at Chebyshev distance exactly `k` from the block of `qcell` inside
     /// `[rlo, rhi]`.
-    fn visit_shell(
+    #[inline(always)]
+    fn visit_shell<B: Best>(
         &self,
         q: [f32; 3],
         qcell: [usize; 3],
         k: usize,
         rlo: [usize; 3],
         rhi: [usize; 3],
-        best: &mut (u32, f32),
+        lanes: &mut B,
     ) {
         if (0..3).any(|a| rlo[a] > rhi[a]) {
             return;
@@ -492,18 +651,18 @@ impl PointGrid {
             for by in rlo[1]..=rhi[1] {
                 if bz.abs_diff(start[2]) == k || by.abs_diff(start[1]) == k {
                     for bx in rlo[0]..=rhi[0] {
-                        self.visit_block(q, qcell, [bx, by, bz], best);
+                        self.visit_block(q, qcell, [bx, by, bz], lanes);
                     }
                 } else {
                     // Only the two ends of the row are on the shell.
                     if let Some(bx) = start[0].checked_sub(k) {
                         if bx >= rlo[0] && bx <= rhi[0] {
-                            self.visit_block(q, qcell, [bx, by, bz], best);
+                            self.visit_block(q, qcell, [bx, by, bz], lanes);
                         }
                     }
                     let bx = start[0] + k;
                     if k > 0 && bx >= rlo[0] && bx <= rhi[0] {
-                        self.visit_block(q, qcell, [bx, by, bz], best);
+                        self.visit_block(q, qcell, [bx, by, bz], lanes);
                     }
                 }
             }
@@ -513,28 +672,33 @@ impl PointGrid {
     /// Scans the cells of block `b` that the current best ball reaches: the query's own cell
     /// first (a small ball early), then row by row, skipping rows beyond the ball and trimming
     /// each row to the ball's chord.
-    fn visit_block(&self, q: [f32; 3], qcell: [usize; 3], b: [usize; 3], best: &mut (u32, f32)) {
+    #[inline(always)]
+    fn visit_block<B: Best>(&self, q: [f32; 3], qcell: [usize; 3], b: [usize; 3], lanes: &mut B) {
         let bi = b[0] + self.blocks[0] * (b[1] + self.blocks[1] * b[2]);
-        let base = bi * BLOCK_CELLS;
-        let (p0, p1) = (self.cell_start[base] as usize, self.cell_start[base + BLOCK_CELLS] as usize);
-        if p0 == p1 || box_dist2(q, self.block_lo[bi], self.block_hi[bi]) > self.padded(best.1) {
+        if self.block_any[bi] == NONE {
             return;
         }
-        let own = qcell.map(|c| c / BLOCK) == b;
-        if own {
-            let s = base + local_of(qcell);
-            self.scan(q, (self.cell_start[s] as usize, self.cell_start[s + 1] as usize), best);
-        }
-        if !best.1.is_finite() {
-            // Only for limits beyond f32 range: no ball to prune with.
-            self.scan(q, (p0, p1), best);
+        let (blo, bhi) = self.block_box(b);
+        if box_dist2(q, blo, bhi) > self.padded(lanes.bound()) {
             return;
         }
+        let dims = self.cells();
         let origin = b.map(|x| x * BLOCK);
-        let pb = self.padded(best.1);
-        let (clo, chi) = self.cell_range(q, best.1);
-        let lo = [0, 1, 2].map(|a| clo[a].max(origin[a]));
-        let hi = [0, 1, 2].map(|a| chi[a].min(origin[a] + BLOCK - 1));
+        if qcell.map(|c| c / BLOCK) == b {
+            let s = qcell[0] + dims[0] * (qcell[1] + dims[1] * qcell[2]);
+            self.scan(q, self.cell_start[s] as usize, self.cell_start[s + 1] as usize, lanes);
+        }
+        let bound = lanes.bound();
+        let (lo, hi, pb) = if bound.is_finite() {
+            let (clo, chi) = self.cell_range(q, bound);
+            let lo = [0, 1, 2].map(|a| clo[a].max(origin[a]));
+            let hi = [0, 1, 2].map(|a| chi[a].min(origin[a] + BLOCK - 1));
+            (lo, hi, self.padded(bound))
+        } else {
+            // Only for limits beyond f32 range: no ball to prune with.
+            (origin, origin.map(|o| o + BLOCK - 1), f32::INFINITY)
+        };
+        let last = (origin[0] + BLOCK - 1) as f32;
         for z in lo[2]..=hi[2] {
             let dz = self.gap(q, 2, z);
             let dz2 = dz * dz;
@@ -547,35 +711,39 @@ impl PointGrid {
                 if rest < 0.0 {
                     continue;
                 }
-                let r = libm::sqrtf(rest);
-                let last = (origin[0] + BLOCK - 1) as f32;
-                let x0 = (clamp_cell((q[0] - r - self.lo[0]) * self.inv_cell, last) as usize).max(origin[0]);
-                let x1 = clamp_cell((q[0] + r - self.lo[0]) * self.inv_cell, last) as usize;
+                let r = sqrt(rest);
+                let x0 = cell_index((q[0] - r - self.lo[0]) * self.inv_edge[0], last).max(origin[0]);
+                let x1 = cell_index((q[0] + r - self.lo[0]) * self.inv_edge[0], last);
                 if x0 > x1 {
                     continue;
                 }
-                // Cells of one row are consecutive slots, so their points are contiguous.
-                let s0 = base + local_of([x0, y, z]);
-                let s1 = base + local_of([x1, y, z]) + 1;
-                if own && y == qcell[1] && z == qcell[2] && (x0..=x1).contains(&qcell[0]) {
-                    // Skip the own cell, scanned above.
-                    let s = base + local_of(qcell);
-                    self.scan(q, (self.cell_start[s0] as usize, self.cell_start[s] as usize), best);
-                    self.scan(q, (self.cell_start[s + 1] as usize, self.cell_start[s1] as usize), best);
-                } else {
-                    self.scan(q, (self.cell_start[s0] as usize, self.cell_start[s1] as usize), best);
-                }
+                // Cells of one row are consecutive, so their points are contiguous.
+                let row = dims[0] * (y + dims[1] * z);
+                self.scan(q, self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize, lanes);
             }
         }
     }
 
     /// Scans the rows of cells in `[lo, hi]` (cell coordinates) that the best ball reaches,
-    /// each row trimmed to the ball's chord and split where it crosses blocks.
-    /// Rows are visited from the query's row outwards, so that the ball shrinks early.
-    fn scan_ball(&self, q: [f32; 3], c: [usize; 3], lo: [usize; 3], hi: [usize; 3], best: &mut (u32, f32)) {
-        let last = (self.blocks[0] * BLOCK - 1) as f32;
+    /// each row trimmed to the ball's chord. Rows are visited from the query's row outwards, so
+    /// that the ball shrinks early.
+    #[inline(always)]
+    /// `seeded`: the search starts from a candidate, so its bound is already close.
+    fn scan_ball<B: Best>(
+        &self,
+        q: [f32; 3],
+        c: [usize; 3],
+        lo: [usize; 3],
+        hi: [usize; 3],
+        lanes: &mut B,
+        seeded: bool,
+    ) {
+        let mut tight = seeded;
+        let dims = self.cells();
+        let last = (dims[0] - 1) as f32;
         // The padded best, recomputed only when the best changes.
-        let (mut seen, mut pb) = (best.1, self.padded(best.1));
+        let mut bound = lanes.bound();
+        let mut pb = self.padded(bound);
         for z in CenterOut::new(c[2], lo[2], hi[2]) {
             let dz = self.gap(q, 2, z);
             let dz2 = dz * dz;
@@ -583,29 +751,24 @@ impl PointGrid {
                 continue;
             }
             for y in CenterOut::new(c[1], lo[1], hi[1]) {
-                if best.1 != seen {
-                    (seen, pb) = (best.1, self.padded(best.1));
-                }
                 let dy = self.gap(q, 1, y);
                 let rest = pb - dz2 - dy * dy;
                 if rest < 0.0 {
                     continue;
                 }
-                let r = libm::sqrtf(rest);
-                let x0 = clamp_cell((q[0] - r - self.lo[0]) * self.inv_cell, last) as usize;
-                let x1 = clamp_cell((q[0] + r - self.lo[0]) * self.inv_cell, last) as usize;
-                let row = self.blocks[0] * ((y / BLOCK) + self.blocks[1] * (z / BLOCK));
-                let local_yz = BLOCK * ((y % BLOCK) + BLOCK * (z % BLOCK));
-                let mut x = x0;
-                while x <= x1 {
-                    let bx = x / BLOCK;
-                    let end = x1.min(bx * BLOCK + BLOCK - 1);
-                    let base = (row + bx) * BLOCK_CELLS + local_yz;
-                    let (p0, p1) = (self.cell_start[base + x % BLOCK], self.cell_start[base + end % BLOCK + 1]);
-                    if p1 > p0 {
-                        self.scan(q, (p0 as usize, p1 as usize), best);
+                let r = sqrt(rest);
+                let x0 = cell_index((q[0] - r - self.lo[0]) * self.inv_edge[0], last);
+                let x1 = cell_index((q[0] + r - self.lo[0]) * self.inv_edge[0], last);
+                let row = dims[0] * (y + dims[1] * z);
+                let (p0, p1) = (self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize);
+                if p1 > p0 {
+                    let b = self.scan_with(q, p0, p1, lanes, tight);
+                    // After the query's own row the bound is close to the answer.
+                    tight = true;
+                    if b < bound {
+                        bound = b;
+                        pb = self.padded(b);
                     }
-                    x = end + 1;
                 }
             }
         }
@@ -614,64 +777,49 @@ impl PointGrid {
     /// Distance along axis `a` from `q` to the slab of cells with coordinate `c` (0 inside).
     #[inline(always)]
     fn gap(&self, q: [f32; 3], a: usize, c: usize) -> f32 {
-        let lo = self.lo[a] + c as f32 * self.cell;
-        let hi = lo + self.cell;
+        let lo = self.lo[a] + c as f32 * self.edge[a];
+        let hi = lo + self.edge[a];
         fmax(fmax(lo - q[a], q[a] - hi), 0.0)
     }
 
-    /// Scans the sorted points `p0..p1`, four at a time.
+    /// Offers the sorted points `p0..p1` (and up to `LANES - 1` after them, harmless: every
+    /// point offered is a real candidate, or NaN padding) to `lanes`; returns the new bound.
     #[inline(always)]
-    fn scan(&self, q: [f32; 3], (p0, p1): (usize, usize), best: &mut (u32, f32)) {
-        let (xs, ys, zs) = (&self.sorted[0][p0..p1], &self.sorted[1][p0..p1], &self.sorted[2][p0..p1]);
-        let idx = &self.sorted_index[p0..p1];
-        let n = idx.len();
-        if n < 4 {
-            for k in 0..n {
-                consider(best, dist2([xs[k], ys[k], zs[k]], q), idx[k]);
-            }
-            return;
+    fn scan<B: Best>(&self, q: [f32; 3], p0: usize, p1: usize, best: &mut B) -> f32 {
+        self.scan_with(q, p0, p1, best, false)
+    }
+
+    /// As [`scan`](Self::scan); `tight` when the bound is already close to the answer.
+    #[inline(always)]
+    fn scan_with<B: Best>(&self, q: [f32; 3], p0: usize, p1: usize, best: &mut B, tight: bool) -> f32 {
+        if p1 <= p0 {
+            return best.bound();
         }
-        let (qx, qy, qz) = (Vec4::splat(q[0]), Vec4::splat(q[1]), Vec4::splat(q[2]));
-        let mut group = |x: &[f32; 4], y: &[f32; 4], z: &[f32; 4], i: &[u32; 4]| {
-            let (dx, dy, dz) = (Vec4::from_array(*x) - qx, Vec4::from_array(*y) - qy, Vec4::from_array(*z) - qz);
-            let d2 = dx * dx + dy * dy + dz * dz;
-            if d2.min_element() <= best.1 {
-                for (&d, &i) in d2.to_array().iter().zip(i) {
-                    consider(best, d, i);
-                }
-            }
-        };
-        let chunks = xs.chunks_exact(4).zip(ys.chunks_exact(4)).zip(zs.chunks_exact(4)).zip(idx.chunks_exact(4));
-        for (((x, y), z), i) in chunks {
-            if let (Ok(x), Ok(y), Ok(z), Ok(i)) = (x.try_into(), y.try_into(), z.try_into(), i.try_into()) {
-                group(x, y, z, i);
-            }
-        }
-        if !n.is_multiple_of(4) {
-            // The last four points, overlapping the group before: points seen twice change
-            // nothing (same distance, same index).
-            if let (Some(x), Some(y), Some(z), Some(i)) =
-                (xs.last_chunk(), ys.last_chunk(), zs.last_chunk(), idx.last_chunk())
-            {
-                group(x, y, z, i);
-            }
+        let end = p0 + (p1 - p0).next_multiple_of(LANES);
+        let [xs, ys, zs] = &self.sorted;
+        let pts = (&xs[p0..end], &ys[p0..end], &zs[p0..end], &self.sorted_index[p0..end]);
+        if tight {
+            best.scan_tight(pts, q)
+        } else {
+            best.scan(pts, q)
         }
     }
 
     /// Cell coordinates (clamped into the grid) of the box around `q` reaching `sqrt(d2)`.
+    #[inline(always)]
     fn cell_range(&self, q: [f32; 3], d2: f32) -> ([usize; 3], [usize; 3]) {
-        let r = libm::sqrtf(self.padded(d2));
-        let lo = cell_of_clamped([q[0] - r, q[1] - r, q[2] - r], self.lo, self.inv_cell, self.blocks);
-        let hi = cell_of_clamped([q[0] + r, q[1] + r, q[2] + r], self.lo, self.inv_cell, self.blocks);
+        let r = sqrt(self.padded(d2));
+        let lo = cell_of_clamped([q[0] - r, q[1] - r, q[2] - r], self.lo, self.inv_edge, self.blocks);
+        let hi = cell_of_clamped([q[0] + r, q[1] + r, q[2] + r], self.lo, self.inv_edge, self.blocks);
         (lo, hi)
     }
 
     /// Lower bound of the squared distance from `q` to any point outside the blocks `[vlo, vhi]`:
     /// such a point lies in the point bounds beyond one face of that box.
     fn unseen_bound2(&self, q: [f32; 3], vlo: [usize; 3], vhi: [usize; 3]) -> f32 {
-        let edge = self.cell * BLOCK as f32;
         let mut bound = f32::INFINITY;
         for a in 0..3 {
+            let edge = self.edge[a] * BLOCK as f32;
             if vlo[a] > 0 {
                 let mut hi = self.hi;
                 hi[a] = (self.lo[a] + vlo[a] as f32 * edge).max(self.lo[a]);
@@ -708,10 +856,10 @@ fn fmax(a: f32, b: f32) -> f32 {
     }
 }
 
-/// A cell coordinate clamped to `[0, last]` (NaN gives `last`).
+/// The cell coordinate `t` clamped to `[0, last]` (NaN gives `last`), truncated.
 #[inline(always)]
-fn clamp_cell(t: f32, last: f32) -> f32 {
-    fmax(fmin(t, last), 0.0)
+fn cell_index(t: f32, last: f32) -> usize {
+    fmax(fmin(t, last), 0.0) as usize
 }
 
 /// `c, c - 1, c + 1, c - 2, c + 2, ...` within `[lo, hi]` (which holds `c`).
@@ -773,7 +921,7 @@ fn check_batch(queries: usize, hints: usize, out: usize) -> Result<()> {
 /// A search result as a [`Nearest`].
 #[inline(always)]
 fn found((i, d2): (u32, f32)) -> Option<Nearest> {
-    (i != NONE).then(|| Nearest { index: i, distance: libm::sqrtf(d2) })
+    (i != NONE).then(|| Nearest { index: i, distance: sqrt(d2) })
 }
 
 /// Takes `(i, d2)` if it is nearer, or as near with a lower index.
@@ -806,32 +954,297 @@ fn box_dist2(q: [f32; 3], lo: [f32; 3], hi: [f32; 3]) -> f32 {
 
 /// Cell of a point inside the bounds (its coordinates are at least `lo`).
 #[inline(always)]
-fn cell_of(p: [f32; 3], lo: [f32; 3], inv_cell: f32, blocks: [usize; 3]) -> [usize; 3] {
-    cell_of_clamped(p, lo, inv_cell, blocks)
+fn cell_of(p: [f32; 3], lo: [f32; 3], inv_edge: [f32; 3], blocks: [usize; 3]) -> [usize; 3] {
+    // One truncating instruction per axis rather than a saturating conversion (the rebuild's
+    // hot loop; in the queries the saturating form measured faster).
+    #[inline(always)]
+    fn axis(p: f32, lo: f32, inv_edge: f32, blocks: usize) -> usize {
+        let c = fmax(fmin((p - lo) * inv_edge, (blocks * BLOCK - 1) as f32), 0.0);
+        // SAFETY: `c` is finite (NaN and infinities are clamped) and within `[0, cells - 1]`,
+        // which fits in `u32` (the cell count is bounded by `max_cells <= u32::MAX`).
+        unsafe { c.to_int_unchecked::<u32>() as usize }
+    }
+    [
+        axis(p[0], lo[0], inv_edge[0], blocks[0]),
+        axis(p[1], lo[1], inv_edge[1], blocks[1]),
+        axis(p[2], lo[2], inv_edge[2], blocks[2]),
+    ]
 }
 
 /// Cell of any point, clamped into the grid. Monotonic in every coordinate.
 #[inline(always)]
-fn cell_of_clamped(p: [f32; 3], lo: [f32; 3], inv_cell: f32, blocks: [usize; 3]) -> [usize; 3] {
+fn cell_of_clamped(p: [f32; 3], lo: [f32; 3], inv_edge: [f32; 3], blocks: [usize; 3]) -> [usize; 3] {
     #[inline(always)]
     fn axis(p: f32, lo: f32, inv_cell: f32, blocks: usize) -> usize {
         let last = (blocks * BLOCK - 1) as f32;
-        clamp_cell((p - lo) * inv_cell, last) as usize
+        cell_index((p - lo) * inv_cell, last)
     }
     [
-        axis(p[0], lo[0], inv_cell, blocks[0]),
-        axis(p[1], lo[1], inv_cell, blocks[1]),
-        axis(p[2], lo[2], inv_cell, blocks[2]),
+        axis(p[0], lo[0], inv_edge[0], blocks[0]),
+        axis(p[1], lo[1], inv_edge[1], blocks[1]),
+        axis(p[2], lo[2], inv_edge[2], blocks[2]),
     ]
 }
 
-#[inline(always)]
-fn local_of(c: [usize; 3]) -> usize {
-    (c[0] % BLOCK) + BLOCK * ((c[1] % BLOCK) + BLOCK * (c[2] % BLOCK))
+/// Eight candidate `(squared distance, index)` pairs, one per lane, each the lexicographic
+/// minimum of the points offered to its lane; the answer is the minimum over the lanes. A lane
+/// starts at `(limit², NONE)`, so that a point exactly at the limit is taken (inclusive).
+#[derive(Clone, Copy)]
+struct Lanes {
+    d2: [f32; LANES],
+    index: [u32; LANES],
 }
 
+/// The running answer of one search: candidates `(squared distance, index)` whose lexicographic
+/// minimum is the answer, starting at `(limit², NONE)` (a point exactly at the limit is taken).
+/// Two implementations, [`Lanes`] (portable) and `x86::Avx2Best`, give identical answers.
+trait Best {
+    fn new(limit2: f32) -> Self;
+    /// Offers one point.
+    fn offer(&mut self, d2: f32, i: u32);
+    /// Offers every point of `pts` (a multiple of `LANES` long); returns the new bound.
+    fn scan(&mut self, pts: ScanPoints<'_>, q: [f32; 3]) -> f32;
+    /// As [`scan`](Self::scan), faster when few points beat the bound (a tight bound).
+    fn scan_tight(&mut self, pts: ScanPoints<'_>, q: [f32; 3]) -> f32 {
+        self.scan(pts, q)
+    }
+    /// The smallest squared distance held: no farther point can win.
+    fn bound(&self) -> f32;
+    /// The winner `(index, squared distance)`: lowest distance, then lowest index.
+    fn best(&self) -> (u32, f32);
+}
+
+impl Best for Lanes {
+    #[inline(always)]
+    fn new(limit2: f32) -> Lanes {
+        Lanes { d2: [limit2; LANES], index: [NONE; LANES] }
+    }
+    #[inline(always)]
+    fn offer(&mut self, d2: f32, i: u32) {
+        self.take(0, d2, i);
+    }
+    #[inline(always)]
+    fn scan(&mut self, pts: ScanPoints<'_>, q: [f32; 3]) -> f32 {
+        scan_portable(pts, q, self)
+    }
+    #[inline(always)]
+    fn bound(&self) -> f32 {
+        self.d2.iter().fold(f32::INFINITY, |m, &d| fmin(m, d))
+    }
+    #[inline(always)]
+    fn best(&self) -> (u32, f32) {
+        lexicographic_min(&self.d2, &self.index)
+    }
+}
+
+/// The lowest `(d2, index)` over eight lanes.
 #[inline(always)]
-fn slot_of(c: [usize; 3], blocks: [usize; 3]) -> usize {
-    let b = [c[0] / BLOCK, c[1] / BLOCK, c[2] / BLOCK];
-    (b[0] + blocks[0] * (b[1] + blocks[1] * b[2])) * BLOCK_CELLS + local_of(c)
+fn lexicographic_min(d2: &[f32; LANES], index: &[u32; LANES]) -> (u32, f32) {
+    let mut best = (index[0], d2[0]);
+    for l in 1..LANES {
+        if d2[l] < best.1 || (d2[l] == best.1 && index[l] < best.0) {
+            best = (index[l], d2[l]);
+        }
+    }
+    best
+}
+
+impl Lanes {
+    /// Offers one point to lane `l`.
+    #[inline(always)]
+    fn take(&mut self, l: usize, d2: f32, i: u32) {
+        if d2 < self.d2[l] || (d2 == self.d2[l] && i < self.index[l]) {
+            self.d2[l] = d2;
+            self.index[l] = i;
+        }
+    }
+}
+
+/// Sorted coordinates `x, y, z` and point indices of one scan, a multiple of `LANES` long.
+type ScanPoints<'a> = (&'a [f32], &'a [f32], &'a [f32], &'a [u32]);
+
+/// The portable twin of the AVX2 scan (`x86::Avx2Best`): the same lane updates, one lane at a
+/// time.
+#[inline(always)]
+fn scan_portable((xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3], lanes: &mut Lanes) -> f32 {
+    let groups = xs.chunks_exact(LANES).zip(ys.chunks_exact(LANES)).zip(zs.chunks_exact(LANES));
+    for (((x, y), z), i) in groups.zip(idx.chunks_exact(LANES)) {
+        for l in 0..LANES {
+            lanes.take(l, dist2([x[l], y[l], z[l]], q), i[l]);
+        }
+    }
+    lanes.bound()
+}
+
+/// Whether the scans may use AVX2: checked at run time under `std`, else by the compile-time
+/// target features.
+fn has_avx2() -> bool {
+    #[cfg(all(target_arch = "x86_64", feature = "std"))]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(all(target_arch = "x86_64", feature = "std")))]
+    {
+        cfg!(target_feature = "avx2")
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use super::{Best, ScanPoints, LANES, NONE};
+    use core::arch::x86_64::*;
+
+    /// [`super::Lanes`] in two AVX2 registers. Only made inside functions compiled with AVX2
+    /// (the `*_avx2` entry points of the grid, reached only when the CPU has it), into which all
+    /// of its methods inline.
+    #[derive(Clone, Copy)]
+    pub(super) struct Avx2Best {
+        d2: __m256,
+        index: __m256i,
+    }
+
+    impl Best for Avx2Best {
+        #[inline(always)]
+        fn new(limit2: f32) -> Avx2Best {
+            // SAFETY (every `unsafe` of this impl): AVX2 instructions, executed only on a CPU
+            // that has them (see the type's comment); loads and stores as commented.
+            unsafe { Avx2Best { d2: _mm256_set1_ps(limit2), index: _mm256_set1_epi32(NONE as i32) } }
+        }
+
+        #[inline(always)]
+        fn offer(&mut self, d2: f32, i: u32) {
+            // Every lane takes the point if it is better: the minimum over lanes is the same.
+            unsafe {
+                (self.d2, self.index) = merge(self.d2, self.index, _mm256_set1_ps(d2), _mm256_set1_epi32(i as i32));
+            }
+        }
+
+        /// [`super::scan_portable`] eight points at a time. Distances are `(dx² + dy²) + dz²` in
+        /// that order, without FMA, so they equal the scalar ones bit for bit.
+        #[inline(always)]
+        fn scan(&mut self, (xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3]) -> f32 {
+            let n = xs.len().min(ys.len()).min(zs.len()).min(idx.len()) / LANES * LANES;
+            // Loads read `k..k + 8` with `k + 8 <= n`, inside all four slices.
+            unsafe {
+                let (qx, qy, qz) = (_mm256_set1_ps(q[0]), _mm256_set1_ps(q[1]), _mm256_set1_ps(q[2]));
+                // A macro rather than a closure: closures do not inline into the AVX2 callers.
+                macro_rules! group {
+                    ($k:expr) => {{
+                        let k = $k;
+                        let dx = _mm256_sub_ps(_mm256_loadu_ps(xs.as_ptr().add(k)), qx);
+                        let dy = _mm256_sub_ps(_mm256_loadu_ps(ys.as_ptr().add(k)), qy);
+                        let dz = _mm256_sub_ps(_mm256_loadu_ps(zs.as_ptr().add(k)), qz);
+                        let d = _mm256_add_ps(
+                            _mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy)),
+                            _mm256_mul_ps(dz, dz),
+                        );
+                        (d, _mm256_loadu_si256(idx.as_ptr().add(k).cast()))
+                    }};
+                }
+                let (mut bd, mut bi) = (self.d2, self.index);
+                // Two accumulators, so that consecutive groups do not wait on each other's blends.
+                let (mut bd1, mut bi1) = (bd, bi);
+                let mut k = 0;
+                while k + 2 * LANES <= n {
+                    let (d, i) = group!(k);
+                    (bd, bi) = merge(bd, bi, d, i);
+                    let (d, i) = group!(k + LANES);
+                    (bd1, bi1) = merge(bd1, bi1, d, i);
+                    k += 2 * LANES;
+                }
+                if k < n {
+                    let (d, i) = group!(k);
+                    (bd, bi) = merge(bd, bi, d, i);
+                }
+                (self.d2, self.index) = merge(bd, bi, bd1, bi1);
+            }
+            self.bound()
+        }
+
+        /// Groups with no point within the bound cost one compare; only the others are merged
+        /// into the lanes (a point beyond the lowest lane can never be the answer).
+        #[inline(always)]
+        fn scan_tight(&mut self, (xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3]) -> f32 {
+            let n = xs.len().min(ys.len()).min(zs.len()).min(idx.len()) / LANES * LANES;
+            // Loads read `k..k + 8` with `k + 8 <= n`, inside all four slices.
+            unsafe {
+                let (qx, qy, qz) = (_mm256_set1_ps(q[0]), _mm256_set1_ps(q[1]), _mm256_set1_ps(q[2]));
+                let mut bound = _mm256_set1_ps(self.bound());
+                let mut k = 0;
+                while k < n {
+                    let dx = _mm256_sub_ps(_mm256_loadu_ps(xs.as_ptr().add(k)), qx);
+                    let dy = _mm256_sub_ps(_mm256_loadu_ps(ys.as_ptr().add(k)), qy);
+                    let dz = _mm256_sub_ps(_mm256_loadu_ps(zs.as_ptr().add(k)), qz);
+                    let d = _mm256_add_ps(
+                        _mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy)),
+                        _mm256_mul_ps(dz, dz),
+                    );
+                    if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(d, bound)) != 0 {
+                        let i = _mm256_loadu_si256(idx.as_ptr().add(k).cast());
+                        (self.d2, self.index) = merge(self.d2, self.index, d, i);
+                        bound = _mm256_set1_ps(self.bound());
+                    }
+                    k += LANES;
+                }
+                _mm256_cvtss_f32(bound)
+            }
+        }
+
+        #[inline(always)]
+        fn bound(&self) -> f32 {
+            unsafe {
+                let d = self.d2;
+                let m = _mm_min_ps(_mm256_castps256_ps128(d), _mm256_extractf128_ps::<1>(d));
+                let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
+                _mm_cvtss_f32(_mm_min_ss(m, _mm_shuffle_ps::<1>(m, m)))
+            }
+        }
+
+        /// Merges the lanes with themselves permuted (halves, pairs, neighbours swapped): every
+        /// lane then holds the minimum, without branches.
+        #[inline(always)]
+        fn best(&self) -> (u32, f32) {
+            unsafe {
+                let (mut d, mut i) = (self.d2, self.index);
+                (d, i) = merge(d, i, _mm256_permute2f128_ps::<0x01>(d, d), _mm256_permute2f128_si256::<0x01>(i, i));
+                (d, i) = merge(d, i, _mm256_permute_ps::<0x4E>(d), _mm256_shuffle_epi32::<0x4E>(i));
+                (d, i) = merge(d, i, _mm256_permute_ps::<0xB1>(d), _mm256_shuffle_epi32::<0xB1>(i));
+                (_mm256_extract_epi32::<0>(i) as u32, _mm256_cvtss_f32(d))
+            }
+        }
+    }
+
+    /// Lane-wise lexicographic minimum of `(bd, bi)` and `(d, i)`.
+    #[inline(always)]
+    unsafe fn merge(bd: __m256, bi: __m256i, d: __m256, i: __m256i) -> (__m256, __m256i) {
+        // SAFETY: AVX2 instructions, only reached on a CPU that has them.
+        unsafe {
+            let sign = _mm256_set1_epi32(i32::MIN);
+            let lt = _mm256_cmp_ps::<_CMP_LT_OQ>(d, bd);
+            let eq = _mm256_cmp_ps::<_CMP_EQ_OQ>(d, bd);
+            // Unsigned `i < bi` as a signed compare of sign-flipped values.
+            let lower = _mm256_cmpgt_epi32(_mm256_xor_si256(bi, sign), _mm256_xor_si256(i, sign));
+            let take = _mm256_or_ps(lt, _mm256_and_ps(eq, _mm256_castsi256_ps(lower)));
+            let bd = _mm256_blendv_ps(bd, d, take);
+            let bi = _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bi), _mm256_castsi256_ps(i), take));
+            (bd, bi)
+        }
+    }
+}
+
+/// `√x` by the `sqrtss` instruction (the same IEEE result as `libm::sqrtf`), as an intrinsic so
+/// that it takes the VEX form inside the AVX2 search: the legacy form there stalls on the
+/// upper halves of the vector registers.
+#[inline(always)]
+fn sqrt(x: f32) -> f32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use core::arch::x86_64::{_mm_cvtss_f32, _mm_set_ss, _mm_sqrt_ss};
+        // SAFETY: SSE is part of the x86-64 baseline.
+        unsafe { _mm_cvtss_f32(_mm_sqrt_ss(_mm_set_ss(x))) }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        libm::sqrtf(x)
+    }
 }

@@ -17,7 +17,7 @@ pub mod rigid;
 pub mod shapes;
 
 pub use frame::BodyFrame;
-pub use grid::{Nearest, PointGrid, BLOCK, DEFAULT_CELLS_PER_POINT};
+pub use grid::{Nearest, PointGrid, BLOCK, DEFAULT_CELLS_PER_POINT, X_SPLIT};
 
 use crate::error::{Error, Result};
 use crate::math::finite3;

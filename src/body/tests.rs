@@ -310,7 +310,8 @@ fn body_query_geometry_of_an_ellipsoid() {
     for (i, tri) in f.iter().enumerate() {
         let [a, b, cc] = tri.map(|k| v[k as usize]);
         for ax in 0..3 {
-            assert!((cen[i][ax] - (a[ax] + b[ax] + cc[ax]) / 3.0).abs() < 1e-6);
+            // Bit for bit the documented formula (the divisions run as a separate pass).
+            assert_eq!(cen[i][ax], (a[ax] + b[ax] + cc[ax]) / 3.0);
         }
         let n = fnrm[i];
         assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() - 1.0).abs() < 1e-5);
@@ -406,4 +407,80 @@ fn body_query_omitted_nearest_has_no_fallback() {
     let mut out = [None; 3];
     assert_eq!(frame.body_edges(&mesh, &g, 0.03, &mut out).unwrap(), 1);
     assert_eq!(out.map(|n| n.map(|n| n.index)), [None, Some(1), None]);
+}
+
+#[test]
+fn body_query_avx2_scan_matches_portable_twin() {
+    // The 8-wide AVX2 scans (where the CPU has them) against the portable lanes on fresh random
+    // inputs; both against brute force. Without AVX2 both grids run the portable code.
+    let mut rng = Rng(5);
+    let mut fast = PointGrid::new(4000, 40_000).unwrap();
+    let mut portable = PointGrid::new(4000, 40_000).unwrap();
+    portable.force_portable();
+    for round in 0..30 {
+        let kind = round % 5;
+        let n = [3, 9, 17, 500, 4000][rng.below(5)];
+        let pts = random_cloud(&mut rng, kind, n);
+        let cpp = [0.1, 1.0, 4.0][round % 3];
+        fast.set_cells_per_point(cpp).unwrap();
+        portable.set_cells_per_point(cpp).unwrap();
+        fast.rebuild(&pts).unwrap();
+        portable.rebuild(&pts).unwrap();
+        let qs = random_queries(&mut rng, &pts, 300);
+        let hints: Vec<u32> = (0..qs.len()).map(|_| rng.below(n + 2) as u32).collect();
+        let mut a = vec![Nearest { index: 0, distance: 0.0 }; qs.len()];
+        let mut b = a.clone();
+        fast.nearest_hinted(&qs, &hints, &mut a).unwrap();
+        portable.nearest_hinted(&qs, &hints, &mut b).unwrap();
+        assert_eq!(a, b, "round {round}: nearest differs between AVX2 and portable scans");
+        for (q, got) in qs.iter().zip(&a) {
+            assert_eq!(Some(*got), brute(&pts, *q, f32::INFINITY), "round {round} query {q:?}");
+        }
+        for r in [0.02, 0.3] {
+            let mut wa = vec![None; qs.len()];
+            let mut wb = wa.clone();
+            fast.nearest_within(&qs, r, &mut wa).unwrap();
+            portable.nearest_within_hinted(&qs, r, &hints, &mut wb).unwrap();
+            assert_eq!(wa, wb, "round {round} r {r}: radius query differs");
+            for (q, got) in qs.iter().zip(&wa) {
+                assert_eq!(*got, brute(&pts, *q, r * r), "round {round} r {r} query {q:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn body_query_scans_past_a_range_read_only_real_points() {
+    // A scan reads whole groups of eight, past the end of its cells: after a large rebuild and a
+    // small one, the stale points of the large one (indices beyond the small set) must never be
+    // answered; duplicates spread over many lanes still give the lowest index.
+    let mut rng = Rng(6);
+    for portable in [false, true] {
+        let mut grid = PointGrid::new(2000, 20_000).unwrap();
+        if portable {
+            grid.force_portable();
+        }
+        let big = random_cloud(&mut rng, 0, 2000);
+        grid.rebuild(&big).unwrap();
+        let small: Vec<[f32; 3]> = big[..5].to_vec();
+        grid.rebuild(&small).unwrap();
+        for q in random_queries(&mut rng, &big, 200) {
+            let got = grid.nearest_one(q);
+            assert_eq!(got, brute(&small, q, f32::INFINITY));
+            assert!(got.unwrap().index < 5);
+            assert_eq!(grid.nearest_within_one(q, 0.5), brute(&small, q, 0.25));
+        }
+        // 40 copies of one point among 60 others, at scattered indices.
+        let mut pts = random_cloud(&mut rng, 1, 100);
+        let dup = [0.123, 0.456, 0.789];
+        let copies: Vec<usize> = (0..100).filter(|k| k % 5 < 2).collect();
+        for &k in &copies {
+            pts[k] = dup;
+        }
+        grid.rebuild(&pts).unwrap();
+        let q = [dup[0] + 0.001, dup[1], dup[2]];
+        assert_eq!(grid.nearest_one(q).map(|n| n.index), Some(copies[0] as u32));
+        assert_eq!(grid.nearest_within_one(q, 0.01).map(|n| n.index), Some(copies[0] as u32));
+        assert_eq!(grid.nearest_one_hinted(q, copies[7] as u32).map(|n| n.index), Some(copies[0] as u32));
+    }
 }
