@@ -23,7 +23,7 @@ fn main() -> hood::Result<()> {
     let bytes = ModelBytes::read(model_path)?;
     let model = bytes.model()?;
     let frames = 60;
-    let scene = procedural(&Mannequin::new(), GarmentKind::Dress, 4000, MotionKind::Walk, 2.1)?;
+    let scene = procedural(&Mannequin::new(), GarmentKind::Dress, 2000, MotionKind::Walk, 2.1)?;
     let options = RolloutOptions { keep: vec![0, 12, 24, 36, 48, 60], ..RolloutOptions::default() };
     let faces = scene.garment.faces();
     let rollout = rollout_observed(&model, &scene, frames, SimConfig::default(), &options, &mut |rec, pos| {

@@ -2,8 +2,8 @@
 //! the implicit solver at several iteration counts) x workloads -> a Markdown table and an SVG
 //! plot of the relative objective gap against ms per step.
 
-use clap::Args;
 use crate::objective::ObjectiveArg;
+use clap::Args;
 use hood::eval::{converged_solver, implicit_rollout, rollout, Animation, Rollout, RolloutOptions};
 use hood::model::spec::format_schedule;
 use hood::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
@@ -136,8 +136,11 @@ fn workload(a: &ReportArgs, name: &str, m: &Mannequin) -> Result<Option<Box<dyn 
 pub fn report(a: ReportArgs) -> Result<()> {
     let models = candidates(&a)?;
     let mannequin = Mannequin::new();
-    let opts =
-        RolloutOptions { gap_every: a.gap_every.max(1), objective: a.objective.objective(), ..RolloutOptions::default() };
+    let opts = RolloutOptions {
+        gap_every: a.gap_every.max(1),
+        objective: a.objective.objective(),
+        ..RolloutOptions::default()
+    };
     let mut rows = Vec::new();
     for name in &a.workload {
         let Some(anim) = workload(&a, name, &mannequin)? else { continue };
