@@ -48,7 +48,9 @@ pub(crate) fn lane_sum(y: &[f32], f: impl Fn(f32) -> f32) -> f32 {
     (((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]))) + rest
 }
 
-/// `Σ a_i·b_i` over the shorter of the two, in the partial sums of [`lane_sum`].
+/// `Σ a_i·b_i` over the shorter of the two, in the partial sums of [`lane_sum`] (the trainer's
+/// LayerNorm backward).
+#[cfg(feature = "train")]
 #[inline(always)]
 pub(crate) fn lane_dot(a: &[f32], b: &[f32]) -> f32 {
     let n = a.len().min(b.len());

@@ -18,6 +18,7 @@
 mod frame;
 
 /// Row statistics shared with the trainer, so both normalise with the same arithmetic.
+#[cfg(feature = "train")]
 pub(crate) use frame::{lane_dot, lane_sum, layer_norm_stats};
 mod pack;
 #[cfg(feature = "std")]

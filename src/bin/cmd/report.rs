@@ -223,6 +223,10 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
         a.gap_every,
         a.objective.name()
     );
+    if let Some(load) = load_average() {
+        // Wall times mean little on a busy machine: say how busy it was.
+        let _ = writeln!(s, "Load average when the report was written (1, 5, 15 min): {load}.\n");
+    }
     if a.objective == ObjectiveArg::Evaluation {
         let _ = writeln!(
             s,
@@ -352,4 +356,11 @@ fn svg_plot(rows: &[Row]) -> String {
     }
     s.push_str("</svg>\n");
     s
+}
+
+/// The machine's load averages as `/proc/loadavg` gives them (Linux), if readable.
+fn load_average() -> Option<String> {
+    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
+    let fields: Vec<&str> = text.split_whitespace().take(3).collect();
+    (fields.len() == 3).then(|| fields.join(", "))
 }
