@@ -5,9 +5,10 @@
 //! on a small random model: what they check holds for any weights. Cases that only mean
 //! something for a trained model (long rollouts, 10 m/s motion, bad start states, bf16 against
 //! f32) load `models/compact.hood` when `HOOD_STABILITY_TRAINED=1` is set and print SKIPPED
-//! otherwise: the shipped model is still early in its training and does not meet these bounds
-//! yet (its card, `models/compact.md`, lists what it measures), so CI leaves them out until a
-//! shipped model passes. `HOOD_STABILITY_RANDOM=1` runs them on a random model instead (for
+//! otherwise. The shipped model (30,000 iterations) passes 4 of these 8 tests and misses the
+//! strain bounds of the rest: 0.99 against 0.5 on the long rollout and the bf16 case, 0.96 against
+//! 0.62 after the half turn, 78 against 0.62 at 10 m/s. So CI leaves them out until a shipped
+//! model passes; the bounds stay where they are. `HOOD_STABILITY_RANDOM=1` runs them on a random model instead (for
 //! debugging the harness: the bounds are then expected to fail).
 //!
 //! Scenes are small (a ~300-vertex skirt on the coarse procedural mannequin) to keep the file
