@@ -81,6 +81,8 @@ fn train_resume_is_exact() {
     drop(first);
     let mut resumed = Trainer::resume(&ckpt, data(&cfg)).unwrap();
     assert_eq!(resumed.iteration, 4);
+    // Resuming on another thread count (`hood train --threads`) must not change a bit either.
+    resumed.set_threads(if cfg.threads == 1 { 2 } else { 1 });
     while got.len() < total {
         got.push(resumed.iteration().unwrap());
     }

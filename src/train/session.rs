@@ -192,6 +192,17 @@ impl Trainer {
         })
     }
 
+    /// Runs the following iterations on `threads` threads (at least 1). Results do not depend on
+    /// it: the fast path splits work into fixed parts and sums them in order, so a run can
+    /// resume on another thread count and stay bitwise the same.
+    pub fn set_threads(&mut self, threads: usize) {
+        let threads = threads.max(1);
+        if threads != self.cfg.threads {
+            self.cfg.threads = threads;
+            self.pool = ThreadPool::new(threads);
+        }
+    }
+
     /// The current parameters (weights from the flat vector, current normaliser statistics).
     pub fn params(&self) -> Params {
         let mut p = self.params.clone();

@@ -26,6 +26,10 @@ pub struct TrainArgs {
     /// Override the total number of iterations.
     #[arg(long)]
     iterations: Option<u64>,
+    /// Threads of this run, overriding the config's (also when resuming: results do not depend
+    /// on the thread count).
+    #[arg(long)]
+    threads: Option<usize>,
     /// Stop (with a checkpoint) after this many hours of wall time.
     #[arg(long)]
     hours: Option<f64>,
@@ -205,6 +209,9 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     };
     if let Some(n) = a.iterations {
         t.cfg.iterations = n;
+    }
+    if let Some(n) = a.threads {
+        t.set_threads(n);
     }
     truncate_log(&log, t.iteration)?;
     truncate_log(&vlog, t.iteration + 1)?;
