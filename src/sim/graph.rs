@@ -109,4 +109,19 @@ impl Graph {
     pub fn n_vertices(&self) -> usize {
         self.vertex_level.len()
     }
+
+    /// The edge list an edge key reads: the mesh edges or one coarse level's.
+    ///
+    /// # Errors
+    /// [`Error::IncompatibleModel`] for a coarse level this graph does not have.
+    pub fn edges(&self, key: crate::model::EdgeKey) -> Result<&EdgeList> {
+        match key.coarse_level() {
+            None => Ok(&self.mesh),
+            Some(l) => self
+                .coarse
+                .get(l)
+                .map(|c| &c.edges)
+                .ok_or(Error::IncompatibleModel { reason: "the model uses a coarse level the garment graph lacks" }),
+        }
+    }
 }

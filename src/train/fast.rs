@@ -646,17 +646,6 @@ fn edge_bwd(
     }
 }
 
-fn edges_of(graph: &Graph, key: EdgeKey) -> Result<&crate::sim::graph::EdgeList> {
-    match key.coarse_level() {
-        None => Ok(&graph.mesh),
-        Some(l) => graph
-            .coarse
-            .get(l)
-            .map(|c| &c.edges)
-            .ok_or(Error::IncompatibleModel { reason: "the model uses a coarse level the garment graph lacks" }),
-    }
-}
-
 fn normalise(rows: &mut [f32], stride: usize, (mean, std): &(Vec<f32>, Vec<f32>), width: usize) {
     for r in rows.chunks_exact_mut(stride) {
         for c in 0..width {
@@ -775,7 +764,7 @@ impl Network {
             bt.slots.iter_mut().for_each(|s| fit(s, rows * h));
             bt.edges.resize_with(bs.keys.len(), EdgeTape::default);
             for (ki, (&key, m)) in bs.keys.iter().zip(&ba.edges).enumerate() {
-                let list = edges_of(graph, key)?;
+                let list = graph.edges(key)?;
                 let k = key as usize;
                 let et = &mut bt.edges[ki];
                 match key.coarse_level() {
@@ -946,7 +935,7 @@ impl Network {
                 c.scatter_add(&tmp.dxg, garm, h, &mut tmp.dx);
             }
             for (ki, (&key, m)) in bs.keys.iter().zip(&ba.edges).enumerate() {
-                let list = edges_of(graph, key)?;
+                let list = graph.edges(key)?;
                 let k = key as usize;
                 let et = &bt.edges[ki];
                 let scratch = (&mut tmp.d0, &mut tmp.local, &mut tmp.msg);

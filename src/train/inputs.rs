@@ -271,18 +271,7 @@ impl InputBuilder {
             if !spec.blocks.iter().any(|b| b.keys.contains(&key)) {
                 continue;
             }
-            let list = match key.coarse_level() {
-                None => &graph.mesh,
-                Some(l) => {
-                    &graph
-                        .coarse
-                        .get(l)
-                        .ok_or(Error::IncompatibleModel {
-                            reason: "the model uses a coarse level the garment graph lacks",
-                        })?
-                        .edges
-                }
-            };
+            let list = graph.edges(key)?;
             f.resize(list.global.len() * features::EDGE_WIDTH, 0.0);
             features::edge_features(&list.global, &d.pos, rest, &self.material, dt, f)?;
         }

@@ -220,17 +220,6 @@ fn message_grad<R: Real>(dlat: &[R], dagg: &[R], target: &[u32], h: usize) -> Ve
     dm
 }
 
-fn edges_of(graph: &Graph, key: EdgeKey) -> Result<&crate::sim::graph::EdgeList> {
-    match key.coarse_level() {
-        None => Ok(&graph.mesh),
-        Some(l) => graph
-            .coarse
-            .get(l)
-            .map(|c| &c.edges)
-            .ok_or(Error::IncompatibleModel { reason: "the model uses a coarse level the garment graph lacks" }),
-    }
-}
-
 impl Network {
     /// Rows of body edges a block uses (those whose garment end is among its finest nodes).
     pub(super) fn body_rows(&self, bi: usize, step: &StepData) -> usize {
@@ -301,7 +290,7 @@ impl Network {
             let mut bt =
                 BlockTape { x_in: x.clone(), slots: vec![vec![R::ZERO; rows * h]; n_slots], ..BlockTape::default() };
             for (ki, (&key, m)) in bs.keys.iter().zip(&ba.edges).enumerate() {
-                let list = edges_of(graph, key)?;
+                let list = graph.edges(key)?;
                 let k = key as usize;
                 let et = match key.coarse_level() {
                     None => {
@@ -442,7 +431,7 @@ impl Network {
                 scatter_add(&dxg, garm, h, &mut dx);
             }
             for (ki, (&key, m)) in bs.keys.iter().zip(&ba.edges).enumerate() {
-                let list = edges_of(graph, key)?;
+                let list = graph.edges(key)?;
                 let k = key as usize;
                 let et = &bt.edges[ki];
                 match key.coarse_level() {
