@@ -145,7 +145,7 @@ impl<'a> Trainer<'a> {
         let loss = self.losses();
         self.backward(pool);
         clip_global_norm(&mut self.grad, 1.0);
-        self.adam.step(&mut self.theta, &self.grad, learning_rate(self.adam.t));
+        self.adam.step_on(pool, &mut self.theta, &self.grad, learning_rate(self.adam.t));
         loss
     }
 }

@@ -36,34 +36,67 @@ pub use pool::ThreadPool;
 #[cfg(feature = "std")]
 mod pool {
     use super::Executor;
-    use std::sync::atomic::{AtomicUsize, Ordering};
-    use std::sync::{Arc, Condvar, Mutex};
+    use core::cell::UnsafeCell;
+    use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+    use std::sync::{Arc, Condvar, Mutex, TryLockError};
     use std::thread::JoinHandle;
+    use std::time::{Duration, Instant};
     use std::vec::Vec;
 
     type Task = &'static (dyn Fn(usize) + Sync);
 
-    struct Job {
-        generation: u64,
-        task: Option<Task>,
-        n: usize,
-        /// Workers currently inside the job.
-        running: usize,
-        shutdown: bool,
+    /// How long an idle worker spins for the next job before it sleeps. A training step hands
+    /// out about 1,600 jobs, microseconds apart: waking a sleeping thread costs more than most
+    /// of them take, and at h = 32 the hand-offs were the largest serial cost of the step.
+    const SPIN: Duration = Duration::from_micros(200);
+
+    /// A claim word packs the job number (16 bits, wrapping), the job's task count and the next
+    /// task index (24 bits each), so that one atomic add both claims a task and says whether the
+    /// claim is valid, without reading anything a later job may overwrite.
+    const FIELD: u32 = 24;
+    const MASK: u64 = (1 << FIELD) - 1;
+    /// Most tasks per job (the index must not carry into the count even after every thread has
+    /// over-claimed once); larger jobs run in rounds.
+    const MAX_TASKS: usize = (1 << FIELD) - 4096;
+
+    fn word(job: u64, n: usize) -> u64 {
+        ((job & 0xffff) << (2 * FIELD)) | ((n as u64) << FIELD)
+    }
+
+    fn job_of(w: u64) -> u64 {
+        w >> (2 * FIELD)
     }
 
     struct Shared {
-        job: Mutex<Job>,
-        wake: Condvar,
-        idle: Condvar,
-        next: AtomicUsize,
+        /// Job number, task count and next unclaimed task index (see [`word`]). A valid claim
+        /// (index below the count) keeps its job's task alive: the caller does not return before
+        /// every claimed task has finished.
+        claim: AtomicU64,
+        /// The current job's task, written by the caller before it publishes the job in `claim`
+        /// (release) and read only under a valid claim (acquired), while the job cannot end.
+        task: UnsafeCell<Option<Task>>,
+        /// Tasks of the current job finished.
         done: AtomicUsize,
+        /// Workers asleep (or about to sleep) on `wake`.
+        sleepers: AtomicUsize,
+        shutdown: AtomicBool,
+        lock: Mutex<()>,
+        wake: Condvar,
     }
 
+    // SAFETY: `task` is written only by the thread running `Executor::run` (one at a time: `run`
+    // holds `caller`) while no valid claim of the previous job is outstanding, and read only under
+    // a valid claim, ordered by the release store and acquiring adds on `claim`.
+    unsafe impl Sync for Shared {}
+    unsafe impl Send for Shared {}
+
     /// Persistent worker threads (created once); [`Executor::run`] shares a job's tasks between
-    /// them and the calling thread. Running a job allocates nothing.
+    /// them and the calling thread. Running a job allocates nothing and, while the workers are
+    /// still spinning from the previous job, takes no lock.
     pub struct ThreadPool {
         shared: Arc<Shared>,
+        /// Serialises callers: a pool runs one job at a time.
+        caller: Mutex<()>,
         workers: Vec<JoinHandle<()>>,
     }
 
@@ -73,14 +106,49 @@ mod pool {
         }
     }
 
-    fn claim(shared: &Shared, task: Task, n: usize) {
+    /// Claims and runs tasks until a claim comes back invalid; returns that claim's job number.
+    /// Claims may move on to jobs published meanwhile.
+    fn claim(s: &Shared) -> u64 {
         loop {
-            let i = shared.next.fetch_add(1, Ordering::Relaxed);
+            let w = s.claim.fetch_add(1, Ordering::AcqRel);
+            let (n, i) = ((w >> FIELD) & MASK, w & MASK);
             if i >= n {
-                break;
+                return job_of(w);
             }
-            task(i);
-            shared.done.fetch_add(1, Ordering::Release);
+            // SAFETY: read under a valid claim (see `Shared::task`).
+            if let Some(t) = unsafe { *s.task.get() } {
+                t(i as usize);
+            }
+            s.done.fetch_add(1, Ordering::Release);
+        }
+    }
+
+    fn worker(s: &Shared) {
+        let mut seen = job_of(s.claim.load(Ordering::Acquire));
+        loop {
+            // Spin, then sleep, until a new job is published.
+            let start = Instant::now();
+            let mut spins = 0u32;
+            loop {
+                if job_of(s.claim.load(Ordering::Acquire)) != seen || s.shutdown.load(Ordering::Acquire) {
+                    break;
+                }
+                spins = spins.wrapping_add(1);
+                if !spins.is_multiple_of(64) || start.elapsed() < SPIN {
+                    core::hint::spin_loop();
+                    continue;
+                }
+                let mut guard = s.lock.lock().unwrap_or_else(|e| e.into_inner());
+                s.sleepers.fetch_add(1, Ordering::SeqCst);
+                while job_of(s.claim.load(Ordering::SeqCst)) == seen && !s.shutdown.load(Ordering::SeqCst) {
+                    guard = s.wake.wait(guard).unwrap_or_else(|e| e.into_inner());
+                }
+                s.sleepers.fetch_sub(1, Ordering::SeqCst);
+            }
+            if s.shutdown.load(Ordering::Acquire) {
+                return;
+            }
+            seen = claim(s);
         }
     }
 
@@ -89,41 +157,21 @@ mod pool {
         /// workers.
         pub fn new(threads: usize) -> ThreadPool {
             let shared = Arc::new(Shared {
-                job: Mutex::new(Job { generation: 0, task: None, n: 0, running: 0, shutdown: false }),
-                wake: Condvar::new(),
-                idle: Condvar::new(),
-                next: AtomicUsize::new(0),
+                claim: AtomicU64::new(0),
+                task: UnsafeCell::new(None),
                 done: AtomicUsize::new(0),
+                sleepers: AtomicUsize::new(0),
+                shutdown: AtomicBool::new(false),
+                lock: Mutex::new(()),
+                wake: Condvar::new(),
             });
             let workers = (1..threads.max(1))
                 .map(|_| {
                     let s = Arc::clone(&shared);
-                    std::thread::spawn(move || {
-                        let mut seen = 0u64;
-                        loop {
-                            let (task, n) = {
-                                let mut job = s.job.lock().unwrap_or_else(|e| e.into_inner());
-                                while !job.shutdown && (job.generation == seen || job.task.is_none()) {
-                                    job = s.wake.wait(job).unwrap_or_else(|e| e.into_inner());
-                                }
-                                if job.shutdown {
-                                    return;
-                                }
-                                seen = job.generation;
-                                job.running += 1;
-                                (job.task, job.n)
-                            };
-                            if let Some(t) = task {
-                                claim(&s, t, n);
-                            }
-                            let mut job = s.job.lock().unwrap_or_else(|e| e.into_inner());
-                            job.running -= 1;
-                            s.idle.notify_all();
-                        }
-                    })
+                    std::thread::spawn(move || worker(&s))
                 })
                 .collect();
-            ThreadPool { shared, workers }
+            ThreadPool { shared, caller: Mutex::new(()), workers }
         }
 
         /// Threads in all (workers plus the caller).
@@ -138,39 +186,63 @@ mod pool {
         }
 
         fn run(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
-            if self.workers.is_empty() || n <= 1 {
+            // One job at a time: a nested or concurrent call runs its tasks on its own thread.
+            let one_job = match self.caller.try_lock() {
+                Ok(g) => Some(g),
+                Err(TryLockError::Poisoned(p)) => Some(p.into_inner()),
+                Err(TryLockError::WouldBlock) => None,
+            };
+            if self.workers.is_empty() || n <= 1 || one_job.is_none() {
                 (0..n).for_each(task);
                 return;
             }
-            // SAFETY: the reference is extended to 'static only while this call runs: workers
-            // take it under the mutex while `job.task` is set, and this function clears it and
-            // waits (under the same mutex) until no worker is inside the job before returning,
-            // so no worker can call it after `task`'s real lifetime ends.
+            if n > MAX_TASKS {
+                for start in (0..n).step_by(MAX_TASKS) {
+                    let m = MAX_TASKS.min(n - start);
+                    self.run_job(m, &|i| task(start + i));
+                }
+            } else {
+                self.run_job(n, task);
+            }
+        }
+    }
+
+    impl ThreadPool {
+        fn run_job(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
+            // SAFETY: the reference is extended to 'static only while this call runs: a worker
+            // calls it only under a valid claim of this job, and this function returns only
+            // after every claimed task has finished (`done == n`); the next job replaces it.
             let task_static: Task = unsafe { core::mem::transmute::<&(dyn Fn(usize) + Sync), Task>(task) };
             let s = &*self.shared;
-            {
-                let mut job = s.job.lock().unwrap_or_else(|e| e.into_inner());
-                s.next.store(0, Ordering::Relaxed);
-                s.done.store(0, Ordering::Relaxed);
-                job.generation += 1;
-                job.task = Some(task_static);
-                job.n = n;
+            let job = job_of(s.claim.load(Ordering::Relaxed)) + 1;
+            // SAFETY: no valid claim of the previous job is outstanding (its caller saw
+            // `done == n`), so no thread reads `task` now.
+            unsafe { *s.task.get() = Some(task_static) };
+            s.done.store(0, Ordering::Relaxed);
+            s.claim.store(word(job, n), Ordering::SeqCst);
+            if s.sleepers.load(Ordering::SeqCst) > 0 {
+                let _g = s.lock.lock().unwrap_or_else(|e| e.into_inner());
                 s.wake.notify_all();
             }
-            claim(s, task_static, n);
-            let mut job = s.job.lock().unwrap_or_else(|e| e.into_inner());
-            while s.done.load(Ordering::Acquire) < n || job.running > 0 {
-                job = s.idle.wait(job).unwrap_or_else(|e| e.into_inner());
+            claim(s);
+            // The last tasks may still run on workers: spin, then yield.
+            let mut spins = 0u32;
+            while s.done.load(Ordering::Acquire) < n {
+                spins = spins.wrapping_add(1);
+                if spins < 1 << 12 {
+                    core::hint::spin_loop();
+                } else {
+                    std::thread::yield_now();
+                }
             }
-            job.task = None;
         }
     }
 
     impl Drop for ThreadPool {
         fn drop(&mut self) {
             {
-                let mut job = self.shared.job.lock().unwrap_or_else(|e| e.into_inner());
-                job.shutdown = true;
+                let _g = self.shared.lock.lock().unwrap_or_else(|e| e.into_inner());
+                self.shared.shutdown.store(true, Ordering::SeqCst);
                 self.shared.wake.notify_all();
             }
             for w in self.workers.drain(..) {
@@ -195,6 +267,47 @@ mod tests {
                 hits[i].fetch_add(1, Ordering::Relaxed);
             });
             assert!(hits.iter().all(|h| h.load(Ordering::Relaxed) == 1));
+        }
+        // Many short jobs back to back (the workers spin between them), jobs after the workers
+        // fell asleep, a nested call (runs on its own thread) and jobs from several callers.
+        let pool = std::sync::Arc::new(ThreadPool::new(3));
+        let total = AtomicUsize::new(0);
+        for round in 0..2000usize {
+            let n = 1 + round % 9;
+            let hits: alloc::vec::Vec<AtomicUsize> = (0..n).map(|_| AtomicUsize::new(0)).collect();
+            pool.run(n, &|i| {
+                hits[i].fetch_add(1, Ordering::Relaxed);
+                total.fetch_add(1, Ordering::Relaxed);
+            });
+            assert!(hits.iter().all(|h| h.load(Ordering::Relaxed) == 1), "round {round}");
+            if round % 500 == 499 {
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+        }
+        assert_eq!(total.load(Ordering::Relaxed), (0..2000).map(|r| 1 + r % 9).sum::<usize>());
+        let nested = AtomicUsize::new(0);
+        pool.run(4, &|_| {
+            pool.run(3, &|_| {
+                nested.fetch_add(1, Ordering::Relaxed);
+            })
+        });
+        assert_eq!(nested.load(Ordering::Relaxed), 12);
+        let threads: alloc::vec::Vec<_> = (0..3)
+            .map(|_| {
+                let p = std::sync::Arc::clone(&pool);
+                std::thread::spawn(move || {
+                    let sum = AtomicUsize::new(0);
+                    for _ in 0..300 {
+                        p.run(5, &|i| {
+                            sum.fetch_add(i, Ordering::Relaxed);
+                        });
+                    }
+                    sum.load(Ordering::Relaxed)
+                })
+            })
+            .collect();
+        for t in threads {
+            assert_eq!(t.join().unwrap(), 300 * 10);
         }
         let sum = AtomicUsize::new(0);
         Serial.run(5, &|i| {

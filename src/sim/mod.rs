@@ -11,7 +11,7 @@ pub mod driver;
 pub mod exec;
 pub mod graph;
 pub mod network;
-mod par;
+pub(crate) mod par;
 
 use crate::body::rigid::{best_rigid_motion, RigidMotion};
 use crate::body::{BodyMesh, Nearest, PointGrid};

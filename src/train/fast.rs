@@ -8,7 +8,7 @@
 //! bias gradients) go to one partial gradient per range, added in range order at the end. One
 //! thread and two threads give bitwise the same gradients.
 
-use super::gemm::{Gemm, Mat};
+use super::gemm::{Gemm, Mat, Out};
 use super::inputs::StepData;
 use super::layout::MlpAt;
 use super::network::{Network, Stats};
@@ -250,21 +250,13 @@ impl Ctx<'_> {
     fn project(&self, l: &super::layout::LinearAt, col: usize, k: usize, x: &[f32], y: &mut [f32]) {
         let rows = x.len() / k;
         let n = l.out;
-        fit_slice(y);
         let ys = Shared::new(y);
         let (g, wt) = (self.g, self.wt);
         self.parts(rows, &|_, r| {
             // SAFETY: row ranges of different parts are disjoint.
             let yr = unsafe { ys.range(r.start * n..r.end * n) };
-            g.nn(
-                r.len(),
-                n,
-                k,
-                Mat { data: &x[r.start * k..], ld: k },
-                Mat { data: &wt[l.w + col * n..], ld: n },
-                yr,
-                n,
-            );
+            let (a, b) = (Mat { data: &x[r.start * k..], ld: k }, Mat { data: &wt[l.w + col * n..], ld: n });
+            g.nn_out(r.len(), n, k, a, b, Out::Set, yr, n);
         });
     }
 
@@ -307,32 +299,43 @@ impl Ctx<'_> {
                 } else {
                     unsafe { hid.range(offs[li] + r.start * l.out..offs[li] + r.end * l.out) }
                 };
-                for row in dst.chunks_exact_mut(l.out) {
-                    row.copy_from_slice(&theta[l.b..l.b + l.out]);
-                }
+                let bias = &theta[l.b..l.b + l.out];
+                // The epilogue of the product that completes the pre-activation.
+                let done = if last { Out::Bias(bias) } else { Out::BiasRelu(bias) };
                 if li == 0 {
                     match first {
                         First::Parts(inputs) => {
                             let mut col = 0;
-                            for x in inputs {
+                            for (i, x) in inputs.iter().enumerate() {
                                 let k = x.len() / rows;
                                 let a = Mat { data: &x[r.start * k..], ld: k };
-                                g.nn(nr, l.out, k, a, Mat { data: &wt[l.w + col * l.out..], ld: l.out }, dst, l.out);
+                                let out = match (i, inputs.len()) {
+                                    (0, 1) => done,
+                                    (0, _) => Out::Bias(bias),
+                                    _ => Out::Add,
+                                };
+                                let b = Mat { data: &wt[l.w + col * l.out..], ld: l.out };
+                                g.nn_out(nr, l.out, k, a, b, out, dst, l.out);
                                 col += k;
+                            }
+                            if inputs.len() > 1 && !last {
+                                dst.iter_mut().for_each(|v| *v = v.max(0.0));
                             }
                         }
                         First::Edge { lat, pt, ps, target, source } => {
                             let k = lat.len() / rows;
                             let col = l.inp - k;
                             let a = Mat { data: &lat[r.start * k..], ld: k };
-                            g.nn(nr, l.out, k, a, Mat { data: &wt[l.w + col * l.out..], ld: l.out }, dst, l.out);
+                            let b = Mat { data: &wt[l.w + col * l.out..], ld: l.out };
+                            g.nn_out(nr, l.out, k, a, b, Out::Bias(bias), dst, l.out);
                             let w = l.out;
                             for (e, row) in r.clone().zip(dst.chunks_exact_mut(w)) {
                                 let (t, s) = (target[e] as usize, source[e] as usize);
                                 for ((o, a), b) in
                                     row.iter_mut().zip(&pt[t * w..(t + 1) * w]).zip(&ps[s * w..(s + 1) * w])
                                 {
-                                    *o += *a + *b;
+                                    let v = *o + (*a + *b);
+                                    *o = if last { v } else { v.max(0.0) };
                                 }
                             }
                         }
@@ -341,10 +344,8 @@ impl Ctx<'_> {
                     let pl = &m.layers[li - 1];
                     // SAFETY: this part's rows of the previous hidden layer (read only here).
                     let x = unsafe { hid.range(offs[li - 1] + r.start * pl.out..offs[li - 1] + r.end * pl.out) };
-                    g.nn(nr, l.out, l.inp, Mat { data: x, ld: l.inp }, Mat { data: &wt[l.w..], ld: l.out }, dst, l.out);
-                }
-                if !last {
-                    dst.iter_mut().for_each(|v| *v = v.max(0.0));
+                    let b = Mat { data: &wt[l.w..], ld: l.out };
+                    g.nn_out(nr, l.out, l.inp, Mat { data: x, ld: l.inp }, b, done, dst, l.out);
                 }
             }
             // SAFETY: rows `r` of the output belong to this part.
@@ -442,8 +443,8 @@ impl Ctx<'_> {
                 colsum(d, l.out, &mut pg[l.b..l.b + l.out]);
                 g.tn(nr, l.out, l.inp, Mat { data: d, ld: l.out }, Mat { data: x, ld: l.inp }, &mut pg[l.w..], l.inp);
                 size(dn, nr * l.inp);
-                dn.fill(0.0);
-                g.nn(nr, l.inp, l.out, Mat { data: d, ld: l.out }, Mat { data: &theta[l.w..], ld: l.inp }, dn, l.inp);
+                let w = Mat { data: &theta[l.w..], ld: l.inp };
+                g.nn_out(nr, l.inp, l.out, Mat { data: d, ld: l.out }, w, Out::Set, dn, l.inp);
                 // ReLU: the gradient passes where the activation is positive.
                 for (gv, a) in dn.iter_mut().zip(x) {
                     *gv = if *a > 0.0 { *gv } else { 0.0 };
@@ -517,21 +518,28 @@ impl Ctx<'_> {
         });
     }
 
-    /// `dst[idx[e]] += src[e]` (rows `w` wide), split by columns so that repeated indices sum in
-    /// edge order.
+    /// `dst[idx[e]] += src[e]` (rows `w` wide). Each part owns a range of destination rows and
+    /// scans every index, so repeated indices sum in edge order whatever the split (rows of
+    /// whole vectors: splitting by columns left a few floats per row and part at small widths).
     fn scatter_add(&self, src: &[f32], idx: &[u32], w: usize, dst: &mut [f32]) {
+        if w == 0 {
+            return;
+        }
+        let rows = dst.len() / w;
         let ds = Shared::new(dst);
-        let len = ds.len;
         self.exec.run(PARTS, &|p| {
-            let c = split(w, p);
-            if c.is_empty() {
+            let own = split(rows, p);
+            if own.is_empty() {
                 return;
             }
+            // SAFETY: destination row ranges of different parts are disjoint.
+            let d = unsafe { ds.range(own.start * w..own.end * w) };
             for (row, &i) in src.chunks_exact(w).zip(idx) {
-                let i = i as usize * w;
-                // SAFETY: column ranges of different parts are disjoint.
-                let d = unsafe { ds.range((i + c.start).min(len)..(i + c.end).min(len)) };
-                d.iter_mut().zip(&row[c.clone()]).for_each(|(a, b)| *a += *b);
+                let i = i as usize;
+                if own.contains(&i) {
+                    let o = (i - own.start) * w;
+                    d[o..o + w].iter_mut().zip(row).for_each(|(a, b)| *a += *b);
+                }
             }
         });
     }
@@ -567,10 +575,6 @@ fn colsum(d: &[f32], w: usize, out: &mut [f32]) {
     for row in d.chunks_exact(w) {
         out.iter_mut().zip(row).for_each(|(a, b)| *a += *b);
     }
-}
-
-fn fit_slice(y: &mut [f32]) {
-    y.fill(0.0);
 }
 
 /// One edge set of an edge MLP pass (as in the generic path).
@@ -693,14 +697,21 @@ impl Network {
             ws.linears = lay.mlps().iter().flat_map(|m| m.layers.iter().copied()).collect();
             ws.layout = Some(lay.clone());
         }
-        // Transposed weights of the current parameters (cheap next to the step).
+        // Transposed weights of the current parameters, one layer per task.
         size(&mut ws.wt, lay.len);
-        for l in &ws.linears {
-            for o in 0..l.out {
-                for i in 0..l.inp {
-                    ws.wt[l.w + i * l.out + o] = theta[l.w + o * l.inp + i];
+        {
+            let wts = Shared::new(&mut ws.wt);
+            let linears = &ws.linears;
+            exec.run(linears.len(), &|j| {
+                let l = &linears[j];
+                // SAFETY: every layer's weights occupy their own range of the layout.
+                let wt = unsafe { wts.range(l.w..l.w + l.inp * l.out) };
+                for o in 0..l.out {
+                    for i in 0..l.inp {
+                        wt[i * l.out + o] = theta[l.w + o * l.inp + i];
+                    }
                 }
-            }
+            });
         }
         let FastWorkspace { gemm, wt, tape: t, tmp, parts, decoded, new_pos, .. } = ws;
         let c = Ctx { g: *gemm, exec, theta, wt };

@@ -15,6 +15,33 @@ pub struct Gemm {
     avx2: bool,
 }
 
+/// What a product [`Gemm::nn_out`] does with `C` (the epilogue of each output tile: fusing it
+/// saves a separate pass, and a call to `memcpy` or `memset` per row, at small widths).
+#[derive(Clone, Copy, Debug)]
+pub enum Out<'a> {
+    /// `C += A·B`.
+    Add,
+    /// `C = A·B`.
+    Set,
+    /// `C = bias + A·B`, `bias` per column.
+    Bias(&'a [f32]),
+    /// `C = max(bias + A·B, 0)`: a hidden layer with its ReLU.
+    BiasRelu(&'a [f32]),
+}
+
+impl Out<'_> {
+    /// The epilogue of one output element (the scalar twin of the SIMD tiles').
+    #[inline(always)]
+    fn apply(&self, c: &mut f32, j: usize, acc: f32) {
+        *c = match self {
+            Out::Add => *c + acc,
+            Out::Set => acc,
+            Out::Bias(b) => b[j] + acc,
+            Out::BiasRelu(b) => (b[j] + acc).max(0.0),
+        };
+    }
+}
+
 /// A strided row-major matrix operand: element `(r, c)` at `data[r * ld + c]`.
 #[derive(Clone, Copy, Debug)]
 pub struct Mat<'a> {
@@ -54,19 +81,42 @@ impl Gemm {
     /// When an operand is shorter than its shape and stride need (a caller bug).
     #[allow(clippy::too_many_arguments)] // BLAS-style: three sizes, three operands, a stride
     pub fn nn(&self, m: usize, n: usize, k: usize, a: Mat<'_>, b: Mat<'_>, c: &mut [f32], ldc: usize) {
+        self.nn_out(m, n, k, a, b, Out::Add, c, ldc);
+    }
+
+    /// `C[m×n] (op)= A[m×k] · B[k×n]` with the epilogue `out`.
+    ///
+    /// # Panics
+    /// When an operand is shorter than its shape and stride need, or a bias shorter than `n`
+    /// (a caller bug).
+    #[allow(clippy::too_many_arguments)] // BLAS-style: three sizes, three operands, a stride
+    pub fn nn_out(
+        &self,
+        m: usize,
+        n: usize,
+        k: usize,
+        a: Mat<'_>,
+        b: Mat<'_>,
+        out: Out<'_>,
+        c: &mut [f32],
+        ldc: usize,
+    ) {
+        if let Out::Bias(bias) | Out::BiasRelu(bias) = out {
+            assert!(bias.len() >= n, "gemm nn bias too short");
+        }
         assert!(
             a.data.len() >= needed(m, k, a.ld) && b.data.len() >= needed(k, n, b.ld) && c.len() >= needed(m, n, ldc),
             "gemm nn operands too short"
         );
         assert!(a.ld >= k && b.ld >= n && ldc >= n, "gemm nn strides");
-        if m == 0 || n == 0 || k == 0 {
+        if m == 0 || n == 0 {
             return;
         }
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is set only when `Kernels::best()` found AVX2+FMA on this CPU; the
             // asserts above bound every index the kernel reads or writes.
-            unsafe { avx2::nn(m, n, k, a, b, c, ldc) };
+            unsafe { avx2::nn(m, n, k, a, b, out, c, ldc) };
             return;
         }
         for r in 0..m {
@@ -75,7 +125,7 @@ impl Gemm {
                 for kk in 0..k {
                     acc += a.data[r * a.ld + kk] * b.data[kk * b.ld + j];
                 }
-                c[r * ldc + j] += acc;
+                out.apply(&mut c[r * ldc + j], j, acc);
             }
         }
     }
@@ -114,20 +164,38 @@ impl Gemm {
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
-    use super::Mat;
+    use super::{Mat, Out};
     use core::arch::x86_64::*;
 
     /// Rows of `B` streamed per pass of [`tn`] (keeps a 16-column strip in L1).
     const TN_ROWS: usize = 128;
 
-    /// One tile of `C += A·B`: `R` rows (1..=6) × `V` vectors of 8 columns at `j`.
+    /// The epilogue of a tile's vector `x` into `p`, bias vector at `bias` (see [`Out`]).
     #[inline(always)]
+    unsafe fn store(out: Out<'_>, p: *mut f32, bias: *const f32, x: __m256) {
+        // SAFETY: `p` and (for the bias forms) `bias` address 8 valid elements (caller).
+        unsafe {
+            let v = match out {
+                Out::Add => _mm256_add_ps(_mm256_loadu_ps(p), x),
+                Out::Set => x,
+                Out::Bias(_) => _mm256_add_ps(_mm256_loadu_ps(bias), x),
+                Out::BiasRelu(_) => _mm256_max_ps(_mm256_add_ps(_mm256_loadu_ps(bias), x), _mm256_setzero_ps()),
+            };
+            _mm256_storeu_ps(p, v);
+        }
+    }
+
+    /// One tile of `C (op)= A·B`: `R` rows (1..=6) × `V` vectors of 8 columns at column `j`.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     unsafe fn nn_tile<const R: usize, const V: usize>(
         k: usize,
         a: *const f32,
         lda: usize,
         b: *const f32,
         ldb: usize,
+        out: Out<'_>,
+        j: usize,
         c: *mut f32,
         ldc: usize,
     ) {
@@ -147,10 +215,13 @@ mod avx2 {
                     }
                 }
             }
+            let bias = match out {
+                Out::Bias(b) | Out::BiasRelu(b) => b.as_ptr().add(j),
+                _ => core::ptr::null(),
+            };
             for (i, row) in acc.iter().enumerate() {
                 for (v, x) in row.iter().enumerate() {
-                    let p = c.add(i * ldc + 8 * v);
-                    _mm256_storeu_ps(p, _mm256_add_ps(_mm256_loadu_ps(p), *x));
+                    store(out, c.add(i * ldc + 8 * v), bias.wrapping_add(8 * v), *x);
                 }
             }
         }
@@ -158,7 +229,16 @@ mod avx2 {
 
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn nn_rows<const R: usize>(n: usize, k: usize, a: Mat<'_>, b: Mat<'_>, c: *mut f32, ldc: usize, r: usize) {
+    unsafe fn nn_rows<const R: usize>(
+        n: usize,
+        k: usize,
+        a: Mat<'_>,
+        b: Mat<'_>,
+        out: Out<'_>,
+        c: *mut f32,
+        ldc: usize,
+        r: usize,
+    ) {
         // SAFETY: rows r..r+R exist (caller), columns stay below n; the bounds were checked by
         // `Gemm::nn`.
         unsafe {
@@ -166,11 +246,11 @@ mod avx2 {
             let cp = c.add(r * ldc);
             let mut j = 0;
             while j + 16 <= n {
-                nn_tile::<R, 2>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, cp.add(j), ldc);
+                nn_tile::<R, 2>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, out, j, cp.add(j), ldc);
                 j += 16;
             }
             if j + 8 <= n {
-                nn_tile::<R, 1>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, cp.add(j), ldc);
+                nn_tile::<R, 1>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, out, j, cp.add(j), ldc);
                 j += 8;
             }
             for jj in j..n {
@@ -179,7 +259,7 @@ mod avx2 {
                     for kk in 0..k {
                         acc += *ap.add(i * a.ld + kk) * *b.data.as_ptr().add(kk * b.ld + jj);
                     }
-                    *cp.add(i * ldc + jj) += acc;
+                    out.apply(&mut *cp.add(i * ldc + jj), jj, acc);
                 }
             }
         }
@@ -187,17 +267,26 @@ mod avx2 {
 
     #[target_feature(enable = "avx2,fma")]
     #[allow(clippy::too_many_arguments)]
-    pub(super) unsafe fn nn(m: usize, n: usize, k: usize, a: Mat<'_>, b: Mat<'_>, c: &mut [f32], ldc: usize) {
+    pub(super) unsafe fn nn(
+        m: usize,
+        n: usize,
+        k: usize,
+        a: Mat<'_>,
+        b: Mat<'_>,
+        out: Out<'_>,
+        c: &mut [f32],
+        ldc: usize,
+    ) {
         let cp = c.as_mut_ptr();
         let mut r = 0;
-        // SAFETY: bounds checked by `Gemm::nn`; AVX2+FMA enabled by the caller's token.
+        // SAFETY: bounds checked by `Gemm::nn_out`; AVX2+FMA enabled by the caller's token.
         unsafe {
             while r + 6 <= m {
-                nn_rows::<6>(n, k, a, b, cp, ldc, r);
+                nn_rows::<6>(n, k, a, b, out, cp, ldc, r);
                 r += 6;
             }
             while r < m {
-                nn_rows::<1>(n, k, a, b, cp, ldc, r);
+                nn_rows::<1>(n, k, a, b, out, cp, ldc, r);
                 r += 1;
             }
         }
@@ -339,6 +428,29 @@ mod tests {
                 changed |= c1[i] != c0[i];
             }
             assert!(changed);
+            // The other epilogues.
+            let bias = rand(n, &mut seed);
+            for out in [Out::Set, Out::Bias(&bias), Out::BiasRelu(&bias)] {
+                let (mut c1, mut c2) = (c0.clone(), c0.clone());
+                simd.nn_out(m, n, k, Mat { data: &a, ld: lda }, Mat { data: &b, ld: ldb }, out, &mut c1, ldc);
+                Gemm::scalar().nn_out(m, n, k, Mat { data: &a, ld: lda }, Mat { data: &b, ld: ldb }, out, &mut c2, ldc);
+                let mut zeros = 0;
+                for r in 0..m {
+                    for j in 0..n {
+                        let i = r * ldc + j;
+                        assert!((c1[i] - c2[i]).abs() <= 1e-5 * (1.0 + k as f32), "{out:?} {m}x{n}x{k} at {i}");
+                        zeros += usize::from(c1[i] == 0.0);
+                    }
+                    // Padding between rows is never written.
+                    assert_eq!(
+                        c1[r * ldc + n..(r * ldc + ldc).min(c1.len())],
+                        c0[r * ldc + n..(r * ldc + ldc).min(c0.len())]
+                    );
+                }
+                if matches!(out, Out::BiasRelu(_)) && m * n > 8 {
+                    assert!(zeros > 0 && zeros < m * n, "ReLU cut {zeros} of {}", m * n);
+                }
+            }
             // tn: A is m × k (ka = k outputs), B is m × n.
             let bt = rand(m * ldb, &mut seed);
             let c0 = rand(k * ldc, &mut seed);

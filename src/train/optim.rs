@@ -1,6 +1,8 @@
 //! The optimiser of MODEL.md section 7: Adam, the step-decay learning-rate schedule and global
 //! gradient-norm clipping, over flat f32 parameter vectors.
 
+use crate::sim::par::{split, Disjoint};
+use crate::sim::{Executor, Serial};
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -54,6 +56,12 @@ impl Adam {
 
     /// One update `θ -= lr · m̂ / (sqrt(v̂) + eps)`.
     pub fn step(&mut self, theta: &mut [f32], grad: &[f32], lr: f64) {
+        self.step_on(&Serial, theta, grad, lr);
+    }
+
+    /// [`Adam::step`] with the parameters split between `exec`'s threads (the same result: each
+    /// parameter's update is independent).
+    pub fn step_on(&mut self, exec: &dyn Executor, theta: &mut [f32], grad: &[f32], lr: f64) {
         self.t += 1;
         let (b1, b2) = (self.beta1 as f32, self.beta2 as f32);
         let bc1 = 1.0 - libm::pow(self.beta1, self.t as f64);
@@ -61,11 +69,20 @@ impl Adam {
         let step = (lr / bc1) as f32;
         let inv_sqrt_bc2 = (1.0 / libm::sqrt(bc2)) as f32;
         let eps = self.eps as f32;
-        for (((p, &g), m), v) in theta.iter_mut().zip(grad).zip(&mut self.m).zip(&mut self.v) {
-            *m = b1 * *m + (1.0 - b1) * g;
-            *v = b2 * *v + (1.0 - b2) * g * g;
-            *p -= step * *m / (libm::sqrtf(*v) * inv_sqrt_bc2 + eps);
-        }
+        let n = theta.len().min(grad.len()).min(self.m.len()).min(self.v.len());
+        let (th, ms, vs) = (Disjoint::new(theta), Disjoint::new(&mut self.m), Disjoint::new(&mut self.v));
+        let parts = 4 * exec.parallelism();
+        exec.run(parts, &|t| {
+            let r = split(n, parts, t);
+            // SAFETY: the ranges of different tasks are disjoint.
+            let (th, ms, vs) = unsafe { (th.range(r.clone()), ms.range(r.clone()), vs.range(r.clone())) };
+            for (((p, &g), m), v) in th.iter_mut().zip(&grad[r]).zip(ms).zip(vs) {
+                *m = b1 * *m + (1.0 - b1) * g;
+                *v = b2 * *v + (1.0 - b2) * g * g;
+                // std's square root: libm's is legacy-SSE inline assembly, slow next to AVX code.
+                *p -= step * *m / (v.sqrt() * inv_sqrt_bc2 + eps);
+            }
+        });
     }
 }
 

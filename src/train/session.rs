@@ -308,7 +308,7 @@ impl Trainer {
                 break;
             }
             let lr = self.cfg.learning_rate_at(self.optimiser_steps);
-            self.adam.step(&mut self.theta, &grad, lr);
+            self.adam.step_on(&self.pool, &mut self.theta, &grad, lr);
             self.optimiser_steps += 1;
             report.steps.push(sr);
             // Detached hand-over: the prediction becomes the next step's state.
