@@ -123,3 +123,71 @@ fn train_export_runs_in_the_runtime() {
     let (pa, pb) = (again.params(), t.params());
     assert_eq!(pa.mlps(), pb.mlps());
 }
+
+/// The supervised warm start: the optimum the trainer pulls toward beats coasting on the training
+/// objective, the pull's gradient is its value's derivative, and a run with the pull on records it
+/// and learns differently from one without.
+#[test]
+fn train_supervised_pull_toward_the_optimum() {
+    use hood::physics::Objective;
+    use hood::solve::{ImplicitStep, LbfgsParams, StepState};
+    use hood::train::{LossBody, StepLoss};
+    let cfg = tiny_config();
+    let d = data(&cfg);
+    let scene = &d.scenes[0];
+    let g = &scene.garment;
+    let n = g.n_vertices();
+    let pos = scene.initial_garment(1).unwrap();
+    let prev = scene.initial_garment(0).unwrap();
+    let velocity: Vec<[f32; 3]> = pos.iter().zip(&prev).map(|(a, b)| [0, 1, 2].map(|c| a[c] - b[c])).collect();
+    let coast: Vec<[f32; 3]> = pos.iter().zip(&velocity).map(|(a, b)| [0, 1, 2].map(|c| a[c] + b[c])).collect();
+    let mut targets = vec![[0.0f32; 3]; n];
+    scene.skinned_garment(2, &mut targets).unwrap();
+    let dt = 1.0 / 30.0;
+    let objective = Objective::training(5e3);
+    let body = LossBody { mesh: &scene.body, current: scene.body_frame(1), next: scene.body_frame(2) };
+    let mut loss = StepLoss::new(g, &scene.body).unwrap();
+    let e_coast = loss.eval(&objective, &body, &pos, &velocity, dt, &coast).unwrap().0.total();
+    let state = StepState { pos: &pos, velocity: &velocity, dt, pinned: g.pinned(), targets: &targets };
+    let mut x_star = vec![[0.0f32; 3]; n];
+    let params = LbfgsParams { max_iterations: 30, ..LbfgsParams::default() };
+    loss.optimum(&mut ImplicitStep::new(n, 10), &objective, &state, &params, &mut x_star).unwrap();
+    let e_star = loss.eval(&objective, &body, &pos, &velocity, dt, &x_star).unwrap().0.total();
+    assert!(e_star < e_coast, "optimum {e_star} against coasting {e_coast}");
+    // The pull at the optimum itself is zero; elsewhere its gradient is its derivative.
+    assert_eq!(loss.add_pull(&x_star, &x_star, 1.0, dt), 0.0);
+    loss.eval(&objective, &body, &pos, &velocity, dt, &coast).unwrap();
+    let before: Vec<[f32; 3]> = loss.grad().to_vec();
+    let value = |x: &[[f32; 3]]| {
+        let mut l = StepLoss::new(g, &scene.body).unwrap();
+        l.eval(&objective, &body, &pos, &velocity, dt, x).unwrap();
+        f64::from(l.add_pull(x, &x_star, 0.5, dt))
+    };
+    loss.add_pull(&coast, &x_star, 0.5, dt);
+    let i = (0..n).max_by(|&a, &b| {
+        let d = |i: usize| (0..3).map(|c| (coast[i][c] - x_star[i][c]).abs()).sum::<f32>();
+        d(a).total_cmp(&d(b))
+    });
+    let i = i.unwrap();
+    for c in 0..3 {
+        let h = 1e-3f32;
+        let (mut xp, mut xm) = (coast.clone(), coast.clone());
+        xp[i][c] += h;
+        xm[i][c] -= h;
+        let fd = (value(&xp) - value(&xm)) / (2.0 * f64::from(h));
+        let an = f64::from(loss.grad()[i][c] - before[i][c]);
+        assert!((fd - an).abs() <= 1e-2 * an.abs().max(1e-3), "vertex {i} axis {c}: fd {fd} analytic {an}");
+    }
+    // A run with the pull records it and ends with other weights than one without.
+    let on = TrainConfig { supervised: (1.0, 100, 10), ..cfg.clone() };
+    let (mut a, mut b) = (Trainer::new(on.clone(), data(&on)).unwrap(), Trainer::new(cfg.clone(), data(&cfg)).unwrap());
+    let mut pulled = 0;
+    for _ in 0..4 {
+        let r = a.iteration().unwrap();
+        pulled += r.steps.iter().filter(|s| s.supervised > 0.0 && s.supervised.is_finite()).count();
+        b.iteration().unwrap();
+    }
+    assert!(pulled > 0, "no step recorded a pull");
+    assert_ne!(a.params().mlps(), b.params().mlps());
+    assert_eq!(TrainConfig::from_json(&on.to_json()).unwrap(), on);
+}

@@ -95,6 +95,10 @@ pub struct TrainConfig {
     pub validate_every: u64,
     /// Validation rollouts: number of fixed samples and frames each.
     pub validation: (usize, usize),
+    /// Supervised pull toward the step's optimum (a warm start; off by default): its weight
+    /// (see [`crate::train::StepLoss::add_pull`]), the iteration it stops at, and the L-BFGS
+    /// iterations of the f32 implicit step that finds the optimum.
+    pub supervised: (f64, u64, usize),
     /// Worker threads for the network passes.
     pub threads: usize,
     /// Seed of the model initialisation and of the sample stream.
@@ -138,6 +142,7 @@ impl Default for TrainConfig {
             checkpoint_every: 250,
             validate_every: 500,
             validation: (4, 30),
+            supervised: (0.0, 0, 30),
             threads: 2,
             seed: 1,
         }
@@ -234,6 +239,15 @@ impl TrainConfig {
                         .ok_or_else(|| bad(key, "expected [samples, frames]"))?;
                     c.validation = (a[0].max(0.0) as usize, a[1].max(1.0) as usize);
                 }
+                "supervised" => {
+                    let a = v
+                        .as_f64_vec()
+                        .filter(|a| a.len() == 3 && a.iter().all(|x| x.is_finite() && *x >= 0.0))
+                        .ok_or_else(|| {
+                            bad(key, "expected [weight, until_iteration, lbfgs_iterations], non-negative")
+                        })?;
+                    c.supervised = (a[0], a[1] as u64, (a[2] as usize).max(1));
+                }
                 "threads" => c.threads = uint(v, key)?.max(1) as usize,
                 "seed" => c.seed = uint(v, key)?,
                 _ => return Err(bad(key, "unknown key")),
@@ -277,7 +291,7 @@ impl TrainConfig {
              \"clip\": {},\n  \"rollout_max\": {}, \"rollout_every\": {}, \"noise\": {:e}, \
              \"collision_weight\": [{:e}, {:e}], \"collision_ramp\": {},\n  \"decoder_init_scale\": {}, \"random_materials\": {}, \
              \"random_centres\": {}, \"checkpoint_every\": {}, \"validate_every\": {}, \"validation\": [{}, {}], \
-             \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
+             \"supervised\": [{:e}, {}, {}], \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
             self.latent,
             self.hidden_layers,
             self.levels,
@@ -300,6 +314,9 @@ impl TrainConfig {
             self.validate_every,
             self.validation.0,
             self.validation.1,
+            self.supervised.0,
+            self.supervised.1,
+            self.supervised.2,
             self.threads,
             self.seed,
             scenes.join(",\n    ")
@@ -321,6 +338,15 @@ impl TrainConfig {
         }
         let t = (iteration as f64 / self.collision_ramp as f64).min(1.0);
         libm::exp(libm::log(a) + t * (libm::log(b) - libm::log(a)))
+    }
+
+    /// Weight of the supervised pull at `iteration` (0 once it has ended, or when off).
+    pub fn supervised_weight_at(&self, iteration: u64) -> f64 {
+        if iteration < self.supervised.1 {
+            self.supervised.0
+        } else {
+            0.0
+        }
     }
 
     /// Learning rate at optimiser step `s`: `base · (0.5^floor(s / halving) + 0.01)`.

@@ -222,17 +222,44 @@ struct Ctx<'a> {
     exec: &'a dyn Executor,
     theta: &'a [f32],
     wt: &'a [f32],
+    /// The backward's parameter gradient (each product's parts' shares are added into it right
+    /// after the product, while they are still in cache).
+    grad: Option<&'a Shared<'a, f32>>,
 }
 
-/// The first layer's input: column parts, or an edge MLP's split first layer
-/// (`[x_target, x_source, edge latent]`, node parts already projected).
-#[derive(Clone, Copy)]
-enum First<'a> {
-    Parts(&'a [&'a [f32]]),
-    Edge { lat: &'a [f32], pt: &'a [f32], ps: &'a [f32], target: &'a [u32], source: &'a [u32] },
+/// The parameter range an MLP's gradients fall in.
+fn span_of(m: &MlpAt) -> Range<usize> {
+    let (mut lo, mut hi) = (usize::MAX, 0);
+    let mut cover = |a: usize, len: usize| {
+        lo = lo.min(a);
+        hi = hi.max(a + len);
+    };
+    for l in &m.layers {
+        cover(l.w, l.inp * l.out);
+        cover(l.b, l.out);
+    }
+    if let Some((g, b)) = m.norm {
+        cover(g, m.output());
+        cover(b, m.output());
+    }
+    lo.min(hi)..hi
 }
 
 impl Ctx<'_> {
+    /// Adds the partial gradients over `span` of the parts that ran on `rows` rows into the
+    /// gradient, in part order (the same sum whatever the thread count).
+    fn reduce(&self, parts: &[PartBufs], rows: usize, span: Range<usize>) {
+        let Some(gs) = self.grad else { return };
+        self.parts(span.len(), &|_, r| {
+            // SAFETY: disjoint ranges of the gradient.
+            let g = unsafe { gs.range(span.start + r.start..span.start + r.end) };
+            // Parts with no rows did not run: their scratch holds an earlier product's share.
+            for (_, pb) in parts.iter().enumerate().filter(|&(p, _)| !split(rows, p).is_empty()) {
+                g.iter_mut().zip(&pb.grad[r.clone()]).for_each(|(a, b)| *a += *b);
+            }
+        });
+    }
+
     /// Calls `f(p, range)` for every non-empty range `p` of `0..rows`.
     fn parts(&self, rows: usize, f: &(dyn Fn(usize, Range<usize>) + Sync)) {
         if rows == 0 {
@@ -405,6 +432,8 @@ impl Ctx<'_> {
             *s = d.as_deref_mut().map(Shared::new);
         }
         let d0s = d0_out.map(Shared::new);
+        let span = span_of(m);
+        let base = span.start;
         let pbs = Shared::new(parts);
         let (g, theta) = (self.g, self.theta);
         self.parts(rows, &|p, r| {
@@ -412,22 +441,24 @@ impl Ctx<'_> {
             // SAFETY: part p owns scratch p.
             let pb = unsafe { &mut pbs.range(p..p + 1)[0] };
             let PartBufs { d, dn, grad: pg, .. } = pb;
-            d.clear();
-            d.extend_from_slice(&dout[r.start * nout..r.end * nout]);
+            // This part's share of the MLP's parameter gradient, at offsets from `base`.
+            fit(pg, span.len());
+            let dout = &dout[r.start * nout..r.end * nout];
             if let Some((gm, _)) = m.norm {
+                size(d, dout.len());
                 let nf = nout as f32;
                 // Gamma and beta are adjacent in the layout.
-                let (dg, db) = pg[gm..gm + 2 * nout].split_at_mut(nout);
+                let (dg, db) = pg[gm - base..gm - base + 2 * nout].split_at_mut(nout);
                 let gamma = &theta[gm..gm + nout];
                 let xhs = &tape.xhat[r.start * nout..r.end * nout];
-                for ((dr, xh), iv) in d.chunks_exact_mut(nout).zip(xhs.chunks_exact(nout)).zip(&tape.inv_std[r.clone()])
-                {
-                    for ((((dv, &x), g), b), &gv) in
-                        dr.iter_mut().zip(xh).zip(dg.iter_mut()).zip(db.iter_mut()).zip(gamma)
+                let rows_in = dout.chunks_exact(nout).zip(xhs.chunks_exact(nout)).zip(&tape.inv_std[r.clone()]);
+                for (dr, ((di, xh), iv)) in d.chunks_exact_mut(nout).zip(rows_in) {
+                    for (((((dv, &dy), &x), g), b), &gv) in
+                        dr.iter_mut().zip(di).zip(xh).zip(dg.iter_mut()).zip(db.iter_mut()).zip(gamma)
                     {
-                        *g += *dv * x;
-                        *b += *dv;
-                        *dv *= gv;
+                        *g += dy * x;
+                        *b += dy;
+                        *dv = dy * gv;
                     }
                     // Partial sums, as in the forward (serial sums kept this loop scalar).
                     let (m1, m2) = (lane_sum(dr, |v| v) / nf, lane_dot(dr, xh) / nf);
@@ -435,13 +466,17 @@ impl Ctx<'_> {
                         *dv = iv * (*dv - m1 - x * m2);
                     }
                 }
+            } else {
+                d.clear();
+                d.extend_from_slice(dout);
             }
             for li in (1..nl).rev() {
                 let l = &m.layers[li];
                 let off = hidden_at(m, rows, li - 1);
                 let x = &tape.hidden[off + r.start * l.inp..off + r.end * l.inp];
-                colsum(d, l.out, &mut pg[l.b..l.b + l.out]);
-                g.tn(nr, l.out, l.inp, Mat { data: d, ld: l.out }, Mat { data: x, ld: l.inp }, &mut pg[l.w..], l.inp);
+                colsum(d, l.out, &mut pg[l.b - base..l.b - base + l.out]);
+                let (dy, xm) = (Mat { data: d, ld: l.out }, Mat { data: x, ld: l.inp });
+                g.tn(nr, l.out, l.inp, dy, xm, &mut pg[l.w - base..], l.inp);
                 size(dn, nr * l.inp);
                 let w = Mat { data: &theta[l.w..], ld: l.inp };
                 g.nn_out(nr, l.inp, l.out, Mat { data: d, ld: l.out }, w, Out::Set, dn, l.inp);
@@ -451,7 +486,7 @@ impl Ctx<'_> {
                 }
                 core::mem::swap(d, dn);
             }
-            colsum(d, l0.out, &mut pg[l0.b..l0.b + l0.out]);
+            colsum(d, l0.out, &mut pg[l0.b - base..l0.b - base + l0.out]);
             let mut col = col0;
             for (i, x) in inputs.iter().enumerate() {
                 let k = ks[i];
@@ -462,7 +497,7 @@ impl Ctx<'_> {
                     k,
                     Mat { data: d, ld: l0.out },
                     Mat { data: xr, ld: k },
-                    &mut pg[l0.w + col..],
+                    &mut pg[l0.w - base + col..],
                     l0.inp,
                 );
                 if let Some(dx) = &din[i] {
@@ -485,6 +520,7 @@ impl Ctx<'_> {
                 unsafe { d0s.range(r.start * l0.out..r.end * l0.out) }.copy_from_slice(d);
             }
         });
+        self.reduce(parts, rows, span);
     }
 
     /// Backward of [`Ctx::project`]: `dW_part += dyᵀ · x`, and `dx += dy · W_part` when asked.
@@ -502,20 +538,23 @@ impl Ctx<'_> {
         let rows = x.len() / k;
         let n = l.out;
         let dxs = dx.map(Shared::new);
+        let span = l.w..l.w + l.inp * l.out;
         let pbs = Shared::new(parts);
         let (g, theta) = (self.g, self.theta);
         self.parts(rows, &|p, r| {
             // SAFETY: part p owns scratch p and rows `r` of `dx`.
             let pg = unsafe { &mut pbs.range(p..p + 1)[0].grad };
+            fit(pg, span.len());
             let dyr = &dy[r.start * n..r.end * n];
             let a = Mat { data: dyr, ld: n };
-            g.tn(r.len(), n, k, a, Mat { data: &x[r.start * k..], ld: k }, &mut pg[l.w + col..], l.inp);
+            g.tn(r.len(), n, k, a, Mat { data: &x[r.start * k..], ld: k }, &mut pg[col..], l.inp);
             if let Some(dxs) = &dxs {
                 // SAFETY: as above.
                 let dxr = unsafe { dxs.range(r.start * k..r.end * k) };
                 g.nn(r.len(), k, n, a, Mat { data: &theta[l.w + col..], ld: l.inp }, dxr, k);
             }
         });
+        self.reduce(parts, rows, span);
     }
 
     /// `dst[idx[e]] += src[e]` (rows `w` wide). Each part owns a range of destination rows and
@@ -560,13 +599,13 @@ impl Ctx<'_> {
         });
     }
 
-    /// `dst += src`, row-split.
-    fn add(&self, src: &[f32], dst: &mut [f32]) {
+    /// `dst = a + b`, row-split.
+    fn sum(&self, a: &[f32], b: &[f32], dst: &mut [f32]) {
         let ds = Shared::new(dst);
-        self.parts(src.len(), &|_, r| {
+        self.parts(a.len(), &|_, r| {
             // SAFETY: disjoint ranges.
             let d = unsafe { ds.range(r.clone()) };
-            d.iter_mut().zip(&src[r]).for_each(|(a, b)| *a += *b);
+            d.iter_mut().zip(&a[r.clone()]).zip(&b[r]).for_each(|((o, x), y)| *o = *x + *y);
         });
     }
 }
@@ -593,7 +632,7 @@ fn edge_fwd(
     m: &MlpAt,
     h: usize,
     es: EdgeSet<'_>,
-    lat: &mut [f32],
+    lat: &mut Vec<f32>,
     agg: &mut [f32],
     et: &mut EdgeTape,
     pt: &mut Vec<f32>,
@@ -608,12 +647,16 @@ fn edge_fwd(
     c.project(&l0, 0, h, es.xt, pt);
     size(ps, es.xs.len() / h * w);
     c.project(&l0, h, h, es.xs, ps);
-    et.lat_in.clear();
-    et.lat_in.extend_from_slice(lat);
+    // The tape keeps the latents this pass reads by taking their buffer (no copy); the pass
+    // writes the updated latents (`+ msg` on the first `ne` rows) into the other.
+    core::mem::swap(&mut et.lat_in, lat);
+    size(lat, et.lat_in.len());
     size(msg, ne * h);
-    let first = First::Edge { lat, pt, ps, target: es.target, source: es.source };
+    let lat_in = &et.lat_in[..ne * h];
+    let first = First::Edge { lat: lat_in, pt, ps, target: es.target, source: es.source };
     c.mlp_fwd(m, first, ne, &mut et.mlp, msg, false, parts);
-    c.add(msg, lat);
+    c.sum(lat_in, msg, &mut lat[..ne * h]);
+    lat[ne * h..].copy_from_slice(&et.lat_in[ne * h..]);
     c.scatter_add(msg, es.target, h, agg);
 }
 
@@ -638,7 +681,7 @@ fn edge_bwd(
     let w = l0.out;
     let ne = es.target.len();
     size(d0, ne * w);
-    c.mlp_bwd(m, &[&et.lat_in], &et.mlp, dm, &mut [Some(dlat)], Some(d0), parts);
+    c.mlp_bwd(m, &[&et.lat_in[..ne * h]], &et.mlp, dm, &mut [Some(dlat)], Some(d0), parts);
     fit(dpt, es.xt.len() / h * w);
     c.scatter_add(d0, es.target, w, dpt);
     fit(dps, es.xs.len() / h * w);
@@ -714,7 +757,7 @@ impl Network {
             });
         }
         let FastWorkspace { gemm, wt, tape: t, tmp, parts, decoded, new_pos, .. } = ws;
-        let c = Ctx { g: *gemm, exec, theta, wt };
+        let c = Ctx { g: *gemm, exec, theta, wt, grad: None };
         let h = self.spec.latent;
         let (v, na) = (step.n_garment, step.n_active);
         let rows = v + na;
@@ -810,12 +853,12 @@ impl Network {
                 // body -> garment: per edge, then into the garment rows.
                 fit(&mut tmp.local, n * h);
                 let es = EdgeSet { xt: xg, xs: xb, target: &tmp.iota[..n], source: &step.body_active[..n] };
-                let lat = &mut tmp.b2g[..n * h];
+                let lat = &mut tmp.b2g;
                 edge_fwd(&c, m, h, es, lat, &mut tmp.local, tb, &mut tmp.pt, &mut tmp.ps, &mut tmp.msg, parts);
                 c.scatter_add(&tmp.local, &step.body_garment[..n], h, slot);
                 // garment -> body: summed per active body node.
                 let es = EdgeSet { xt: xb, xs: xg, target: &step.body_active[..n], source: &tmp.iota[..n] };
-                let (lat, agg) = (&mut tmp.g2b[..n * h], &mut slot[v * h..rows * h]);
+                let (lat, agg) = (&mut tmp.g2b, &mut slot[v * h..rows * h]);
                 edge_fwd(&c, m, h, es, lat, agg, tg, &mut tmp.pt, &mut tmp.ps, &mut tmp.msg, parts);
             }
             let mut inputs: [&[f32]; MAX_INPUTS] = [&[]; MAX_INPUTS];
@@ -871,10 +914,8 @@ impl Network {
             return Err(Error::SizeMismatch { what: "position gradient", expected: ws.new_pos.len(), got: dpos.len() });
         }
         let FastWorkspace { gemm, wt, tape, tmp, parts, .. } = ws;
-        let c = Ctx { g: *gemm, exec, theta, wt };
-        for pb in parts.iter_mut() {
-            fit(&mut pb.grad, lay.len);
-        }
+        let gs = Shared::new(grad);
+        let c = Ctx { g: *gemm, exec, theta, wt, grad: Some(&gs) };
         let h = self.spec.latent;
         let rows = v + na;
         let nb = step.prefix[0];
@@ -990,18 +1031,7 @@ impl Network {
         }
         fit(&mut tmp.dnf, tape.node_in.len());
         c.mlp_bwd(&lay.node_encoder, &[&tape.node_in], &tape.node_enc, &tmp.dx, &mut [Some(&mut tmp.dnf)], None, parts);
-        // The partial gradients, in part order, then the embeddings.
-        {
-            let gs = Shared::new(grad);
-            let pb: &[PartBufs] = parts;
-            c.parts(lay.len, &|_, r| {
-                // SAFETY: disjoint ranges.
-                let g = unsafe { gs.range(r.clone()) };
-                for p in pb {
-                    g.iter_mut().zip(&p.grad[r.clone()]).for_each(|(a, b)| *a += *b);
-                }
-            });
-        }
+        // The embeddings last (their columns of the node features).
         let nstd = &stats.node.1;
         lay.embedding_backward(&tmp.dnf, nstd, &step.node_type, &step.node_level, grad);
         Ok(())

@@ -6,6 +6,7 @@ use crate::body::{BodyFrame, BodyMesh, Nearest};
 use crate::error::Result;
 use crate::mesh::Garment;
 use crate::physics::{Cloth, CollisionInput, FaceFrame, FrictionInput, Objective, StepInputs, Terms};
+use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, StepBody, StepState};
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -91,5 +92,55 @@ impl StepLoss {
         };
         let terms = objective.eval(&self.cloth, &inputs, x, Some(&mut self.grad))?;
         Ok((terms, &self.grad))
+    }
+
+    /// The step's optimum `x*` (the implicit step of the physics issue, L-BFGS in f32 under
+    /// `params` from the coasting guess) into `x_star`, under the same contact rules as
+    /// [`StepLoss::eval`], whose body frames it reuses: call `eval` first, for the same step.
+    ///
+    /// # Errors
+    /// Errors of [`ImplicitStep::step`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn optimum(
+        &self,
+        solver: &mut ImplicitStep<f32>,
+        objective: &Objective,
+        state: &StepState<'_, f32>,
+        params: &LbfgsParams,
+        x_star: &mut [[f32; 3]],
+    ) -> Result<LbfgsReport> {
+        let current = FaceFrame { centroids: self.current.centroids(), normals: self.current.face_normals() };
+        let next = FaceFrame { centroids: self.next.centroids(), normals: self.next.face_normals() };
+        // The training objective's friction reads (current, next): the previous frame is unused.
+        let body = StepBody {
+            prev: current,
+            current,
+            next,
+            query_prev: &self.current,
+            query_current: &self.current,
+            query_next: &self.next,
+        };
+        solver.step(&self.cloth, objective, state, Some(&body), params, x_star)
+    }
+
+    /// Adds the supervised pull toward the optimum, `weight · Σ m_i |x_i − x*_i|² / (2 dt²)`
+    /// (the inertia term's metric: weight 1 doubles the objective's curvature in the mass
+    /// norm), to the gradient of the last [`StepLoss::eval`]; returns the pull's value.
+    pub fn add_pull(&mut self, x: &[[f32; 3]], x_star: &[[f32; 3]], weight: f32, dt: f32) -> f32 {
+        let k = weight / (dt * dt);
+        let mut value = 0.0f64;
+        for (((g, p), q), &m) in self.grad.iter_mut().zip(x).zip(x_star).zip(self.cloth.mass()) {
+            for c in 0..3 {
+                let d = p[c] - q[c];
+                g[c] += k * m * d;
+                value += 0.5 * f64::from(k * m * d * d);
+            }
+        }
+        value as f32
+    }
+
+    /// The gradient of the last [`StepLoss::eval`] (with any pull added).
+    pub fn grad(&self) -> &[[f32; 3]] {
+        &self.grad
     }
 }

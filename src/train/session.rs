@@ -12,6 +12,7 @@ use super::loss::{LossBody, StepLoss};
 use super::network::{Network, Stats};
 use super::optim::{clip_global_norm, Adam};
 use crate::error::{Error, Result};
+use crate::eval::converged_solver;
 use crate::features::{DT, DT_STARTUP, EDGE_WIDTH, NODE_WIDTH};
 use crate::hierarchy::{CentreChoice, Hierarchy, HierarchyConfig};
 use crate::io::safetensors::{self, SafeTensors, TensorData};
@@ -20,6 +21,7 @@ use crate::normaliser::Normaliser;
 use crate::physics::{score_rollout, Objective, RolloutScore, Terms};
 use crate::rng::Rng;
 use crate::sim::{Executor, Graph, ThreadPool};
+use crate::solve::{ImplicitStep, LbfgsParams, StepState};
 use std::format;
 use std::path::Path;
 use std::string::{String, ToString};
@@ -36,6 +38,8 @@ pub struct StepReport {
     pub terms: Terms<f32>,
     /// Their sum.
     pub total: f32,
+    /// The supervised pull toward the step's optimum (0 when off).
+    pub supervised: f32,
     /// Gradient norm before clipping.
     pub grad_norm: f64,
     /// Whether this was the start-up step (static body, dt = 1/3 s).
@@ -250,6 +254,7 @@ impl Trainer {
         let mut loss = StepLoss::new(garment, &scene.body)?;
         let mut skinned = [vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]];
         let mut grad = vec![0.0f32; self.theta.len()];
+        let (mut solver, mut x_star) = (None, vec![[0.0f32; 3]; n]);
         let spec = self.net.spec.clone();
         for k in 0..steps {
             let (fp, fc, fnx, dt) = frames_of(sample.start, k);
@@ -292,9 +297,26 @@ impl Trainer {
             let mut sr = StepReport { startup: k == 0, ..StepReport::default() };
             let ok = finite(&self.ws.new_pos);
             if ok {
-                let (terms, dx) = loss.eval(&objective, &lb, &step.pos, &step.velocity, dt, &self.ws.new_pos)?;
+                let (terms, _) = loss.eval(&objective, &lb, &step.pos, &step.velocity, dt, &self.ws.new_pos)?;
                 sr.terms = terms;
                 sr.total = terms.total();
+                let pull = self.cfg.supervised_weight_at(it) as f32;
+                if pull > 0.0 && sr.total.is_finite() {
+                    // The network's own pinned positions are the targets, so pinned vertices add
+                    // nothing.
+                    let state = StepState {
+                        pos: &step.pos,
+                        velocity: &step.velocity,
+                        dt,
+                        pinned: &pinned,
+                        targets: &self.ws.new_pos,
+                    };
+                    let solver = solver.get_or_insert_with(|| ImplicitStep::new(n, 10));
+                    let params = LbfgsParams { max_iterations: self.cfg.supervised.2, ..converged_solver() };
+                    loss.optimum(solver, &objective, &state, &params, &mut x_star)?;
+                    sr.supervised = loss.add_pull(&self.ws.new_pos, &x_star, pull, dt);
+                }
+                let dx = loss.grad();
                 if sr.total.is_finite() && finite(dx) {
                     grad.iter_mut().for_each(|g| *g = 0.0);
                     self.net.backward_fast(&mut self.ws, exec, &self.theta, &stats, &graph, step, dx, &mut grad)?;

@@ -63,7 +63,7 @@ fn iteration_json(r: &IterationReport, seconds: f64) -> String {
             let t = &s.terms;
             format!(
                 "{{\"total\":{:e},\"stretching\":{:e},\"bending\":{:e},\"inertia\":{:e},\"gravity\":{:e},\
-                 \"collision\":{:e},\"friction\":{:e},\"grad_norm\":{:e},\"startup\":{},\"skipped\":{}}}",
+                 \"collision\":{:e},\"friction\":{:e},\"supervised\":{:e},\"grad_norm\":{:e},\"startup\":{},\"skipped\":{}}}",
                 s.total,
                 t.stretching,
                 t.bending,
@@ -71,6 +71,7 @@ fn iteration_json(r: &IterationReport, seconds: f64) -> String {
                 t.gravity,
                 t.collision,
                 t.friction,
+                s.supervised,
                 s.grad_norm,
                 s.startup,
                 s.skipped
