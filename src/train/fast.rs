@@ -245,6 +245,14 @@ fn span_of(m: &MlpAt) -> Range<usize> {
     lo.min(hi)..hi
 }
 
+/// The first layer's input: column parts, or an edge MLP's split first layer
+/// (`[x_target, x_source, edge latent]`, node parts already projected).
+#[derive(Clone, Copy)]
+enum First<'a> {
+    Parts(&'a [&'a [f32]]),
+    Edge { lat: &'a [f32], pt: &'a [f32], ps: &'a [f32], target: &'a [u32], source: &'a [u32] },
+}
+
 impl Ctx<'_> {
     /// Adds the partial gradients over `span` of the parts that ran on `rows` rows into the
     /// gradient, in part order (the same sum whatever the thread count).
