@@ -4,8 +4,10 @@
 //! [`crate::kernels::Kernels::best`], so `HOOD_KERNEL_TIER` caps it too) and a scalar twin.
 //!
 //! Every output element is one sum in a fixed order whatever the row position (a tile of six
-//! rows and a single tail row run the same chain of operations), so splitting rows between
-//! threads never changes a result.
+//! rows and a tail tile of fewer run the same chain of operations), so splitting rows between
+//! threads never changes a result. Column remainders run masked vectors (the same fused
+//! multiply-adds as the full vectors), not scalar loops: the narrow inputs of the encoders (3 to
+//! 14 features) made those loops a visible share of a training step.
 
 use crate::kernels::{Kernels, Tier};
 
@@ -170,25 +172,50 @@ mod avx2 {
     /// Rows of `B` streamed per pass of [`tn`] (keeps a 16-column strip in L1).
     const TN_ROWS: usize = 128;
 
-    /// The epilogue of a tile's vector `x` into `p`, bias vector at `bias` (see [`Out`]).
+    /// Lanes below `cols` set: the mask of a last, partial vector of columns.
     #[inline(always)]
-    unsafe fn store(out: Out<'_>, p: *mut f32, bias: *const f32, x: __m256) {
-        // SAFETY: `p` and (for the bias forms) `bias` address 8 valid elements (caller).
+    unsafe fn lanes(cols: usize) -> __m256i {
+        // SAFETY: plain AVX2 integer operations (the caller enabled AVX2).
+        unsafe { _mm256_cmpgt_epi32(_mm256_set1_epi32(cols as i32), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7)) }
+    }
+
+    /// 8 floats at `p`, only the lanes of `mask` when `M` (the others read as 0, not touched).
+    #[inline(always)]
+    unsafe fn load<const M: bool>(p: *const f32, mask: __m256i) -> __m256 {
+        // SAFETY: `p` addresses 8 valid elements, or (masked) the masked ones (caller).
+        unsafe {
+            if M {
+                _mm256_maskload_ps(p, mask)
+            } else {
+                _mm256_loadu_ps(p)
+            }
+        }
+    }
+
+    /// The epilogue of a tile's vector `x` into `p`, bias vector at `bias` (see [`Out`]); with
+    /// `M`, only the lanes of `mask` are read and written.
+    #[inline(always)]
+    unsafe fn store<const M: bool>(out: Out<'_>, p: *mut f32, bias: *const f32, x: __m256, mask: __m256i) {
+        // SAFETY: `p` and (for the bias forms) `bias` address the lanes used (caller).
         unsafe {
             let v = match out {
-                Out::Add => _mm256_add_ps(_mm256_loadu_ps(p), x),
+                Out::Add => _mm256_add_ps(load::<M>(p, mask), x),
                 Out::Set => x,
-                Out::Bias(_) => _mm256_add_ps(_mm256_loadu_ps(bias), x),
-                Out::BiasRelu(_) => _mm256_max_ps(_mm256_add_ps(_mm256_loadu_ps(bias), x), _mm256_setzero_ps()),
+                Out::Bias(_) => _mm256_add_ps(load::<M>(bias, mask), x),
+                Out::BiasRelu(_) => _mm256_max_ps(_mm256_add_ps(load::<M>(bias, mask), x), _mm256_setzero_ps()),
             };
-            _mm256_storeu_ps(p, v);
+            if M {
+                _mm256_maskstore_ps(p, mask, v);
+            } else {
+                _mm256_storeu_ps(p, v);
+            }
         }
     }
 
     /// One tile of `C (op)= A·B`: `R` rows (1..=6) × `V` vectors of 8 columns at column `j`.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn nn_tile<const R: usize, const V: usize>(
+    unsafe fn nn_tile<const R: usize, const V: usize, const M: bool>(
         k: usize,
         a: *const f32,
         lda: usize,
@@ -198,15 +225,17 @@ mod avx2 {
         j: usize,
         c: *mut f32,
         ldc: usize,
+        mask: __m256i,
     ) {
         // SAFETY (whole body): the caller passes pointers to the tile's first elements with
-        // `R` rows of `k` (A), `k` rows of `8V` (B) and `R` rows of `8V` (C) in bounds.
+        // `R` rows of `k` (A), `k` rows of `8V` (B) and `R` rows of `8V` (C) in bounds (with
+        // `M`, V = 1 and only the lanes of `mask`).
         unsafe {
             let mut acc = [[_mm256_setzero_ps(); V]; R];
             for kk in 0..k {
                 let mut bv = [_mm256_setzero_ps(); V];
                 for (v, x) in bv.iter_mut().enumerate() {
-                    *x = _mm256_loadu_ps(b.add(kk * ldb + 8 * v));
+                    *x = load::<M>(b.add(kk * ldb + 8 * v), mask);
                 }
                 for (i, row) in acc.iter_mut().enumerate() {
                     let av = _mm256_broadcast_ss(&*a.add(i * lda + kk));
@@ -221,7 +250,7 @@ mod avx2 {
             };
             for (i, row) in acc.iter().enumerate() {
                 for (v, x) in row.iter().enumerate() {
-                    store(out, c.add(i * ldc + 8 * v), bias.wrapping_add(8 * v), *x);
+                    store::<M>(out, c.add(i * ldc + 8 * v), bias.wrapping_add(8 * v), *x, mask);
                 }
             }
         }
@@ -245,22 +274,18 @@ mod avx2 {
             let ap = a.data.as_ptr().add(r * a.ld);
             let cp = c.add(r * ldc);
             let mut j = 0;
+            let full = lanes(8);
             while j + 16 <= n {
-                nn_tile::<R, 2>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, out, j, cp.add(j), ldc);
+                nn_tile::<R, 2, false>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, out, j, cp.add(j), ldc, full);
                 j += 16;
             }
             if j + 8 <= n {
-                nn_tile::<R, 1>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, out, j, cp.add(j), ldc);
+                nn_tile::<R, 1, false>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, out, j, cp.add(j), ldc, full);
                 j += 8;
             }
-            for jj in j..n {
-                for i in 0..R {
-                    let mut acc = 0.0f32;
-                    for kk in 0..k {
-                        acc += *ap.add(i * a.ld + kk) * *b.data.as_ptr().add(kk * b.ld + jj);
-                    }
-                    out.apply(&mut *cp.add(i * ldc + jj), jj, acc);
-                }
+            if j < n {
+                let mask = lanes(n - j);
+                nn_tile::<R, 1, true>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, out, j, cp.add(j), ldc, mask);
             }
         }
     }
@@ -285,9 +310,13 @@ mod avx2 {
                 nn_rows::<6>(n, k, a, b, out, cp, ldc, r);
                 r += 6;
             }
-            while r < m {
-                nn_rows::<1>(n, k, a, b, out, cp, ldc, r);
-                r += 1;
+            match m - r {
+                5 => nn_rows::<5>(n, k, a, b, out, cp, ldc, r),
+                4 => nn_rows::<4>(n, k, a, b, out, cp, ldc, r),
+                3 => nn_rows::<3>(n, k, a, b, out, cp, ldc, r),
+                2 => nn_rows::<2>(n, k, a, b, out, cp, ldc, r),
+                1 => nn_rows::<1>(n, k, a, b, out, cp, ldc, r),
+                _ => {}
             }
         }
     }
@@ -295,7 +324,7 @@ mod avx2 {
     /// One tile of `C += Aᵀ·B` over rows `r0..r1`: `R` outputs (A columns) × `V` vectors.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn tn_tile<const R: usize, const V: usize>(
+    unsafe fn tn_tile<const R: usize, const V: usize, const M: bool>(
         rows: core::ops::Range<usize>,
         a: *const f32,
         lda: usize,
@@ -303,14 +332,16 @@ mod avx2 {
         ldb: usize,
         c: *mut f32,
         ldc: usize,
+        mask: __m256i,
     ) {
-        // SAFETY (whole body): pointers at the tile's first column/row; rows in bounds.
+        // SAFETY (whole body): pointers at the tile's first column/row; rows in bounds (with
+        // `M`, V = 1 and only the lanes of `mask`).
         unsafe {
             let mut acc = [[_mm256_setzero_ps(); V]; R];
             for r in rows {
                 let mut bv = [_mm256_setzero_ps(); V];
                 for (v, x) in bv.iter_mut().enumerate() {
-                    *x = _mm256_loadu_ps(b.add(r * ldb + 8 * v));
+                    *x = load::<M>(b.add(r * ldb + 8 * v), mask);
                 }
                 for (i, row) in acc.iter_mut().enumerate() {
                     let av = _mm256_broadcast_ss(&*a.add(r * lda + i));
@@ -321,8 +352,7 @@ mod avx2 {
             }
             for (i, row) in acc.iter().enumerate() {
                 for (v, x) in row.iter().enumerate() {
-                    let p = c.add(i * ldc + 8 * v);
-                    _mm256_storeu_ps(p, _mm256_add_ps(_mm256_loadu_ps(p), *x));
+                    store::<M>(Out::Add, c.add(i * ldc + 8 * v), core::ptr::null(), *x, mask);
                 }
             }
         }
@@ -344,22 +374,18 @@ mod avx2 {
             let ap = a.data.as_ptr().add(o);
             let cp = c.add(o * ldc);
             let mut j = 0;
+            let full = lanes(8);
+            let bp = b.data.as_ptr();
             while j + 16 <= n {
-                tn_tile::<R, 2>(rows.clone(), ap, a.ld, b.data.as_ptr().add(j), b.ld, cp.add(j), ldc);
+                tn_tile::<R, 2, false>(rows.clone(), ap, a.ld, bp.add(j), b.ld, cp.add(j), ldc, full);
                 j += 16;
             }
             if j + 8 <= n {
-                tn_tile::<R, 1>(rows.clone(), ap, a.ld, b.data.as_ptr().add(j), b.ld, cp.add(j), ldc);
+                tn_tile::<R, 1, false>(rows.clone(), ap, a.ld, bp.add(j), b.ld, cp.add(j), ldc, full);
                 j += 8;
             }
-            for jj in j..n {
-                for i in 0..R {
-                    let mut acc = 0.0f32;
-                    for r in rows.clone() {
-                        acc += *ap.add(r * a.ld + i) * *b.data.as_ptr().add(r * b.ld + jj);
-                    }
-                    *cp.add(i * ldc + jj) += acc;
-                }
+            if j < n {
+                tn_tile::<R, 1, true>(rows.clone(), ap, a.ld, bp.add(j), b.ld, cp.add(j), ldc, lanes(n - j));
             }
         }
     }
@@ -378,9 +404,13 @@ mod avx2 {
                     tn_outs::<6>(rows.clone(), n, a, b, cp, ldc, o);
                     o += 6;
                 }
-                while o < ka {
-                    tn_outs::<1>(rows.clone(), n, a, b, cp, ldc, o);
-                    o += 1;
+                match ka - o {
+                    5 => tn_outs::<5>(rows.clone(), n, a, b, cp, ldc, o),
+                    4 => tn_outs::<4>(rows.clone(), n, a, b, cp, ldc, o),
+                    3 => tn_outs::<3>(rows.clone(), n, a, b, cp, ldc, o),
+                    2 => tn_outs::<2>(rows.clone(), n, a, b, cp, ldc, o),
+                    1 => tn_outs::<1>(rows.clone(), n, a, b, cp, ldc, o),
+                    _ => {}
                 }
                 r0 = rows.end;
             }
@@ -414,7 +444,17 @@ mod tests {
             return;
         }
         let mut seed = 11u64;
-        for &(m, n, k) in &[(1, 1, 1), (5, 3, 7), (4, 16, 9), (37, 33, 24), (130, 40, 12), (300, 128, 96), (9, 8, 1)] {
+        for &(m, n, k) in &[
+            (1, 1, 1),
+            (5, 3, 7),
+            (4, 16, 9),
+            (37, 33, 24),
+            (130, 40, 12),
+            (300, 128, 96),
+            (9, 8, 1),
+            (11, 13, 64),
+            (8, 14, 32),
+        ] {
             let (lda, ldb, ldc) = (k + 3, n + 5, n + 2);
             let a = rand(m * lda, &mut seed);
             let b = rand(k * ldb, &mut seed);
