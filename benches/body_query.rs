@@ -3,8 +3,9 @@
 //! from `../shared/assets` when present, else a procedural ellipsoid of ~13k vertices.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use hood::body::{shapes::ellipsoid, BodyFrame, BodyMesh, Nearest};
+use hood::body::{shapes::ellipsoid, BodyFrame, BodyMesh, Nearest, PointGrid};
 use hood::io::obj::Obj;
+use hood::sim::{Executor, ThreadPool};
 
 const N_GARMENT: usize = 4400;
 const RADIUS: f32 = 0.03;
@@ -98,6 +99,38 @@ fn bench(c: &mut Criterion) {
             frame.nearest_faces_hinted(&garment, &face_hints, &mut nearest).unwrap();
         })
     });
+    // The same on both threads of a pool: the grids rebuilt as two tasks, the queries in chunks.
+    let pool = ThreadPool::new(2);
+    let exec: &dyn Executor = &pool;
+    g.bench_function("whole body query 2 threads", |b| {
+        b.iter(|| {
+            frame.update_grids_on(exec, &mesh, black_box(&body)).unwrap();
+            frame.body_edges_on(exec, &mesh, &garment, RADIUS, &[], &mut edges).unwrap();
+            frame.nearest_faces_on(exec, &garment, &[], &mut nearest).unwrap();
+        })
+    });
+    g.bench_function("whole body query hinted 2 threads", |b| {
+        b.iter(|| {
+            frame.update_grids_on(exec, &mesh, black_box(&body)).unwrap();
+            frame.body_edges_on(exec, &mesh, &garment, RADIUS, &vertex_hints, &mut edges).unwrap();
+            frame.nearest_faces_on(exec, &garment, &face_hints, &mut nearest).unwrap();
+        })
+    });
+    // What the runtime does per step (sim::Sim): the vertex grid and the body edges only, hinted
+    // by last step's answers.
+    let mut grid = PointGrid::new(body.len(), 8 * body.len()).unwrap();
+    for (name, exec) in [
+        ("runtime body edges hinted 1 thread", &hood::sim::Serial as &dyn Executor),
+        ("runtime body edges hinted 2 threads", exec),
+    ] {
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                grid.rebuild(black_box(&body)).unwrap();
+                grid.nearest_within_on(exec, &garment, RADIUS, &vertex_hints, &mut edges).unwrap();
+                mesh.keep_not_omitted(&mut edges)
+            })
+        });
+    }
     g.bench_function("update (centroids, normals, 2 grids)", |b| {
         b.iter(|| frame.update(&mesh, black_box(&body)).unwrap())
     });

@@ -2,6 +2,8 @@
 
 use super::{BodyMesh, Nearest, PointGrid};
 use crate::error::{Error, Result};
+use crate::sim::par::Disjoint;
+use crate::sim::{Executor, Serial};
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -68,10 +70,9 @@ impl BodyFrame {
             });
         }
         mesh.check_positions(positions)?;
-        mesh.face_centroids(positions, &mut self.centroids)?;
         mesh.face_normals(positions, &mut self.face_normals)?;
         mesh.vertex_normals(positions, &mut self.vertex_normals)?;
-        self.rebuild_grids(positions)
+        self.update_grids(mesh, positions)
     }
 
     /// Rebuilds only the two grids at `positions` (for callers that compute normals
@@ -80,6 +81,15 @@ impl BodyFrame {
     /// # Errors
     /// As [`update`](Self::update).
     pub fn update_grids(&mut self, mesh: &BodyMesh, positions: &[[f32; 3]]) -> Result<()> {
+        self.update_grids_on(&Serial, mesh, positions)
+    }
+
+    /// As [`update_grids`](Self::update_grids), rebuilding the two grids as two tasks of `exec`
+    /// (the vertex grid; the centroids and their grid). Same result for any executor.
+    ///
+    /// # Errors
+    /// As [`update`](Self::update).
+    pub fn update_grids_on(&mut self, exec: &dyn Executor, mesh: &BodyMesh, positions: &[[f32; 3]]) -> Result<()> {
         if mesh.n_vertices() != self.n_vertices || mesh.n_faces() != self.centroids.len() {
             return Err(Error::SizeMismatch {
                 what: "body frame mesh",
@@ -88,13 +98,31 @@ impl BodyFrame {
             });
         }
         mesh.check_positions(positions)?;
-        mesh.face_centroids(positions, &mut self.centroids)?;
-        self.rebuild_grids(positions)
-    }
-
-    fn rebuild_grids(&mut self, positions: &[[f32; 3]]) -> Result<()> {
-        self.vertex_grid.rebuild(positions)?;
-        self.centroid_grid.rebuild(&self.centroids)
+        let mut errors: [Option<Error>; 2] = [None, None];
+        {
+            let errors = Disjoint::new(&mut errors);
+            let vertex_grid = Disjoint::new(core::slice::from_mut(&mut self.vertex_grid));
+            let centroid_grid = Disjoint::new(core::slice::from_mut(&mut self.centroid_grid));
+            let centroids = Disjoint::new(&mut self.centroids);
+            exec.run(2, &|t| {
+                // SAFETY: task 0 alone uses the vertex grid and error slot 0, task 1 alone the
+                // centroids, the centroid grid and slot 1.
+                let result = unsafe {
+                    if t == 0 {
+                        vertex_grid.range(0..1)[0].rebuild(positions)
+                    } else {
+                        let c = centroids.range(0..mesh.n_faces());
+                        super::geometry::face_centroids(mesh.faces(), positions, c);
+                        centroid_grid.range(0..1)[0].rebuild(c)
+                    }
+                };
+                if let Err(e) = result {
+                    // SAFETY: as above.
+                    unsafe { errors.range(t..t + 1)[0] = Some(e) };
+                }
+            });
+        }
+        crate::sim::par::first_error(&mut errors)
     }
 
     /// Face centroids of the last update, metres.
@@ -154,6 +182,25 @@ impl BodyFrame {
         Ok(mesh.keep_not_omitted(out))
     }
 
+    /// As [`body_edges_hinted`](Self::body_edges_hinted) (`hints` may be empty), with the
+    /// garment vertices split into chunks run as tasks of `exec`, see
+    /// [`PointGrid::nearest_within_on`]. Same result for any executor.
+    ///
+    /// # Errors
+    /// As [`PointGrid::nearest_within_on`].
+    pub fn body_edges_on(
+        &self,
+        exec: &dyn Executor,
+        mesh: &BodyMesh,
+        garment: &[[f32; 3]],
+        radius: f32,
+        hints: &[u32],
+        out: &mut [Option<Nearest>],
+    ) -> Result<usize> {
+        self.vertex_grid.nearest_within_on(exec, garment, radius, hints, out)?;
+        Ok(mesh.keep_not_omitted(out))
+    }
+
     /// For every garment vertex (metres), the body face whose centroid is nearest (no radius), as
     /// used by the collision and friction terms.
     ///
@@ -170,5 +217,21 @@ impl BodyFrame {
     /// As [`PointGrid::nearest_hinted`].
     pub fn nearest_faces_hinted(&self, garment: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
         self.centroid_grid.nearest_hinted(garment, hints, out)
+    }
+
+    /// As [`nearest_faces_hinted`](Self::nearest_faces_hinted) (`hints` may be empty), with the
+    /// garment vertices split into chunks run as tasks of `exec`, see [`PointGrid::nearest_on`].
+    /// Same result for any executor.
+    ///
+    /// # Errors
+    /// As [`PointGrid::nearest_on`].
+    pub fn nearest_faces_on(
+        &self,
+        exec: &dyn Executor,
+        garment: &[[f32; 3]],
+        hints: &[u32],
+        out: &mut [Nearest],
+    ) -> Result<()> {
+        self.centroid_grid.nearest_on(exec, garment, hints, out)
     }
 }

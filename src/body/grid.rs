@@ -21,8 +21,12 @@
 
 use crate::error::{Error, Result};
 use crate::math::finite3;
+use crate::sim::par::{split, Disjoint};
+use crate::sim::Executor;
 use alloc::vec;
 use alloc::vec::Vec;
+use core::ops::Range;
+use core::sync::atomic::{AtomicUsize, Ordering};
 
 /// Cells per block edge.
 pub const BLOCK: usize = 4;
@@ -578,6 +582,53 @@ impl PointGrid {
         Ok(())
     }
 
+    /// As [`nearest_within_hinted`](Self::nearest_within_hinted), with the queries split into
+    /// contiguous chunks run as tasks of `exec` (all its threads search the same grid). Same
+    /// results as the serial call for any executor. Allocates nothing.
+    ///
+    /// # Errors
+    /// As [`nearest_within_hinted`](Self::nearest_within_hinted); every query is checked before
+    /// any is searched, so on error `out` is untouched.
+    pub fn nearest_within_on(
+        &self,
+        exec: &dyn Executor,
+        queries: &[[f32; 3]],
+        radius: f32,
+        hints: &[u32],
+        out: &mut [Option<Nearest>],
+    ) -> Result<()> {
+        check_batch(queries.len(), hints.len(), out.len())?;
+        if !(radius >= 0.0 && radius.is_finite()) {
+            return Err(Error::OutOfRange { what: "query radius", index: 0 });
+        }
+        check_queries(queries)?;
+        in_chunks(exec, queries.len(), out, |r, o| {
+            self.nearest_within_hinted(&queries[r.clone()], radius, hint_range(hints, r), o)
+        })
+    }
+
+    /// As [`nearest_hinted`](Self::nearest_hinted), with the queries split into contiguous
+    /// chunks run as tasks of `exec`. Same results as the serial call for any executor.
+    /// Allocates nothing.
+    ///
+    /// # Errors
+    /// As [`nearest_hinted`](Self::nearest_hinted); every query is checked before any is
+    /// searched, so on error `out` is untouched.
+    pub fn nearest_on(
+        &self,
+        exec: &dyn Executor,
+        queries: &[[f32; 3]],
+        hints: &[u32],
+        out: &mut [Nearest],
+    ) -> Result<()> {
+        check_batch(queries.len(), hints.len(), out.len())?;
+        if self.n_points == 0 {
+            return Err(Error::Empty { what: "point grid" });
+        }
+        check_queries(queries)?;
+        in_chunks(exec, queries.len(), out, |r, o| self.nearest_hinted(&queries[r.clone()], hint_range(hints, r), o))
+    }
+
     /// A squared distance widened by the rounding slack, for pruning comparisons.
     #[inline(always)]
     fn padded(&self, d2: f32) -> f32 {
@@ -916,6 +967,59 @@ fn check_batch(queries: usize, hints: usize, out: usize) -> Result<()> {
         return Err(Error::SizeMismatch { what: "query hints", expected: queries, got: hints });
     }
     Ok(())
+}
+
+/// The first query with a NaN/Inf coordinate, as an error.
+fn check_queries(queries: &[[f32; 3]]) -> Result<()> {
+    match queries.iter().position(|q| !finite3(*q)) {
+        Some(i) => Err(Error::NonFinite { what: "query point", index: i }),
+        None => Ok(()),
+    }
+}
+
+/// The hints of the queries `r` (empty when there are none).
+fn hint_range(hints: &[u32], r: Range<usize>) -> &[u32] {
+    hints.get(r).unwrap_or(&[])
+}
+
+/// Queries per task below which splitting costs more than it saves (a search takes 0.1-0.5 µs,
+/// handing out a task about 1 µs).
+const MIN_CHUNK: usize = 256;
+
+/// Runs `f(range, out[range])` over contiguous chunks of `0..n` as tasks of `exec`: a few
+/// chunks per thread, since queries differ in cost. Returns the first error of a chunk.
+fn in_chunks<T: Send>(
+    exec: &dyn Executor,
+    n: usize,
+    out: &mut [T],
+    f: impl Fn(Range<usize>, &mut [T]) -> Result<()> + Sync,
+) -> Result<()> {
+    let threads = exec.parallelism();
+    let tasks = if threads <= 1 { 1 } else { (4 * threads).min(n / MIN_CHUNK).max(1) };
+    if tasks == 1 {
+        return f(0..n, out);
+    }
+    let out = Disjoint::new(out);
+    // The lowest failing chunk, `usize::MAX` for none (the callers validate their input first,
+    // so this only guards against a broken invariant).
+    let failed = AtomicUsize::new(usize::MAX);
+    exec.run(tasks, &|t| {
+        let r = split(n, tasks, t);
+        // SAFETY: the chunks of `split` are disjoint.
+        let o = unsafe { out.range(r.clone()) };
+        if f(r, o).is_err() {
+            failed.fetch_min(t, Ordering::Relaxed);
+        }
+    });
+    match failed.load(Ordering::Relaxed) {
+        usize::MAX => Ok(()),
+        t => {
+            let r = split(n, tasks, t);
+            // Rerun the failing chunk on its own to return its error.
+            // SAFETY: no task is running any more.
+            f(r.clone(), unsafe { out.range(r) })
+        }
+    }
 }
 
 /// A search result as a [`Nearest`].

@@ -484,3 +484,63 @@ fn body_query_scans_past_a_range_read_only_real_points() {
         assert_eq!(grid.nearest_one_hinted(q, copies[7] as u32).map(|n| n.index), Some(copies[0] as u32));
     }
 }
+
+/// The batch queries split over a thread pool (and the two grids rebuilt as two tasks) give the
+/// serial answers exactly, with and without hints; bad input is refused before any search.
+#[cfg(feature = "std")]
+#[test]
+fn body_query_on_a_thread_pool_matches_serial() {
+    use crate::sim::{Executor, Serial, ThreadPool};
+    let mut rng = Rng(11);
+    let (v, f) = ellipsoid(50, 70, [0.25, 0.8, 0.15], [0.0, 1.0, 0.0]);
+    let mesh = BodyMesh::new(v.len(), &f).unwrap();
+    let (mut serial, mut pooled) = (BodyFrame::new(&mesh).unwrap(), BodyFrame::new(&mesh).unwrap());
+    let pool = ThreadPool::new(2);
+    for (step, exec) in [&pool as &dyn Executor, &Serial, &pool].into_iter().enumerate() {
+        let positions: Vec<[f32; 3]> = v
+            .iter()
+            .map(|p| [p[0] + 0.1 * step as f32, p[1], p[2] + 0.03 * (p[1] * 5.0 + step as f32).sin()])
+            .collect();
+        serial.update_grids(&mesh, &positions).unwrap();
+        pooled.update_grids_on(exec, &mesh, &positions).unwrap();
+        assert_eq!(serial.centroids(), pooled.centroids());
+        // Enough queries for several chunks per thread.
+        let garment = random_queries(&mut rng, &positions, 3000);
+        let n = garment.len();
+        let hints: Vec<u32> = (0..n).map(|_| rng.below(v.len() + 5) as u32).collect();
+        let face_hints: Vec<u32> = (0..n).map(|_| rng.below(f.len()) as u32).collect();
+        let (mut e1, mut e2) = (vec![None; n], vec![None; n]);
+        let kept = serial.body_edges(&mesh, &garment, 0.04, &mut e1).unwrap();
+        assert_eq!(pooled.body_edges_on(exec, &mesh, &garment, 0.04, &[], &mut e2).unwrap(), kept);
+        assert_eq!(e1, e2, "step {step}");
+        e2.fill(None);
+        assert_eq!(pooled.body_edges_on(exec, &mesh, &garment, 0.04, &hints, &mut e2).unwrap(), kept);
+        assert_eq!(e1, e2, "step {step}, hinted");
+        assert!(kept > 100 && kept < n, "the queries must see both edges and misses ({kept})");
+        let zero = Nearest { index: 0, distance: 0.0 };
+        let (mut f1, mut f2) = (vec![zero; n], vec![zero; n]);
+        serial.nearest_faces(&garment, &mut f1).unwrap();
+        pooled.nearest_faces_on(exec, &garment, &[], &mut f2).unwrap();
+        assert_eq!(f1, f2, "step {step}");
+        f2.fill(zero);
+        pooled.nearest_faces_on(exec, &garment, &face_hints, &mut f2).unwrap();
+        assert_eq!(f1, f2, "step {step}, hinted");
+
+        // A bad query late in the batch: refused, naming it, before anything is written.
+        let mut bad = garment.clone();
+        bad[n - 3][2] = f32::INFINITY;
+        let before = f2.clone();
+        assert_eq!(
+            pooled.nearest_faces_on(exec, &bad, &[], &mut f2),
+            Err(Error::NonFinite { what: "query point", index: n - 3 })
+        );
+        assert_eq!(f2, before);
+        assert_eq!(
+            pooled.body_edges_on(exec, &mesh, &bad, 0.04, &hints[1..], &mut e2),
+            Err(Error::SizeMismatch { what: "query hints", expected: n, got: n - 1 })
+        );
+    }
+    let mut bad = v.clone();
+    bad[5][0] = f32::NAN;
+    assert_eq!(pooled.update_grids_on(&pool, &mesh, &bad), Err(Error::NonFinite { what: "body vertex", index: 5 }));
+}

@@ -130,6 +130,9 @@ struct BodyState {
     grid: PointGrid,
     normals: Vec<[f32; 3]>,
     nearest: Vec<Option<Nearest>>,
+    /// Last step's nearest body vertex of every garment vertex (`u32::MAX`: none yet): the
+    /// search starts from it, which only changes its speed.
+    hints: Vec<u32>,
     active_of: Vec<u32>,
     active: Vec<u32>,
     edge_garment: Vec<u32>,
@@ -237,6 +240,7 @@ impl<'m> Sim<'m> {
                     grid: PointGrid::new(nb, (8 * nb).max(64))?,
                     normals: vec![[0.0; 3]; nb],
                     nearest: vec![None; n],
+                    hints: vec![u32::MAX; n],
                     active_of: vec![u32::MAX; nb],
                     active: vec![0; nb.min(n)],
                     edge_garment: vec![0; n],
@@ -513,7 +517,12 @@ impl<'m> Sim<'m> {
         if let Some(b) = &mut self.body {
             let bpos = &self.state.body_pos;
             b.grid.rebuild(bpos)?;
-            b.grid.nearest_within(pos, BODY_EDGE_RADIUS, &mut b.nearest)?;
+            b.grid.nearest_within_on(&*self.exec, pos, BODY_EDGE_RADIUS, &b.hints, &mut b.nearest)?;
+            for (h, near) in b.hints.iter_mut().zip(&b.nearest) {
+                if let Some(near) = near {
+                    *h = near.index;
+                }
+            }
             b.mesh.keep_not_omitted(&mut b.nearest);
             let mut nb = 0;
             for &g in &self.graph.body_order {
