@@ -169,7 +169,7 @@ impl BodyFrame {
     /// result, usually faster.
     ///
     /// # Errors
-    /// As [`PointGrid::nearest_within_hinted`].
+    /// As [`PointGrid::nearest_within_on`] (nothing is written on error).
     pub fn body_edges_hinted(
         &self,
         mesh: &BodyMesh,
@@ -178,8 +178,7 @@ impl BodyFrame {
         hints: &[u32],
         out: &mut [Option<Nearest>],
     ) -> Result<usize> {
-        self.vertex_grid.nearest_within_hinted(garment, radius, hints, out)?;
-        Ok(mesh.keep_not_omitted(out))
+        self.body_edges_on(&Serial, mesh, garment, radius, hints, out)
     }
 
     /// As [`body_edges_hinted`](Self::body_edges_hinted) (`hints` may be empty), with the
@@ -214,9 +213,9 @@ impl BodyFrame {
     /// last frame's answer), see [`PointGrid::nearest_hinted`]. Same result, usually much faster.
     ///
     /// # Errors
-    /// As [`PointGrid::nearest_hinted`].
+    /// As [`PointGrid::nearest_on`] (nothing is written on error).
     pub fn nearest_faces_hinted(&self, garment: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
-        self.centroid_grid.nearest_hinted(garment, hints, out)
+        self.nearest_faces_on(&Serial, garment, hints, out)
     }
 
     /// As [`nearest_faces_hinted`](Self::nearest_faces_hinted) (`hints` may be empty), with the

@@ -489,10 +489,7 @@ impl PointGrid {
         hints: &[u32],
         out: &mut [Option<Nearest>],
     ) -> Result<()> {
-        check_batch(queries.len(), hints.len(), out.len())?;
-        if !(radius >= 0.0 && radius.is_finite()) {
-            return Err(Error::OutOfRange { what: "query radius", index: 0 });
-        }
+        check_within(queries.len(), hints.len(), out.len(), radius)?;
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
@@ -597,10 +594,7 @@ impl PointGrid {
         hints: &[u32],
         out: &mut [Option<Nearest>],
     ) -> Result<()> {
-        check_batch(queries.len(), hints.len(), out.len())?;
-        if !(radius >= 0.0 && radius.is_finite()) {
-            return Err(Error::OutOfRange { what: "query radius", index: 0 });
-        }
+        check_within(queries.len(), hints.len(), out.len(), radius)?;
         check_queries(queries)?;
         in_chunks(exec, queries.len(), out, |r, o| {
             self.nearest_within_hinted(&queries[r.clone()], radius, hint_range(hints, r), o)
@@ -965,6 +959,15 @@ fn check_batch(queries: usize, hints: usize, out: usize) -> Result<()> {
     }
     if hints != 0 && hints != queries {
         return Err(Error::SizeMismatch { what: "query hints", expected: queries, got: hints });
+    }
+    Ok(())
+}
+
+/// [`check_batch`] and a finite, non-negative radius.
+fn check_within(queries: usize, hints: usize, out: usize, radius: f32) -> Result<()> {
+    check_batch(queries, hints, out)?;
+    if !(radius >= 0.0 && radius.is_finite()) {
+        return Err(Error::OutOfRange { what: "query radius", index: 0 });
     }
     Ok(())
 }
