@@ -6,19 +6,20 @@
 //!   implemented by [`Scene`] and by the owned, editable [`Playback`].
 //! * [`rollout`] / [`rollout_observed`]: step a [`Sim`] through the frames; every frame gives a
 //!   [`FrameRecord`] (objective terms, % penetrating vertices, largest edge strain and speed,
-//!   step time, optionally the [`Gap`]); the [`Rollout`] keeps chosen frames' positions and a
-//!   [`Summary`].
+//!   step time, optionally the [`Gap`] and the % of vertices inside the body); the [`Rollout`]
+//!   keeps chosen frames' positions and a [`Summary`].
 //! * [`strip_images`]: preview images of kept frames (write them with `io::png::write_strip`).
 //!
 //! Scoring (one place for each piece of math): the terms are those of
 //! [`ImplicitStep::evaluate`], the same function the optimum is measured with, so that model,
 //! coasting guess and optimum are compared under identical rules; penetration uses
-//! [`plane_distances`] and [`PENETRATION_DEPTH`]; strain [`max_edge_strain`].
+//! [`plane_distances`] and [`PENETRATION_DEPTH`]; strain [`max_edge_strain`]; "inside the body"
+//! the body's winding number ([`Winding`]).
 //!
 //! Frames: frame 0 is the initial state; record `t ≥ 1` is the step from frame `t - 1` to `t`,
 //! with the body at `t - 1` (current) and `t` (next). Units: metres, seconds; speeds in m/s.
 
-use crate::body::{BodyMesh, PointGrid};
+use crate::body::{BodyMesh, PointGrid, Winding};
 use crate::error::{Error, Result};
 use crate::features::DT;
 use crate::math::{norm3, sub3};
@@ -174,6 +175,9 @@ pub struct RolloutOptions {
     pub gap_every: usize,
     /// Stopping rules of that implicit step.
     pub gap_solver: LbfgsParams,
+    /// Count the garment vertices inside the body (winding number, [`Winding`]) every this many
+    /// frames (0: never; no effect without a body).
+    pub inside_every: usize,
     /// Frames whose garment positions [`Rollout::kept`] keeps (0: the initial state).
     pub keep: Vec<usize>,
 }
@@ -184,6 +188,7 @@ impl Default for RolloutOptions {
             objective: Objective::evaluation(),
             gap_every: 0,
             gap_solver: converged_solver(),
+            inside_every: 0,
             keep: Vec::new(),
         }
     }
@@ -249,6 +254,11 @@ pub struct FrameRecord {
     pub step_ms: f64,
     /// The objective gap, on the frames [`RolloutOptions::gap_every`] picks.
     pub gap: Option<Gap>,
+    /// Percentage (0-100) of garment vertices inside the body at the new frame (winding number
+    /// above 1/2), on the frames [`RolloutOptions::inside_every`] picks. Unlike
+    /// `penetrating_percent` it counts neither vertices just outside nor vertices behind the
+    /// plane of a face they are not under (armpits, crotch).
+    pub inside_percent: Option<f64>,
 }
 
 /// Aggregates over a rollout's frames.
@@ -277,6 +287,12 @@ pub struct Summary {
     pub gap_p95: Option<f64>,
     /// How many frames the gap figures average.
     pub gap_frames: usize,
+    /// Mean % of vertices inside the body over the frames where it was counted.
+    pub inside_mean: Option<f64>,
+    /// Largest of the same.
+    pub inside_max: Option<f64>,
+    /// How many frames the inside figures cover.
+    pub inside_frames: usize,
     /// Mean step time, ms.
     pub mean_step_ms: f64,
     /// Median step time, ms.
@@ -454,6 +470,7 @@ impl Scorer {
             max_speed,
             step_ms,
             gap,
+            inside_percent: None,
         }
     }
 
@@ -541,6 +558,35 @@ impl Scorer {
     }
 }
 
+/// Counts the garment vertices inside the body on the frames [`RolloutOptions::inside_every`]
+/// picks.
+struct InsideCounter {
+    winding: Winding,
+    every: usize,
+}
+
+impl InsideCounter {
+    /// `None` when the option is off or there is no body.
+    fn new(anim: &dyn Animation, every: usize) -> Result<Option<InsideCounter>> {
+        match anim.body_mesh() {
+            Some(mesh) if every > 0 => {
+                Ok(Some(InsideCounter { winding: Winding::new(mesh, anim.body_frame(0))?, every }))
+            }
+            _ => Ok(None),
+        }
+    }
+
+    /// % of `garment` (m) inside the body at frame `t`, if `t` is one of the picked frames.
+    fn count(this: &mut Option<Self>, anim: &dyn Animation, t: usize, garment: &[[f32; 3]]) -> Result<Option<f64>> {
+        let (Some(c), Some(mesh)) = (this, anim.body_mesh()) else { return Ok(None) };
+        if !t.is_multiple_of(c.every) {
+            return Ok(None);
+        }
+        c.winding.refit(mesh, anim.body_frame(t))?;
+        Ok(Some(100.0 * c.winding.count_inside(garment) as f64 / garment.len().max(1) as f64))
+    }
+}
+
 /// Sees every frame's record and the garment's new positions (m) during a rollout.
 pub type FrameObserver<'a> = dyn FnMut(&FrameRecord, &[[f32; 3]]) -> Result<()> + 'a;
 
@@ -611,6 +657,7 @@ pub fn rollout_observed(
         started: sim.state().started,
     })?;
     let mut scorer = Scorer::new(anim, &options.objective)?;
+    let mut inside = InsideCounter::new(anim, options.inside_every)?;
     let mut out =
         Rollout { frames: Vec::with_capacity(frames), kept: Vec::new(), failure: None, summary: Summary::default() };
     if options.keep.contains(&0) {
@@ -654,7 +701,8 @@ pub fn rollout_observed(
         let want_gap = stepped && options.gap_every > 0 && t % options.gap_every == 0;
         let (terms, penetrating_percent, gap) =
             scorer.score(anim, body_frames, stepped, want_gap.then_some(&options.gap_solver))?;
-        let rec = scorer.record(t, kind, terms, penetrating_percent, step_ms, gap);
+        let mut rec = scorer.record(t, kind, terms, penetrating_percent, step_ms, gap);
+        rec.inside_percent = InsideCounter::count(&mut inside, anim, t, &after.pos)?;
         if options.keep.contains(&t) {
             out.kept.push((t, after.pos.clone()));
         }
@@ -690,6 +738,7 @@ pub fn implicit_rollout(
     let n = anim.garment().n_vertices();
     let pinned = anim.garment().pinned().to_vec();
     let mut scorer = Scorer::new(anim, &options.objective)?;
+    let mut inside = InsideCounter::new(anim, options.inside_every)?;
     let mut stepper = ImplicitStep::<f64>::new(n, 10);
     let mut pos = anim.initial_garment()?;
     let mut vel = vec![[0.0f32; 3]; n];
@@ -717,12 +766,13 @@ pub fn implicit_rollout(
         let want_gap = options.gap_every > 0 && t % options.gap_every == 0;
         let (terms, penetrating_percent, gap) =
             scorer.score(anim, body_frames, true, want_gap.then_some(&options.gap_solver))?;
-        let rec = scorer.record(t, StepKind::Stepped, terms, penetrating_percent, step_ms, gap);
+        let mut rec = scorer.record(t, StepKind::Stepped, terms, penetrating_percent, step_ms, gap);
         for i in 0..n {
             let x = scorer.x[i].map(|c| c as f32);
             vel[i] = if pinned[i] { [0.0; 3] } else { [x[0] - pos[i][0], x[1] - pos[i][1], x[2] - pos[i][2]] };
             pos[i] = x;
         }
+        rec.inside_percent = InsideCounter::count(&mut inside, anim, t, &pos)?;
         if options.keep.contains(&t) {
             out.kept.push((t, pos.clone()));
         }
@@ -761,6 +811,12 @@ fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
     if !gaps.is_empty() {
         s.gap_mean = Some(gaps.iter().sum::<f64>() / gaps.len() as f64);
         s.gap_p95 = Some(percentile(&mut gaps, 0.95));
+    }
+    let inside: Vec<f64> = frames.iter().filter_map(|f| f.inside_percent).collect();
+    s.inside_frames = inside.len();
+    if !inside.is_empty() {
+        s.inside_mean = Some(inside.iter().sum::<f64>() / inside.len() as f64);
+        s.inside_max = Some(inside.iter().copied().fold(0.0, f64::max));
     }
     let mut ms: Vec<f64> = frames.iter().map(|f| f.step_ms).collect();
     if !ms.is_empty() {

@@ -171,3 +171,51 @@ fn eval_cli_simulate_writes_obj_sequence_and_strip() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("unknown garment"), "{}", String::from_utf8_lossy(&o.stderr));
     let _ = std::fs::remove_dir_all(&out);
 }
+
+#[test]
+fn eval_counts_vertices_inside_the_body_on_the_picked_frames() {
+    use hood::body::winding_number_exact;
+    let frames = 6;
+    let scene = procedural(&Mannequin::new(), GarmentKind::Skirt, 300, MotionKind::Walk, 0.5).unwrap();
+    let mut scene = Playback::record(&scene, frames + 1).unwrap();
+    // Sink a third of the garment 3 cm into the body, so that there is something to count.
+    let mesh = scene.body.clone().unwrap();
+    let body0 = scene.body_frames[0].clone();
+    let mut normals = vec![[0.0f32; 3]; body0.len()];
+    mesh.vertex_normals(&body0, &mut normals).unwrap();
+    let grid = {
+        let mut g = hood::body::PointGrid::new(body0.len(), 8 * body0.len()).unwrap();
+        g.rebuild(&body0).unwrap();
+        g
+    };
+    for (i, p) in scene.initial.iter_mut().enumerate().filter(|(i, _)| i % 3 == 0) {
+        let b = grid.nearest_one(*p).unwrap().index as usize;
+        *p = [0, 1, 2].map(|a| body0[b][a] - 0.03 * normals[b][a]);
+        assert!(i < scene.garment.n_vertices());
+    }
+    let bytes = random_model(16, 5, false);
+    let model = bytes.model().unwrap();
+    let opts = RolloutOptions { inside_every: 2, keep: (0..=frames).collect(), ..RolloutOptions::default() };
+    let r = rollout(&model, &scene, frames, SimConfig::default(), &opts).unwrap();
+    let mut counted = 0;
+    for f in &r.frames {
+        assert_eq!(f.inside_percent.is_some(), f.frame % 2 == 0, "frame {}", f.frame);
+        let Some(pct) = f.inside_percent else { continue };
+        let pos = &r.kept.iter().find(|k| k.0 == f.frame).unwrap().1;
+        let body = &scene.body_frames[f.frame];
+        let w: Vec<f64> = pos.iter().map(|p| winding_number_exact(mesh.faces(), body, p.map(|c| c as f64))).collect();
+        let sure = w.iter().filter(|w| w.abs() > 0.55).count();
+        let unsure = w.iter().filter(|w| (0.45..=0.55).contains(&w.abs())).count();
+        let got = pct / 100.0 * pos.len() as f64;
+        assert!(
+            got + 0.5 >= sure as f64 && got - 0.5 <= (sure + unsure) as f64,
+            "frame {}: {got} vs {sure}+{unsure}",
+            f.frame
+        );
+        println!("frame {}: {pct:.1} % inside (exact: {sure}, {unsure} ambiguous)", f.frame);
+        counted += 1;
+    }
+    assert_eq!(r.summary.inside_frames, counted);
+    assert!(counted >= 1 && r.summary.inside_mean.unwrap() > 5.0, "{:?}", r.summary);
+    assert!(r.summary.inside_max.unwrap() >= r.summary.inside_mean.unwrap());
+}

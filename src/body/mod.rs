@@ -9,15 +9,18 @@
 //! * [`BodyFrame`]: owns the buffers and the two grids (vertices, face centroids) of one frame and
 //!   answers the two queries of the model: body edges and nearest faces.
 //! * [`shapes`]: procedural closed bodies.
+//! * [`Winding`]: which points lie inside the body (generalised winding number), for evaluation.
 
 mod frame;
 pub mod geometry;
 mod grid;
 pub mod rigid;
 pub mod shapes;
+mod winding;
 
 pub use frame::BodyFrame;
 pub use grid::{Nearest, PointGrid, BLOCK, DEFAULT_CELLS_PER_POINT, X_SPLIT};
+pub use winding::{winding_number_exact, Winding, CLUSTER, FAR};
 
 use crate::error::{Error, Result};
 use crate::math::finite3;

@@ -544,3 +544,67 @@ fn body_query_on_a_thread_pool_matches_serial() {
     bad[5][0] = f32::NAN;
     assert_eq!(pooled.update_grids_on(&pool, &mesh, &bad), Err(Error::NonFinite { what: "body vertex", index: 5 }));
 }
+
+/// A body-like closed mesh: an ellipsoid with a smaller one (an "arm") beside it, close enough
+/// that clusters near the gap are taken exactly.
+fn two_ellipsoids() -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    let (mut v, mut f) = ellipsoid(30, 48, [0.18, 0.45, 0.12], [0.0, 1.0, 0.0]);
+    let (v2, f2) = ellipsoid(16, 24, [0.04, 0.3, 0.04], [0.24, 1.0, 0.0]);
+    let off = v.len() as u32;
+    v.extend(v2);
+    f.extend(f2.iter().map(|t| t.map(|i| i + off)));
+    (v, f)
+}
+
+#[test]
+fn winding_number_matches_exact_and_classifies_inside() {
+    let (rest, faces) = two_ellipsoids();
+    let mesh = BodyMesh::new(rest.len(), &faces).unwrap();
+    let mut w = Winding::new(&mesh, &rest).unwrap();
+    // Moved, turned and squashed after clustering: clusters must follow the refit.
+    let (s, c) = (libm::sinf(0.7), libm::cosf(0.7));
+    let moved: Vec<[f32; 3]> =
+        rest.iter().map(|p| [c * p[0] + s * p[2] + 0.3, 0.9 * p[1] - 0.2, -s * p[0] + c * p[2]]).collect();
+    w.refit(&mesh, &moved).unwrap();
+    let mut rng = Rng(11);
+    let (mut inside, mut checked) = (0, 0);
+    for k in 0..600 {
+        // Near the surface (vertex ± up to 2 cm) or anywhere in a box around the body.
+        let p = if k % 2 == 0 {
+            let v = moved[rng.below(moved.len())];
+            let d = rng.dir();
+            [0, 1, 2].map(|a| v[a] + rng.range(0.0, 0.02) * d[a])
+        } else {
+            [rng.range(-0.6, 1.2), rng.range(0.0, 1.6), rng.range(-0.6, 0.6)]
+        };
+        let exact = winding_number_exact(&faces, &moved, p.map(|x| x as f64));
+        let fast = w.number(p) as f64;
+        assert!((fast - exact).abs() < 2e-2, "point {p:?}: fast {fast}, exact {exact}");
+        if (exact - 0.5).abs() > 0.05 {
+            checked += 1;
+            assert_eq!(w.inside(p), exact > 0.5, "point {p:?}: fast {fast}, exact {exact}");
+            inside += usize::from(exact > 0.5);
+        }
+    }
+    assert!(inside > 100 && checked - inside > 100, "both sides sampled: {inside} inside of {checked}");
+    let centre = [0.3, 1.0 * 0.9 - 0.2, 0.0];
+    assert!((w.number(centre) - 1.0).abs() < 1e-2, "{}", w.number(centre));
+    assert!(w.number([5.0, 0.0, 0.0]).abs() < 1e-3);
+    let pts = [centre, [5.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0]];
+    assert_eq!(w.count_inside(&pts), 1);
+    assert!(w.number([0.0, f32::INFINITY, 0.0]).is_nan());
+}
+
+#[test]
+fn winding_refit_refuses_bad_positions_and_another_mesh() {
+    let (rest, faces) = ellipsoid(6, 8, [0.2, 0.4, 0.1], [0.0; 3]);
+    let mesh = BodyMesh::new(rest.len(), &faces).unwrap();
+    let mut w = Winding::new(&mesh, &rest).unwrap();
+    let mut bad = rest.clone();
+    bad[3][1] = f32::NAN;
+    assert!(matches!(w.refit(&mesh, &bad), Err(Error::NonFinite { index: 3, .. })));
+    assert!(matches!(w.refit(&mesh, &rest[1..]), Err(Error::SizeMismatch { .. })));
+    let other = BodyMesh::new(rest.len(), &faces[1..]).unwrap();
+    assert!(matches!(w.refit(&other, &rest), Err(Error::SizeMismatch { .. })));
+    assert!(matches!(Winding::new(&mesh, &bad), Err(Error::NonFinite { .. })));
+}

@@ -68,6 +68,11 @@ pub struct SimulateArgs {
     /// frames (slow; 0: never).
     #[arg(long, default_value_t = 0)]
     gap_every: usize,
+    /// Also count the garment vertices inside the body (winding number) every this many frames
+    /// (0: never). "penetrating" counts vertices within 1 mm of, or behind, the plane of their
+    /// nearest body face; "inside" counts what a viewer would call interpenetration.
+    #[arg(long, default_value_t = 0)]
+    inside_every: usize,
     /// Objective of the printed figures and of the gap.
     #[arg(long, value_enum, default_value_t = ObjectiveArg::Evaluation)]
     objective: ObjectiveArg,
@@ -188,7 +193,10 @@ fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
 
 fn print_frame(r: &FrameRecord, frames: usize) {
     let t = r.terms.unwrap_or_default();
-    let gap = r.gap.and_then(|g| g.relative).map_or(String::new(), |g| format!("  gap {g:.3}"));
+    let mut gap = r.gap.and_then(|g| g.relative).map_or(String::new(), |g| format!("  gap {g:.3}"));
+    if let Some(p) = r.inside_percent {
+        gap.push_str(&format!("  inside {p:.2}%"));
+    }
     println!(
         "frame {:>4}/{frames}  {:>7.2} ms  objective {:>10.4} J (stretch {:.4}, bend {:.2e}, inertia {:.4}, gravity {:.4}, collision {:.2e}, friction {:.2e})  penetrating {:>5.2}%  strain {:.3}  speed {:.2} m/s{gap}{}",
         r.frame,
@@ -235,6 +243,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     let keep: Vec<usize> = if k == 1 { vec![frames] } else { (0..k).map(|i| i * frames / (k - 1)).collect() };
     let opts = RolloutOptions {
         gap_every: a.gap_every,
+        inside_every: a.inside_every,
         keep,
         objective: a.objective.objective(),
         ..RolloutOptions::default()
@@ -280,6 +289,9 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         s.max_speed,
         match (s.gap_mean, s.gap_p95) {
             (Some(m), Some(p)) => format!("; relative gap mean {m:.3}, p95 {p:.3} ({} frames)", s.gap_frames),
+            _ => String::new(),
+        } + &match (s.inside_mean, s.inside_max) {
+            (Some(m), Some(x)) => format!("; inside the body mean {m:.2}% (max {x:.2}%, {} frames)", s.inside_frames),
             _ => String::new(),
         }
     );
