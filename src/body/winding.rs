@@ -12,9 +12,10 @@
 //! their centroids at creation); per frame [`Winding::refit`] copies the corners and sums each
 //! cluster's area vector. A query takes the clusters farther than [`FAR`] times their radius as
 //! one dipole (first-order far field: `Ω ≈ A·(c - p) / |c - p|³`, `A` the cluster's summed area
-//! vector, `c` its centre) and the faces of the others exactly. The far-field error of a cluster
-//! is of order `(radius / distance)²` of its solid angle, far below the 1/2 that separates inside
-//! from outside.
+//! vector, `c` its area-weighted centre) and the faces of the others exactly. The far-field error
+//! of a cluster is of order `(radius / distance)²` of its solid angle; summed over a body it stays
+//! near 1 % (0.995 at the centre of the test ellipsoid), far below the 1/2 that separates inside
+//! from outside. About 0.1 ms per point on the 26,756-face MakeHuman body.
 
 use crate::error::{Error, Result};
 use crate::math::{cross3, dot3, finite3, norm3, scale3, sub3, v3_from_f32, Real};
