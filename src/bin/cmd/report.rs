@@ -138,6 +138,7 @@ pub fn report(a: ReportArgs) -> Result<()> {
     let mannequin = Mannequin::new();
     let opts = RolloutOptions {
         gap_every: a.gap_every.max(1),
+        inside_every: a.gap_every.max(1),
         objective: a.objective.objective(),
         ..RolloutOptions::default()
     };
@@ -243,14 +244,14 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
     }
     let _ = writeln!(
         s,
-        "\n| workload | vertices | variant | ms/step | gap mean | gap p95 | penetrating % (mean) | max strain | finite |"
+        "\n| workload | vertices | variant | ms/step | gap mean | gap p95 | penetrating % (mean) | inside % (mean) | max strain | finite |"
     );
-    let _ = writeln!(s, "|---|---:|---|---:|---:|---:|---:|---:|---|");
+    let _ = writeln!(s, "|---|---:|---|---:|---:|---:|---:|---:|---:|---|");
     for r in rows {
         let m = &r.summary;
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {:.2} | {} | {} | {:.2} | {:.3} | {} |",
+            "| {} | {} | {} | {:.2} | {} | {} | {:.2} | {} | {:.3} | {} |",
             r.workload,
             r.vertices,
             r.variant,
@@ -258,6 +259,7 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
             fmt_opt(m.gap_mean),
             fmt_opt(m.gap_p95),
             m.mean_penetrating_percent,
+            m.inside_mean.map_or("-".to_string(), |v| format!("{v:.2}")),
             m.max_edge_strain,
             if m.finite { "yes" } else { "no" }
         );
