@@ -150,3 +150,70 @@ fn runtime_fixed_step_driver_runs_at_30_hz() {
         assert!(steps.abs_diff(want) <= 1, "{hz} Hz for 1 s: {steps} model steps");
     }
 }
+
+/// The speed limit runs the step in a frame of reference that follows the body's motion beyond
+/// the limit: a sim under the limit whose body moves at 0.3 m/frame must match, up to that
+/// frame's translation, a sim without the limit whose body (and pins) are moved back by the
+/// accumulated carry. Below the limit it changes nothing, bit for bit.
+#[test]
+fn runtime_speed_limit_follows_the_excess_motion() {
+    let scene = Scene::new(10, 10);
+    let bytes = random_model(16, 9, false);
+    let model = bytes.model().unwrap();
+    let limit = hood::sim::DEFAULT_SPEED_LIMIT;
+    let frames = 12;
+    // 0.3 m/frame along z from frame 3 to frame 8, still before and after.
+    let z = |t: usize| 0.3 * (t.clamp(3, 8) - 3) as f32;
+    let body_a: Vec<Vec<[f32; 3]>> =
+        (0..=frames).map(|t| scene.body_at(t).iter().map(|p| [p[0], p[1], p[2] + z(t)]).collect()).collect();
+    let pins_a: Vec<Vec<[f32; 3]>> =
+        (0..=frames).map(|t| scene.garment.rest().iter().map(|p| [p[0], p[1], p[2] + z(t)]).collect()).collect();
+    // The carry of every step, computed independently: the mean displacement beyond the limit.
+    let mut total = vec![[0.0f32; 3]; frames + 1];
+    for t in 1..=frames {
+        let n = body_a[t].len() as f64;
+        let d: [f64; 3] =
+            [0, 1, 2].map(|k| body_a[t].iter().zip(&body_a[t - 1]).map(|(b, a)| (b[k] - a[k]) as f64).sum::<f64>() / n);
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let s = if len > limit as f64 { 1.0 - limit as f64 / len } else { 0.0 };
+        total[t] = [0, 1, 2].map(|k| total[t - 1][k] + (d[k] * s) as f32);
+    }
+    assert!(total[frames][2] > 0.5, "the scene exceeds the limit: {:?}", total[frames]);
+    let shift = |v: &[[f32; 3]], c: [f32; 3]| -> Vec<[f32; 3]> {
+        v.iter().map(|p| [p[0] - c[0], p[1] - c[1], p[2] - c[2]]).collect()
+    };
+    let b0 = body_a[0].clone();
+    let new = |limit: Option<f32>| {
+        let cfg = SimConfig { speed_limit: limit, ..SimConfig::default() };
+        Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap()
+    };
+    let (mut a, mut b, mut plain) = (new(Some(limit)), new(None), new(None));
+    for t in 1..=frames {
+        a.set_pin_targets(&pins_a[t]).unwrap();
+        a.step(&body_a[t]).unwrap();
+        b.set_pin_targets(&shift(&pins_a[t], total[t])).unwrap();
+        b.step(&shift(&body_a[t], total[t])).unwrap();
+        plain.set_pin_targets(&pins_a[t]).unwrap();
+        plain.step(&body_a[t]).unwrap();
+        if total[t] == [0.0; 3] {
+            assert_eq!(a.state(), plain.state(), "frame {t}: under the limit nothing changes");
+        }
+        let moved_back = shift(a.positions(), total[t]);
+        let err = moved_back
+            .iter()
+            .zip(b.positions())
+            .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).abs()).fold(0.0, f32::max))
+            .fold(0.0, f32::max);
+        let verr = a
+            .state()
+            .velocity
+            .iter()
+            .zip(&b.state().velocity)
+            .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).abs()).fold(0.0, f32::max))
+            .fold(0.0, f32::max);
+        assert!(err < 1e-3 && verr < 1e-3, "frame {t}: positions {err} m, velocities {verr} m/frame apart");
+    }
+    // The carried garment came along; without the limit the network saw 9 m/s.
+    let gap = |s: &Sim| (centroid(s.positions())[2] - centroid(&pins_a[frames])[2]).abs();
+    println!("garment centroid behind the pins: {:.3} m with the limit, {:.3} m without", gap(&a), gap(&plain));
+}

@@ -2,14 +2,16 @@
 //! asserts.
 //!
 //! Input-handling cases (teleport, non-finite input, degenerate input, extreme materials) run
-//! on a small random model: what they check holds for any weights. Cases that only mean
-//! something for a trained model (long rollouts, 10 m/s motion, bad start states, bf16 against
-//! f32) load `models/compact.hood` when `HOOD_STABILITY_TRAINED=1` is set and print SKIPPED
-//! otherwise. The shipped model (30,000 iterations) passes 4 of these 8 tests and misses the
-//! strain bounds of the rest: 0.99 against 0.5 on the long rollout and the bf16 case, 0.96 against
-//! 0.62 after the half turn, 78 against 0.62 at 10 m/s. So CI leaves them out until a shipped
-//! model passes; the bounds stay where they are. `HOOD_STABILITY_RANDOM=1` runs them on a random model instead (for
-//! debugging the harness: the bounds are then expected to fail).
+//! on a small random model: what they check holds for any weights. The bounds that only mean
+//! something for a trained model run on the shipped `models/compact.hood` (or the file named by
+//! `HOOD_STABILITY_MODEL`): always for the cases the shipped models pass (10 m/s motion, bad
+//! start states, degenerate input, extreme materials), and with `HOOD_STABILITY_TRAINED=1` for
+//! the three they miss, printing SKIPPED otherwise. Both shipped models (compact at 30,000
+//! iterations, medium at 35,000) miss the strain bounds of the long rollout (compact 0.99,
+//! medium 2.58, against 0.5), of the bf16 case (0.99 and 0.94 against 0.5) and after the half
+//! turn (0.96 and 0.80 against 0.62); the bounds stay where they are. `HOOD_STABILITY_RANDOM=1`
+//! runs the opt-in cases on a random model instead (for debugging the harness: the bounds are
+//! then expected to fail).
 //!
 //! Scenes are small (a ~300-vertex skirt on the coarse procedural mannequin) to keep the file
 //! fast. Under debug assertions (CI runs `cargo test` in the test profile) the long cases run
@@ -48,12 +50,22 @@ fn strain_bound(anim: &dyn Animation) -> f64 {
     MAX_STRAIN.max(1.2 * hood::physics::max_edge_strain(&cloth, &x))
 }
 
-/// The shipped compact model (with `HOOD_STABILITY_TRAINED`), or (with `HOOD_STABILITY_RANDOM`)
-/// a random one, or `None` after printing SKIPPED.
+/// The model file named by `HOOD_STABILITY_MODEL`, else the shipped compact model: for the
+/// trained-model bounds the shipped models meet.
+fn shipped(test: &str) -> ModelBytes {
+    if let Some(path) = std::env::var_os("HOOD_STABILITY_MODEL") {
+        println!("{test}: on {}", path.to_string_lossy());
+        return ModelBytes::read(&path).expect("HOOD_STABILITY_MODEL loads");
+    }
+    ModelBytes::read(concat!(env!("CARGO_MANIFEST_DIR"), "/models/compact.hood")).expect("models/compact.hood loads")
+}
+
+/// For the bounds the shipped models still miss: [`shipped`] when `HOOD_STABILITY_MODEL` or
+/// `HOOD_STABILITY_TRAINED` is set, or (with `HOOD_STABILITY_RANDOM`) a random model, or `None`
+/// after printing SKIPPED.
 fn trained(test: &str) -> Option<ModelBytes> {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/models/compact.hood");
-    if std::env::var_os("HOOD_STABILITY_TRAINED").is_some() {
-        return Some(ModelBytes::read(path).expect("models/compact.hood loads"));
+    if std::env::var_os("HOOD_STABILITY_MODEL").is_some() || std::env::var_os("HOOD_STABILITY_TRAINED").is_some() {
+        return Some(shipped(test));
     }
     if std::env::var_os("HOOD_STABILITY_RANDOM").is_some() {
         println!("{test}: on a RANDOM model (HOOD_STABILITY_RANDOM): bounds are expected to fail");
@@ -210,12 +222,13 @@ fn stability_teleport_jump_and_half_turn() {
 }
 
 /// Item 3: the walking body is also carried at 10 m/s along z for one second (1/3 m per frame,
-/// below the teleport threshold, so every frame is a network step), then stops. Bound: finite;
+/// no jump for the teleport rule, so every frame is a network step; the speed limit carries the
+/// garment by what exceeds 3.6 m/s), then stops. Bound: finite;
 /// speed below 15 m/s and strain within bounds; 20 frames after stopping the garment's centroid
 /// is within 0.15 m of where skinning puts it (it came along).
 #[test]
 fn stability_ten_metres_per_second() {
-    let Some(model) = trained("stability_ten_metres_per_second") else { return };
+    let model = shipped("stability_ten_metres_per_second");
     let base = procedural(mannequin(), GarmentKind::Skirt, 300, MotionKind::Walk, 2.4).unwrap();
     let mut anim = Playback::record(&base, 71).unwrap();
     let (start, end) = (10usize, 40usize);
@@ -227,7 +240,13 @@ fn stability_ten_metres_per_second() {
     let frames = 60;
     let r = run(&model, &anim, frames, SimConfig::default(), vec![frames]);
     assert_finite_and_bounded("10 m/s", &r, frames, Some(strain_bound(&anim)));
-    assert!(r.frames.iter().all(|f| f.kind == StepKind::Stepped || f.kind == StepKind::StartUp));
+    let not_stepped: Vec<(usize, StepKind)> = r
+        .frames
+        .iter()
+        .filter(|f| f.kind != StepKind::Stepped && f.kind != StepKind::StartUp)
+        .map(|f| (f.frame, f.kind))
+        .collect();
+    assert!(not_stepped.is_empty(), "frames not stepped by the network: {not_stepped:?}");
     let (a, b) = (centroid(&r.kept[0].1), centroid(&anim.pin_targets[frames]));
     let off = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
     println!("10 m/s: garment centroid {off:.3} m from the skinned one at frame {frames}");
@@ -242,7 +261,7 @@ fn stability_ten_metres_per_second() {
 /// % penetrating vertices within 2 points of the same rollout from the scene's own start.
 #[test]
 fn stability_bad_start_states() {
-    let Some(model) = trained("stability_bad_start_states") else { return };
+    let model = shipped("stability_bad_start_states");
     let scene = skirt_walk();
     let mut base = Playback::record(scene, 50).unwrap();
     let bound = strain_bound(&base);
@@ -365,7 +384,7 @@ fn stability_degenerate_input() {
     r3.push([0.0, 2.0, 0.0]);
     assert_eq!(Garment::new(GarmentDesc::new(&r3, &faces)).unwrap_err(), Error::UnusedVertex { vertex: rest.len() });
 
-    let trained_model = trained("stability_degenerate_input (trained bounds)");
+    let trained_model = shipped("stability_degenerate_input (trained bounds)");
     let random = random_model(16, 22, false);
     let cases: Vec<(&str, Mesh)> = vec![
         ("repaired", (compact.rest.clone(), compact.faces.clone())),
@@ -389,10 +408,8 @@ fn stability_degenerate_input() {
             let label = format!("{what}, body {with_body}");
             let rr = run(&random, &anim, 20, SimConfig::default(), Vec::new());
             assert_finite_and_bounded(&label, &rr, 20, None);
-            if let Some(m) = &trained_model {
-                let rt = run(m, &anim, 20, SimConfig::default(), Vec::new());
-                assert_finite_and_bounded(&label, &rt, 20, Some(strain_bound(&anim)));
-            }
+            let rt = run(&trained_model, &anim, 20, SimConfig::default(), Vec::new());
+            assert_finite_and_bounded(&label, &rt, 20, Some(strain_bound(&anim)));
         }
     }
 }
@@ -404,7 +421,7 @@ fn stability_degenerate_input() {
 fn stability_extreme_materials() {
     let scene = skirt_walk();
     let random = random_model(16, 23, false);
-    let trained_model = trained("stability_extreme_materials (trained bounds)");
+    let trained_model = shipped("stability_extreme_materials (trained bounds)");
     let frames = 15;
     let base = Playback::record(scene, frames + 1).unwrap();
     for corner in 0..16u32 {
@@ -420,10 +437,8 @@ fn stability_extreme_materials() {
         let label = format!("{material:?}");
         let r = run(&random, &s, frames, SimConfig::default(), Vec::new());
         assert_finite_and_bounded(&label, &r, frames, None);
-        if let Some(m) = &trained_model {
-            let r = run(m, &s, frames, SimConfig::default(), Vec::new());
-            assert_finite_and_bounded(&label, &r, frames, Some(strain_bound(&s)));
-        }
+        let r = run(&trained_model, &s, frames, SimConfig::default(), Vec::new());
+        assert_finite_and_bounded(&label, &r, frames, Some(strain_bound(&s)));
     }
 }
 

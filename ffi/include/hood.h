@@ -138,6 +138,7 @@ hood_status hood_garment_face_count(const hood_garment *garment, size_t *out);
 #define HOOD_EFFECT_SLEEPING 8u       /* skip steps while body and garment are at rest */
 #define HOOD_EFFECT_STARTUP 16u       /* relaxation step with a static body before the first step */
 #define HOOD_EFFECT_AUTO_TELEPORT 32u /* body jumps beyond teleport_threshold carry the garment along */
+#define HOOD_EFFECT_SPEED_LIMIT 64u   /* body speeds beyond speed_limit carry the garment along */
 
 #define HOOD_PRECISION_F32 0u  /* f32 weights and activations */
 #define HOOD_PRECISION_BF16 1u /* bf16 weights, f32 accumulation (model with bf16 weights) */
@@ -148,12 +149,18 @@ typedef struct hood_sim_config {
     uint32_t threads;        /* worker threads without an executor (0 or 1: the calling thread) */
     uint32_t sleep_frames;   /* frames at rest before sleeping (HOOD_EFFECT_SLEEPING) */
     float sleep_threshold;   /* "at rest": body motion and garment speed below this, m/frame */
-    float teleport_threshold; /* HOOD_EFFECT_AUTO_TELEPORT: when some body vertex moves farther than
-                                 this (m) in one frame, hood_sim_step moves the garment by the body's
+    float teleport_threshold; /* HOOD_EFFECT_AUTO_TELEPORT: when the body's centroid, or some body
+                                 vertex beyond what the speed limit carries, moves farther than this
+                                 (m) in one frame, hood_sim_step moves the garment by the body's
                                  best-fit rigid motion instead of simulating the jump */
+    float speed_limit;       /* HOOD_EFFECT_SPEED_LIMIT: when the body's centroid moves farther than
+                                this (m) in one frame, the step runs in a frame of reference that
+                                follows the excess: the garment is carried by it and the network
+                                sees the body move this far (like the inertia scales of game cloth) */
 } hood_sim_config;
 
-/* The defaults: body collision, pinning, start-up and auto-teleport (0.45 m) on; f32; 1 thread;
+/* The defaults: body collision, pinning, start-up, auto-teleport (0.45 m) and the speed limit
+ * (0.12 m/frame, 3.6 m/s) on; f32; 1 thread;
  * sleeping after 3 frames below 1e-5 m/frame (when enabled). A NULL `out` is ignored
  * (only hood_last_error records it). */
 void hood_sim_config_default(hood_sim_config *out);

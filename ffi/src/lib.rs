@@ -83,7 +83,9 @@ pub const HOOD_EFFECT_SLEEPING: u32 = 8;
 pub const HOOD_EFFECT_STARTUP: u32 = 16;
 /// Effect flag: carry the garment along when the body jumps farther than the threshold.
 pub const HOOD_EFFECT_AUTO_TELEPORT: u32 = 32;
-const ALL_EFFECTS: u32 = 63;
+/// Body speeds beyond `speed_limit` carry the garment instead of reaching the network.
+pub const HOOD_EFFECT_SPEED_LIMIT: u32 = 64;
+const ALL_EFFECTS: u32 = 127;
 
 /// f32 arithmetic.
 pub const HOOD_PRECISION_F32: u32 = 0;
@@ -535,6 +537,8 @@ pub struct hood_sim_config {
     pub sleep_threshold: f32,
     /// Auto-teleport threshold: largest body vertex jump per frame still simulated, m.
     pub teleport_threshold: f32,
+    /// Speed limit: largest body centroid motion per frame the network sees, m.
+    pub speed_limit: f32,
 }
 
 /// The body of a scene (see the header).
@@ -603,7 +607,8 @@ pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
             | flag(d.normals, HOOD_EFFECT_NORMALS)
             | flag(d.sleeping.is_some(), HOOD_EFFECT_SLEEPING)
             | flag(d.startup, HOOD_EFFECT_STARTUP)
-            | flag(d.teleport.is_some(), HOOD_EFFECT_AUTO_TELEPORT);
+            | flag(d.teleport.is_some(), HOOD_EFFECT_AUTO_TELEPORT)
+            | flag(d.speed_limit.is_some(), HOOD_EFFECT_SPEED_LIMIT);
         let c = hood_sim_config {
             effects,
             precision: HOOD_PRECISION_F32,
@@ -611,6 +616,7 @@ pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
             sleep_frames: s.frames,
             sleep_threshold: s.threshold,
             teleport_threshold: d.teleport.unwrap_or(hood::sim::DEFAULT_TELEPORT),
+            speed_limit: d.speed_limit.unwrap_or(hood::sim::DEFAULT_SPEED_LIMIT),
         };
         // SAFETY: non-null; writable by the caller's promise.
         unsafe { write_out(out, c) };
@@ -635,16 +641,21 @@ fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
     } else {
         None
     };
-    let teleport = if c.effects & HOOD_EFFECT_AUTO_TELEPORT != 0 {
-        if !(c.teleport_threshold.is_finite() && c.teleport_threshold > 0.0) {
-            return Err(Error::OutOfRange { what: "config teleport threshold", index: 0 }.into());
+    // A distance of an effect that is on: finite and positive.
+    let distance = |flag: u32, value: f32, what: &'static str| -> Result<Option<f32>> {
+        if c.effects & flag == 0 {
+            return Ok(None);
         }
-        Some(c.teleport_threshold)
-    } else {
-        None
+        if !(value.is_finite() && value > 0.0) {
+            return Err(Error::OutOfRange { what, index: 0 }.into());
+        }
+        Ok(Some(value))
     };
+    let teleport = distance(HOOD_EFFECT_AUTO_TELEPORT, c.teleport_threshold, "config teleport threshold")?;
+    let speed_limit = distance(HOOD_EFFECT_SPEED_LIMIT, c.speed_limit, "config speed limit")?;
     Ok(SimConfig {
         teleport,
+        speed_limit,
         body_collision: c.effects & HOOD_EFFECT_BODY_COLLISION != 0,
         pinning: c.effects & HOOD_EFFECT_PINNING != 0,
         normals: c.effects & HOOD_EFFECT_NORMALS != 0,

@@ -388,6 +388,13 @@ fn misaligned_and_corrupt_models_are_refused() {
         cfg.precision = 7;
         assert_eq!(hood_sim_new(out, g, null(), &cfg, &mut sim), HOOD_ERR_OUT_OF_RANGE);
         cfg.precision = HOOD_PRECISION_F32;
+        assert_ne!(cfg.effects & HOOD_EFFECT_SPEED_LIMIT, 0, "the speed limit is on by default");
+        assert_eq!(cfg.speed_limit, hood::sim::DEFAULT_SPEED_LIMIT);
+        for bad in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            cfg.speed_limit = bad;
+            assert_eq!(hood_sim_new(out, g, null(), &cfg, &mut sim), HOOD_ERR_OUT_OF_RANGE, "{bad}");
+        }
+        cfg.speed_limit = hood::sim::DEFAULT_SPEED_LIMIT;
         cfg.effects |= 1 << 20;
         assert_eq!(hood_sim_new(out, g, null(), &cfg, &mut sim), HOOD_ERR_OUT_OF_RANGE);
         assert!(sim.is_null());

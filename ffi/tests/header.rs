@@ -230,6 +230,7 @@ fn compiler_checks_types_constants_and_layouts() {
         HOOD_EFFECT_SLEEPING,
         HOOD_EFFECT_STARTUP,
         HOOD_EFFECT_AUTO_TELEPORT,
+        HOOD_EFFECT_SPEED_LIMIT,
         HOOD_PRECISION_F32,
         HOOD_PRECISION_BF16,
         HOOD_VERSION_MAJOR,
@@ -274,7 +275,10 @@ fn compiler_checks_types_constants_and_layouts() {
         ));
     }
     layout!(cpp, hood_material { density, mu, lambda, bending });
-    layout!(cpp, hood_sim_config { effects, precision, threads, sleep_frames, sleep_threshold, teleport_threshold });
+    layout!(
+        cpp,
+        hood_sim_config { effects, precision, threads, sleep_frames, sleep_threshold, teleport_threshold, speed_limit }
+    );
     layout!(cpp, hood_body_desc { positions, n_vertices, indices, n_faces, omitted });
     layout!(cpp, hood_executor { user, parallelism, run });
     cpp.push_str("int main() { return 0; }\n");

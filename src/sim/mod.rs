@@ -19,7 +19,7 @@ use crate::error::{Error, Result};
 use crate::features::{self, BodyNodes, Embeddings, GarmentNodes, DT, DT_STARTUP, EDGE_WIDTH, NODE_WIDTH};
 use crate::hierarchy::{Hierarchy, HierarchyConfig};
 use crate::kernels::{Kernels, Tier};
-use crate::math::finite3;
+use crate::math::{finite3, norm3};
 use crate::mesh::{vertex_normals, Garment};
 use crate::model::file::Model;
 use crate::model::spec::EdgeKey;
@@ -37,6 +37,11 @@ pub use network::{Probe, Stage};
 /// Default teleport threshold, metres per frame: a fast run moves a hand about 0.35 m per
 /// frame; a jump of the whole body by a metre, or a 180° turn in one frame, moves far more.
 pub const DEFAULT_TELEPORT: f32 = 0.45;
+
+/// Default speed limit, metres per frame (3.6 m/s): 20 % above the fastest motion of the
+/// training data (the procedural run, 3 m/s), so that none of it is affected; low enough that
+/// the shipped models keep a garment on a body moved at 10 m/s (`tests/stability.rs`).
+pub const DEFAULT_SPEED_LIMIT: f32 = 0.12;
 
 /// Body-edge radius (MODEL.md section 1), metres.
 pub const BODY_EDGE_RADIUS: f32 = 0.03;
@@ -85,10 +90,18 @@ pub struct SimConfig {
     pub startup: bool,
     /// Kernel path cap (`None`: the best this CPU has).
     pub tier: Option<Tier>,
-    /// Teleport threshold, metres: when some body vertex moves farther than this in one frame,
-    /// the garment is carried along by the body's best-fit rigid motion instead of being
-    /// stepped through the jump (`None`: never).
+    /// Teleport threshold, metres: when the body's centroid, or some body vertex beyond what
+    /// the speed limit carries, moves farther than this in one frame, the garment is carried
+    /// along by the body's best-fit rigid motion instead of being stepped through the jump
+    /// (`None`: never).
     pub teleport: Option<f32>,
+    /// Speed limit, metres per frame: when the body's centroid moves farther than this in one
+    /// frame, the step runs in a frame of reference that follows the excess (the garment is
+    /// carried by it, and the network sees the body move at the limit), like the inertia scales
+    /// of game-engine cloth. The garment then feels the body's acceleration only up to the
+    /// limit: a character moved at 10 m/s keeps its clothes (`None`: never; the network then
+    /// sees speeds it was not trained on). A deviation from HOOD that only acts above the limit.
+    pub speed_limit: Option<f32>,
     /// Threads for the step's parallel parts when no executor is plugged in with
     /// [`Sim::set_executor`]: 1 runs serially; more starts a [`ThreadPool`] (feature `std`).
     pub threads: usize,
@@ -105,6 +118,7 @@ impl Default for SimConfig {
             startup: true,
             tier: None,
             teleport: Some(DEFAULT_TELEPORT),
+            speed_limit: Some(DEFAULT_SPEED_LIMIT),
             threads: 1,
         }
     }
@@ -138,6 +152,10 @@ struct BodyState {
     edge_garment: Vec<u32>,
     edge_body: Vec<u32>,
     edge_pairs: Vec<[u32; 2]>,
+    /// The body's previous and next frames as the network sees them under the speed limit, in
+    /// the frame of reference that follows the carried motion.
+    carried_prev: Vec<[f32; 3]>,
+    carried_next: Vec<[f32; 3]>,
 }
 
 /// One garment on one body, stepped by one model.
@@ -159,6 +177,8 @@ pub struct Sim<'m> {
     ws: Workspace,
     exec: Box<dyn Executor + 'm>,
     last_body: (usize, usize),
+    /// The speed limit's carry of the last step, m (zero: none).
+    last_carry: [f32; 3],
 }
 
 /// The body of a scene: its mesh (optionally with omitted vertices) and its positions at the
@@ -246,6 +266,8 @@ impl<'m> Sim<'m> {
                     edge_garment: vec![0; n],
                     edge_body: vec![0; n],
                     edge_pairs: vec![[0; 2]; n],
+                    carried_prev: if cfg.speed_limit.is_some() { vec![[0.0; 3]; nb] } else { Vec::new() },
+                    carried_next: if cfg.speed_limit.is_some() { vec![[0.0; 3]; nb] } else { Vec::new() },
                 })
             }
             _ => None,
@@ -282,6 +304,7 @@ impl<'m> Sim<'m> {
             ws,
             exec: default_executor(cfg.threads),
             last_body: (0, 0),
+            last_carry: [0.0; 3],
         })
         .map(|mut sim: Sim<'m>| {
             sim.ws.set_tasks(sim.exec.parallelism(), &sim.graph);
@@ -367,6 +390,8 @@ impl<'m> Sim<'m> {
         check_finite("state body position", &s.body_pos)?;
         self.state.clone_from(s);
         self.rest_frames = 0;
+        // The state is in world coordinates: the speed limit's frame of reference starts anew.
+        self.last_carry = [0.0; 3];
         Ok(())
     }
 
@@ -420,12 +445,23 @@ impl<'m> Sim<'m> {
             }
             check_finite("body vertex", body_next)?;
         }
+        // The body's mean motion over this frame, and the part of it the speed limit carries.
+        let (mean, carry) = match &self.body {
+            Some(_) if self.cfg.teleport.is_some() || self.cfg.speed_limit.is_some() => {
+                let mean = mean_motion(&self.state.body_pos, body_next);
+                (mean, self.cfg.speed_limit.map_or([0.0; 3], |l| excess_motion(mean, l)))
+            }
+            _ => ([0.0; 3], [0.0; 3]),
+        };
         if let (Some(limit), Some(_)) = (self.cfg.teleport, &self.body) {
+            // A jump: the body as a whole, or some vertex beyond what the speed limit carries,
+            // moves farther than the threshold (fast motion carried by the limit is no jump).
             let l2 = limit * limit;
-            let jump = self.state.body_pos.iter().zip(body_next).any(|(a, b)| {
-                let d = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-                d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > l2
-            });
+            let jump = norm3(mean) > limit
+                || self.state.body_pos.iter().zip(body_next).any(|(a, b)| {
+                    let d = [b[0] - a[0] - carry[0], b[1] - a[1] - carry[1], b[2] - a[2] - carry[2]];
+                    d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > l2
+                });
             if jump {
                 let motion = best_rigid_motion(&self.state.body_pos, body_next);
                 self.teleport(&motion, body_next)?;
@@ -445,11 +481,11 @@ impl<'m> Sim<'m> {
         if !self.state.started {
             // Start-up: static body (next = current), dt = 1/3 s, no velocity.
             self.state.velocity.iter_mut().for_each(|v| *v = [0.0; 3]);
-            self.advance(None, DT_STARTUP, observer)?;
+            self.advance(None, [0.0; 3], DT_STARTUP, observer)?;
             self.state.started = true;
         }
         let next = if self.body.is_some() { Some(body_next) } else { None };
-        self.advance(next, DT, observer)?;
+        self.advance(next, carry, DT, observer)?;
         Ok(&self.state.pos)
     }
 
@@ -483,6 +519,7 @@ impl<'m> Sim<'m> {
             self.state.body_pos.copy_from_slice(body_now);
             self.state.body_prev.copy_from_slice(body_now);
         }
+        self.last_carry = [0.0; 3];
         if self.cfg.normals {
             vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
         }
@@ -498,17 +535,41 @@ impl<'m> Sim<'m> {
         body_still && self.state.velocity.iter().all(|v| d2(*v, [0.0; 3]) <= t2)
     }
 
-    /// One network step from the current state to `body_next` (`None`: static body).
-    fn advance(&mut self, body_next: Option<&[[f32; 3]]>, dt: f32, observer: &mut dyn FnMut(Probe<'_>)) -> Result<()> {
+    /// One network step from the current state to `body_next` (`None`: static body), in the
+    /// speed limit's frame of reference: it moved by `self.last_carry` over the last step and
+    /// moves by `carry` over this one (m; both zero but under the limit). In that frame,
+    /// translated to coincide with the world at the current frame, the body's previous frame
+    /// lies at `body_prev + last_carry` and its next at `body_next - carry`; the garment's
+    /// velocity is already relative to it, and its new positions are moved by `+carry`.
+    fn advance(
+        &mut self,
+        body_next: Option<&[[f32; 3]]>,
+        carry: [f32; 3],
+        dt: f32,
+        observer: &mut dyn FnMut(Probe<'_>),
+    ) -> Result<()> {
         let n = self.garment.n_vertices();
+        let carried = carry != [0.0; 3];
+        let last = if dt == DT_STARTUP { [0.0; 3] } else { self.last_carry };
+        let shifted = carried || last != [0.0; 3];
         // Pinned vertices sit at their targets before the graph is built; keep the old
         // positions so that a refused step leaves the state unchanged.
         self.new_pos.copy_from_slice(&self.state.pos);
         let first_step = dt == DT_STARTUP;
         for i in 0..n {
             if self.pinned[i] {
-                self.new_pos[i] = self.pin_targets[i];
+                let t = self.pin_targets[i];
+                self.new_pos[i] = if carried { [t[0] - carry[0], t[1] - carry[1], t[2] - carry[2]] } else { t };
             }
+        }
+        if let (true, Some(b), Some(next)) = (shifted, &mut self.body, body_next) {
+            let shift = |out: &mut [[f32; 3]], src: &[[f32; 3]], by: [f32; 3]| {
+                for (o, p) in out.iter_mut().zip(src) {
+                    *o = [p[0] + by[0], p[1] + by[1], p[2] + by[2]];
+                }
+            };
+            shift(&mut b.carried_prev, &self.state.body_prev, last);
+            shift(&mut b.carried_next, next, carry.map(|c| -c));
         }
         let pos = &self.new_pos;
         // Body edges at the current frame.
@@ -576,10 +637,17 @@ impl<'m> Sim<'m> {
         let nb = prefix[0];
         if let Some(b) = &self.body {
             let bpos = &self.state.body_pos;
-            let bprev = if first_step { bpos } else { &self.state.body_prev };
+            let bprev = match (first_step, shifted) {
+                (true, _) => bpos,
+                (false, true) => &b.carried_prev,
+                (false, false) => &self.state.body_prev,
+            };
             let bn = BodyNodes { pos: bpos, prev: bprev, normals: &b.normals, omitted: b.mesh.omitted(), dt };
             features::body_node_features(&bn, &b.active[..n_active], &emb, &mut bpart[..n_active * NODE_WIDTH])?;
-            let bnext = body_next.unwrap_or(bpos);
+            let bnext = match (shifted, body_next) {
+                (true, Some(_)) => &b.carried_next,
+                _ => body_next.unwrap_or(bpos),
+            };
             features::body_edge_features(
                 &b.edge_pairs[..nb],
                 pos,
@@ -637,6 +705,11 @@ impl<'m> Sim<'m> {
             self.new_vel[i] = nv;
             self.new_pos[i] = np;
         }
+        if carried {
+            for p in self.new_pos.iter_mut() {
+                *p = [p[0] + carry[0], p[1] + carry[1], p[2] + carry[2]];
+            }
+        }
         // Commit.
         core::mem::swap(&mut self.state.pos, &mut self.new_pos);
         core::mem::swap(&mut self.state.velocity, &mut self.new_vel);
@@ -650,8 +723,31 @@ impl<'m> Sim<'m> {
         if self.cfg.normals {
             vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
         }
+        self.last_carry = carry;
         Ok(())
     }
+}
+
+/// The mean displacement of the body's vertices from `now` to `next`, m.
+fn mean_motion(now: &[[f32; 3]], next: &[[f32; 3]]) -> [f32; 3] {
+    let mut d = [0.0f64; 3];
+    for (a, b) in now.iter().zip(next) {
+        for k in 0..3 {
+            d[k] += (b[k] - a[k]) as f64;
+        }
+    }
+    let n = now.len().max(1) as f64;
+    d.map(|v| (v / n) as f32)
+}
+
+/// The part of the displacement `d` beyond `limit` metres (zero when it is shorter), m.
+fn excess_motion(d: [f32; 3], limit: f32) -> [f32; 3] {
+    let len = norm3(d);
+    if len.is_nan() || len <= limit {
+        return [0.0; 3];
+    }
+    let s = 1.0 - limit / len;
+    d.map(|v| v * s)
 }
 
 fn default_executor<'m>(threads: usize) -> Box<dyn Executor + 'm> {
