@@ -191,3 +191,48 @@ fn train_supervised_pull_toward_the_optimum() {
     assert_ne!(a.params().mlps(), b.params().mlps());
     assert_eq!(TrainConfig::from_json(&on.to_json()).unwrap(), on);
 }
+
+/// `hood train --scenes-from`: a resumed run forks onto other scenes (recorded in `config.json`
+/// and in the next checkpoint, so that a later resume keeps them); a new run refuses the flag.
+#[cfg(feature = "cli")]
+#[test]
+fn train_cli_resume_with_other_scenes() {
+    let dir = std::env::temp_dir().join(format!("hood-scenes-from-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut cfg = tiny_config();
+    cfg.checkpoint_every = 1;
+    let first = dir.join("first.json");
+    std::fs::write(&first, cfg.to_json()).unwrap();
+    let second = dir.join("second.json");
+    std::fs::write(
+        &second,
+        r#"{"scenes": [{"garment": "cape", "vertices": 64, "motion": "arm-swings", "seconds": 1},
+                       {"garment": "skirt", "vertices": 100, "motion": "turn", "seconds": 1}]}"#,
+    )
+    .unwrap();
+    let run = dir.join("run");
+    let hood = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+            .arg("train")
+            .arg("--dir")
+            .arg(&run)
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let o = hood(&["--scenes-from", second.to_str().unwrap(), "--iterations", "1"]);
+    assert!(!o.status.success(), "a new run must refuse --scenes-from");
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--scenes-from"), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = hood(&["--config", first.to_str().unwrap(), "--iterations", "2"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = hood(&["--scenes-from", second.to_str().unwrap(), "--iterations", "3"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let recorded = TrainConfig::from_json(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+    assert_eq!(recorded.scenes.len(), 2);
+    let st = hood::io::safetensors::SafeTensors::read(run.join("checkpoint.safetensors")).unwrap();
+    let in_checkpoint = hood::train::session::checkpoint_config(&st).unwrap();
+    assert_eq!(in_checkpoint.scenes, recorded.scenes);
+    assert_eq!(in_checkpoint.latent, cfg.latent, "only the scenes change");
+    let _ = std::fs::remove_dir_all(&dir);
+}

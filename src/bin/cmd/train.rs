@@ -19,6 +19,12 @@ pub struct TrainArgs {
     /// resuming from a checkpoint (its own config is used).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// When resuming, train from now on on the scenes of this config instead of the run's own
+    /// (a deliberate fork of the data: weights, optimiser state, schedule and the rest carry
+    /// on; `config.json` and later checkpoints record the new scenes). Keep the run's first
+    /// scenes first: the periodic validation rolls out the first ones.
+    #[arg(long)]
+    scenes_from: Option<PathBuf>,
     /// Start from an exported model's weights and statistics when the folder has no
     /// checkpoint (for example a committed `models/*.hood`).
     #[arg(long)]
@@ -188,11 +194,21 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     let _ = std::fs::remove_file(&stop);
     let mut t = if ckpt.exists() && !a.fresh {
         let st = hood::io::safetensors::SafeTensors::read(&ckpt)?;
-        let cfg = hood::train::session::checkpoint_config(&st)?;
-        let t = Trainer::resume(&ckpt, build_data(&cfg, &shared)?)?;
+        let mut cfg = hood::train::session::checkpoint_config(&st)?;
+        if let Some(p) = &a.scenes_from {
+            let other = TrainConfig::from_json(&std::fs::read_to_string(p).map_err(|e| io_err(p, e))?)?;
+            eprintln!("scenes from {}: {} instead of {}", p.display(), other.scenes.len(), cfg.scenes.len());
+            cfg.scenes = other.scenes;
+        }
+        let mut t = Trainer::resume(&ckpt, build_data(&cfg, &shared)?)?;
+        t.cfg.scenes = cfg.scenes;
         eprintln!("resumed {} at iteration {}", ckpt.display(), t.iteration);
         t
     } else {
+        if let Some(p) = &a.scenes_from {
+            let message = "--scenes-from forks a run being resumed; a new run takes its scenes from --config";
+            return Err(hood::Error::parse("--scenes-from", 0, format!("{}: {message}", p.display())));
+        }
         let cfg = match &a.config {
             Some(p) => TrainConfig::from_json(&std::fs::read_to_string(p).map_err(|e| io_err(p, e))?)?,
             None => TrainConfig::default(),
