@@ -129,7 +129,8 @@ impl Default for SimConfig {
 pub struct SimState {
     /// Garment positions at the current frame, m.
     pub pos: Vec<[f32; 3]>,
-    /// Garment velocities, m/frame.
+    /// Garment velocities, m/frame (while the speed limit carries the garment, relative to the
+    /// frame of reference that follows the body's excess motion).
     pub velocity: Vec<[f32; 3]>,
     /// Body positions at the previous frame, m (empty without a body).
     pub body_prev: Vec<[f32; 3]>,
