@@ -22,7 +22,7 @@
 use crate::body::{BodyMesh, PointGrid, Winding};
 use crate::error::{Error, Result};
 use crate::features::DT;
-use crate::math::{norm3, sub3};
+use crate::math::{finite_bounds, norm3, sub3};
 use crate::mesh::Garment;
 use crate::model::file::Model;
 use crate::physics::{face_frames, max_edge_strain, plane_distances, CentroidQuery, Cloth, FaceFrame, Objective};
@@ -848,7 +848,7 @@ pub fn strip_images(anim: &dyn Animation, kept: &[(usize, Vec<[f32; 3]>)], width
                 Some((b, _)) if !b.is_empty() => b,
                 _ => pos,
             };
-            let (lo, hi) = bounds(framed);
+            let (lo, hi) = finite_bounds(framed);
             let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])];
             let extent = (hi[1] - lo[1]).max(0.6 * (hi[0] - lo[0]).max(hi[2] - lo[2])).max(0.1);
             let cam = Camera::orthographic(centre, [1.0, 0.15, 0.35], 1.15 * extent);
@@ -861,22 +861,4 @@ pub fn strip_images(anim: &dyn Animation, kept: &[(usize, Vec<[f32; 3]>)], width
             im
         })
         .collect()
-}
-
-/// Bounding box of the finite points of `points`.
-fn bounds(points: &[[f32; 3]]) -> ([f32; 3], [f32; 3]) {
-    let mut lo = [f32::INFINITY; 3];
-    let mut hi = [f32::NEG_INFINITY; 3];
-    for p in points {
-        for k in 0..3 {
-            if p[k].is_finite() {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
-    }
-    if lo[0] > hi[0] {
-        return ([0.0; 3], [0.0; 3]);
-    }
-    (lo, hi)
 }

@@ -155,3 +155,21 @@ pub fn v3_from_f32<T: Real>(a: [f32; 3]) -> V3<T> {
 pub fn finite3(a: [f32; 3]) -> bool {
     a[0].is_finite() && a[1].is_finite() && a[2].is_finite()
 }
+
+/// Bounding box `(lo, hi)` of the finite points of `points` (m); all zero when there is none.
+pub fn finite_bounds(points: &[[f32; 3]]) -> ([f32; 3], [f32; 3]) {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in points {
+        for k in 0..3 {
+            if p[k].is_finite() {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+    }
+    if lo[0] > hi[0] {
+        return ([0.0; 3], [0.0; 3]);
+    }
+    (lo, hi)
+}

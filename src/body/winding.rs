@@ -18,7 +18,7 @@
 //! from outside. About 0.1 ms per point on the 26,756-face MakeHuman body.
 
 use crate::error::{Error, Result};
-use crate::math::{cross3, dot3, finite3, norm3, scale3, sub3, v3_from_f32, Real};
+use crate::math::{cross3, dot3, finite3, finite_bounds, norm3, scale3, sub3, v3_from_f32, Real};
 use alloc::vec;
 use alloc::vec::Vec;
 use core::f32::consts::PI;
@@ -61,13 +61,7 @@ impl Winding {
     pub fn new(mesh: &BodyMesh, positions: &[[f32; 3]]) -> Result<Winding> {
         mesh.check_positions(positions)?;
         let faces = mesh.faces();
-        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for p in positions {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (lo, hi) = finite_bounds(positions);
         let scale = (0..3).map(|a| hi[a] - lo[a]).fold(f32::MIN_POSITIVE, f32::max);
         let mut keyed: Vec<(u64, u32)> = faces
             .iter()

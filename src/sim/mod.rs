@@ -446,23 +446,29 @@ impl<'m> Sim<'m> {
             }
             check_finite("body vertex", body_next)?;
         }
-        // The body's mean motion over this frame, and the part of it the speed limit carries.
-        let (mean, carry) = match &self.body {
+        // The body's mean motion over this frame (and its largest vertex motion, squared), and
+        // the part of the mean the speed limit carries.
+        let ((mean, largest2), carry) = match &self.body {
             Some(_) if self.cfg.teleport.is_some() || self.cfg.speed_limit.is_some() => {
-                let mean = mean_motion(&self.state.body_pos, body_next);
-                (mean, self.cfg.speed_limit.map_or([0.0; 3], |l| excess_motion(mean, l)))
+                let m = body_motion(&self.state.body_pos, body_next);
+                (m, self.cfg.speed_limit.map_or([0.0; 3], |l| excess_motion(m.0, l)))
             }
-            _ => ([0.0; 3], [0.0; 3]),
+            _ => (([0.0; 3], 0.0), [0.0; 3]),
         };
         if let (Some(limit), Some(_)) = (self.cfg.teleport, &self.body) {
             // A jump: the body as a whole, or some vertex beyond what the speed limit carries,
             // moves farther than the threshold (fast motion carried by the limit is no jump).
+            // Only a carried step needs a second pass over the body.
             let l2 = limit * limit;
             let jump = norm3(mean) > limit
-                || self.state.body_pos.iter().zip(body_next).any(|(a, b)| {
-                    let d = [b[0] - a[0] - carry[0], b[1] - a[1] - carry[1], b[2] - a[2] - carry[2]];
-                    d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > l2
-                });
+                || if carry == [0.0; 3] {
+                    largest2 > l2
+                } else {
+                    self.state.body_pos.iter().zip(body_next).any(|(a, b)| {
+                        let d = [b[0] - a[0] - carry[0], b[1] - a[1] - carry[1], b[2] - a[2] - carry[2]];
+                        d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > l2
+                    })
+                };
             if jump {
                 let motion = best_rigid_motion(&self.state.body_pos, body_next);
                 self.teleport(&motion, body_next)?;
@@ -729,16 +735,20 @@ impl<'m> Sim<'m> {
     }
 }
 
-/// The mean displacement of the body's vertices from `now` to `next`, m.
-fn mean_motion(now: &[[f32; 3]], next: &[[f32; 3]]) -> [f32; 3] {
-    let mut d = [0.0f64; 3];
+/// The mean displacement of the body's vertices from `now` to `next` (m) and the largest squared
+/// displacement of one vertex (m²), in one pass.
+fn body_motion(now: &[[f32; 3]], next: &[[f32; 3]]) -> ([f32; 3], f32) {
+    let mut sum = [0.0f64; 3];
+    let mut largest2 = 0.0f32;
     for (a, b) in now.iter().zip(next) {
+        let d = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
         for k in 0..3 {
-            d[k] += (b[k] - a[k]) as f64;
+            sum[k] += d[k] as f64;
         }
+        largest2 = largest2.max(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
     }
     let n = now.len().max(1) as f64;
-    d.map(|v| (v / n) as f32)
+    (sum.map(|v| (v / n) as f32), largest2)
 }
 
 /// The part of the displacement `d` beyond `limit` metres (zero when it is shorter), m.

@@ -193,12 +193,12 @@ fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
 
 fn print_frame(r: &FrameRecord, frames: usize) {
     let t = r.terms.unwrap_or_default();
-    let mut gap = r.gap.and_then(|g| g.relative).map_or(String::new(), |g| format!("  gap {g:.3}"));
+    let mut optional = r.gap.and_then(|g| g.relative).map_or(String::new(), |g| format!("  gap {g:.3}"));
     if let Some(p) = r.inside_percent {
-        gap.push_str(&format!("  inside {p:.2}%"));
+        optional.push_str(&format!("  inside {p:.2}%"));
     }
     println!(
-        "frame {:>4}/{frames}  {:>7.2} ms  objective {:>10.4} J (stretch {:.4}, bend {:.2e}, inertia {:.4}, gravity {:.4}, collision {:.2e}, friction {:.2e})  penetrating {:>5.2}%  strain {:.3}  speed {:.2} m/s{gap}{}",
+        "frame {:>4}/{frames}  {:>7.2} ms  objective {:>10.4} J (stretch {:.4}, bend {:.2e}, inertia {:.4}, gravity {:.4}, collision {:.2e}, friction {:.2e})  penetrating {:>5.2}%  strain {:.3}  speed {:.2} m/s{optional}{}",
         r.frame,
         r.step_ms,
         t.total(),
