@@ -122,6 +122,7 @@ fn bench_effects(c: &mut Criterion) {
         ("body", base),
         ("body+normals", SimConfig { normals: true, ..base }),
         ("body+sleeping", SimConfig { sleeping: Some(Default::default()), ..base }),
+        ("body+projection", SimConfig { projection: Some(hood::sim::DEFAULT_PROJECTION_MARGIN), ..base }),
     ] {
         let (mut s, st) = sim(&w, &model, cfg);
         let mut t = 0;

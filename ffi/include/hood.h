@@ -139,6 +139,7 @@ hood_status hood_garment_face_count(const hood_garment *garment, size_t *out);
 #define HOOD_EFFECT_STARTUP 16u       /* relaxation step with a static body before the first step */
 #define HOOD_EFFECT_AUTO_TELEPORT 32u /* body jumps beyond teleport_threshold carry the garment along */
 #define HOOD_EFFECT_SPEED_LIMIT 64u   /* body speeds beyond speed_limit carry the garment along */
+#define HOOD_EFFECT_COLLISION_PROJECTION 128u /* push cloth that ends up in the body out of it */
 
 #define HOOD_PRECISION_F32 0u  /* f32 weights and activations */
 #define HOOD_PRECISION_BF16 1u /* bf16 weights, f32 accumulation (model with bf16 weights) */
@@ -157,10 +158,15 @@ typedef struct hood_sim_config {
                                 this (m) in one frame, the step runs in a frame of reference that
                                 follows the excess: the garment is carried by it and the network
                                 sees the body move this far (like the inertia scales of game cloth) */
+    float projection_margin; /* HOOD_EFFECT_COLLISION_PROJECTION: after every step, each free garment
+                                vertex closer than this (m; 0 <= margin < 0.05) to the plane of its
+                                nearest body face (by centroid, within 0.05 m), or behind it, moves
+                                along the face normal to the margin, velocity included. A
+                                post-process outside HOOD: one nearest-face search per step */
 } hood_sim_config;
 
 /* The defaults: body collision, pinning, start-up, auto-teleport (0.45 m) and the speed limit
- * (0.12 m/frame, 3.6 m/s) on; f32; 1 thread;
+ * (0.12 m/frame, 3.6 m/s) on; collision projection off (margin 0.002 m); f32; 1 thread;
  * sleeping after 3 frames below 1e-5 m/frame (when enabled). A NULL `out` is ignored
  * (only hood_last_error records it). */
 void hood_sim_config_default(hood_sim_config *out);

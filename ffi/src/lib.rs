@@ -85,7 +85,9 @@ pub const HOOD_EFFECT_STARTUP: u32 = 16;
 pub const HOOD_EFFECT_AUTO_TELEPORT: u32 = 32;
 /// Body speeds beyond `speed_limit` carry the garment instead of reaching the network.
 pub const HOOD_EFFECT_SPEED_LIMIT: u32 = 64;
-const ALL_EFFECTS: u32 = 127;
+/// Push garment vertices that end up within `projection_margin` of the body out to it.
+pub const HOOD_EFFECT_COLLISION_PROJECTION: u32 = 128;
+const ALL_EFFECTS: u32 = 255;
 
 /// f32 arithmetic.
 pub const HOOD_PRECISION_F32: u32 = 0;
@@ -539,6 +541,8 @@ pub struct hood_sim_config {
     pub teleport_threshold: f32,
     /// Speed limit: largest body centroid motion per frame the network sees, m.
     pub speed_limit: f32,
+    /// Collision projection margin, m.
+    pub projection_margin: f32,
 }
 
 /// The body of a scene (see the header).
@@ -608,7 +612,8 @@ pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
             | flag(d.sleeping.is_some(), HOOD_EFFECT_SLEEPING)
             | flag(d.startup, HOOD_EFFECT_STARTUP)
             | flag(d.teleport.is_some(), HOOD_EFFECT_AUTO_TELEPORT)
-            | flag(d.speed_limit.is_some(), HOOD_EFFECT_SPEED_LIMIT);
+            | flag(d.speed_limit.is_some(), HOOD_EFFECT_SPEED_LIMIT)
+            | flag(d.projection.is_some(), HOOD_EFFECT_COLLISION_PROJECTION);
         let c = hood_sim_config {
             effects,
             precision: HOOD_PRECISION_F32,
@@ -617,6 +622,7 @@ pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
             sleep_threshold: s.threshold,
             teleport_threshold: d.teleport.unwrap_or(hood::sim::DEFAULT_TELEPORT),
             speed_limit: d.speed_limit.unwrap_or(hood::sim::DEFAULT_SPEED_LIMIT),
+            projection_margin: d.projection.unwrap_or(hood::sim::DEFAULT_PROJECTION_MARGIN),
         };
         // SAFETY: non-null; writable by the caller's promise.
         unsafe { write_out(out, c) };
@@ -653,9 +659,12 @@ fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
     };
     let teleport = distance(HOOD_EFFECT_AUTO_TELEPORT, c.teleport_threshold, "config teleport threshold")?;
     let speed_limit = distance(HOOD_EFFECT_SPEED_LIMIT, c.speed_limit, "config speed limit")?;
+    // The margin's range is checked by the sim (0 <= margin < hood::sim::PROJECTION_REACH).
+    let projection = (c.effects & HOOD_EFFECT_COLLISION_PROJECTION != 0).then_some(c.projection_margin);
     Ok(SimConfig {
         teleport,
         speed_limit,
+        projection,
         body_collision: c.effects & HOOD_EFFECT_BODY_COLLISION != 0,
         pinning: c.effects & HOOD_EFFECT_PINNING != 0,
         normals: c.effects & HOOD_EFFECT_NORMALS != 0,

@@ -395,6 +395,15 @@ fn misaligned_and_corrupt_models_are_refused() {
             assert_eq!(hood_sim_new(out, g, null(), &cfg, &mut sim), HOOD_ERR_OUT_OF_RANGE, "{bad}");
         }
         cfg.speed_limit = hood::sim::DEFAULT_SPEED_LIMIT;
+        assert_eq!(cfg.effects & HOOD_EFFECT_COLLISION_PROJECTION, 0, "projection is off by default");
+        assert_eq!(cfg.projection_margin, hood::sim::DEFAULT_PROJECTION_MARGIN);
+        cfg.effects |= HOOD_EFFECT_COLLISION_PROJECTION;
+        assert_eq!(
+            hood_sim_new(out, g, null(), &cfg, &mut sim),
+            HOOD_ERR_UNSUPPORTED_EFFECT,
+            "projection without a body"
+        );
+        cfg.effects &= !HOOD_EFFECT_COLLISION_PROJECTION;
         cfg.effects |= 1 << 20;
         assert_eq!(hood_sim_new(out, g, null(), &cfg, &mut sim), HOOD_ERR_OUT_OF_RANGE);
         assert!(sim.is_null());
@@ -671,6 +680,18 @@ fn config_effects_are_honoured() {
         let mut nrm = vec![[0.0f32; 3]; n];
         assert_eq!(hood_sim_normals(sim, nrm.as_mut_ptr().cast(), n), HOOD_ERR_UNSUPPORTED_EFFECT);
         assert_eq!(hood_sim_free(sim), HOOD_OK);
+        // Collision projection: its margin is range-checked, and it needs body collision.
+        let mut proj = cfg;
+        proj.effects |= HOOD_EFFECT_COLLISION_PROJECTION;
+        for bad in [-1e-3, f32::NAN, f32::INFINITY, hood::sim::PROJECTION_REACH] {
+            proj.projection_margin = bad;
+            assert_eq!(hood_sim_new(l.model, g, &bd, &proj, &mut sim), HOOD_ERR_OUT_OF_RANGE, "{bad}");
+        }
+        proj.projection_margin = 0.0;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &proj, &mut sim), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        proj.effects &= !HOOD_EFFECT_BODY_COLLISION;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &proj, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
         // Normals on, no body collision: the sim wants no body vertices.
         cfg.effects = (cfg.effects | HOOD_EFFECT_NORMALS) & !HOOD_EFFECT_BODY_COLLISION;
         cfg.threads = 2;

@@ -231,6 +231,7 @@ fn compiler_checks_types_constants_and_layouts() {
         HOOD_EFFECT_STARTUP,
         HOOD_EFFECT_AUTO_TELEPORT,
         HOOD_EFFECT_SPEED_LIMIT,
+        HOOD_EFFECT_COLLISION_PROJECTION,
         HOOD_PRECISION_F32,
         HOOD_PRECISION_BF16,
         HOOD_VERSION_MAJOR,
@@ -277,7 +278,16 @@ fn compiler_checks_types_constants_and_layouts() {
     layout!(cpp, hood_material { density, mu, lambda, bending });
     layout!(
         cpp,
-        hood_sim_config { effects, precision, threads, sleep_frames, sleep_threshold, teleport_threshold, speed_limit }
+        hood_sim_config {
+            effects,
+            precision,
+            threads,
+            sleep_frames,
+            sleep_threshold,
+            teleport_threshold,
+            speed_limit,
+            projection_margin
+        }
     );
     layout!(cpp, hood_body_desc { positions, n_vertices, indices, n_faces, omitted });
     layout!(cpp, hood_executor { user, parallelism, run });

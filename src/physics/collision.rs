@@ -142,7 +142,25 @@ pub fn collision<T: Real>(
 /// the collision term measures it, into `out`.
 pub fn plane_distances<T: Real>(x: &[[T; 3]], nearest: &[u32], next: FaceFrame<'_, T>, out: &mut [T]) {
     for ((p, &k), o) in x.iter().zip(nearest).zip(out.iter_mut()) {
-        let k = k as usize;
-        *o = dot3(sub3(*p, next.centroids[k]), next.normals[k]);
+        *o = plane_distance(*p, k as usize, next);
+    }
+}
+
+/// Signed distance (m) of `x` to the plane of face `face` of `frame`: positive on the side its
+/// normal points to (outside the body).
+#[inline]
+pub fn plane_distance<T: Real>(x: [T; 3], face: usize, frame: FaceFrame<'_, T>) -> T {
+    dot3(sub3(x, frame.centroids[face]), frame.normals[face])
+}
+
+/// The smallest move that puts `x` at least `margin` (m) in front of the plane of face `face`
+/// (along its normal; zero when it already is): the push-out of collision projection.
+#[inline]
+pub fn push_out<T: Real>(x: [T; 3], face: usize, frame: FaceFrame<'_, T>, margin: T) -> [T; 3] {
+    let d = plane_distance(x, face, frame);
+    if d < margin {
+        scale3(frame.normals[face], margin - d)
+    } else {
+        [T::ZERO; 3]
     }
 }

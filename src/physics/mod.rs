@@ -39,7 +39,9 @@ mod stretching;
 
 pub use bending::bending;
 pub use cloth::{BendHinge, Cloth};
-pub use collision::{collision, face_frames, plane_distances, BruteForceCentroids, CentroidQuery, FaceFrame};
+pub use collision::{
+    collision, face_frames, plane_distance, plane_distances, push_out, BruteForceCentroids, CentroidQuery, FaceFrame,
+};
 pub use friction::{friction, FrictionFrames, FrictionParams, RadiusMode};
 pub use inertia::{gravity, inertia};
 pub use metrics::{max_edge_strain, score_rollout, score_rollout_with, FrameScore, RolloutScore, PENETRATION_DEPTH};

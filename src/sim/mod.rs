@@ -12,6 +12,7 @@ pub mod exec;
 pub mod graph;
 pub mod network;
 pub(crate) mod par;
+mod projection;
 
 use crate::body::rigid::{best_rigid_motion, RigidMotion};
 use crate::body::{BodyMesh, Nearest, PointGrid};
@@ -33,6 +34,8 @@ pub use exec::{Executor, Serial};
 pub use graph::Graph;
 use network::{BodyEdges, Net, Workspace};
 pub use network::{Probe, Stage};
+use projection::Projection;
+pub use projection::{DEFAULT_PROJECTION_MARGIN, PROJECTION_REACH};
 
 /// Default teleport threshold, metres per frame: a fast run moves a hand about 0.35 m per
 /// frame; a jump of the whole body by a metre, or a 180° turn in one frame, moves far more.
@@ -102,6 +105,13 @@ pub struct SimConfig {
     /// limit: a character moved at 10 m/s keeps its clothes (`None`: never; the network then
     /// sees speeds it was not trained on). A deviation from HOOD that only acts above the limit.
     pub speed_limit: Option<f32>,
+    /// Collision projection margin, metres: after every step, each free garment vertex closer
+    /// than this to the plane of its nearest body face (by centroid, within
+    /// [`PROJECTION_REACH`]), or behind it, is moved along the face's normal to the margin, and
+    /// its velocity takes the move (`None`: off). A post-process outside HOOD, for scenes that
+    /// must not show the body through the cloth; needs body collision. See
+    /// [`DEFAULT_PROJECTION_MARGIN`].
+    pub projection: Option<f32>,
     /// Threads for the step's parallel parts when no executor is plugged in with
     /// [`Sim::set_executor`]: 1 runs serially; more starts a [`ThreadPool`] (feature `std`).
     pub threads: usize,
@@ -119,6 +129,7 @@ impl Default for SimConfig {
             tier: None,
             teleport: Some(DEFAULT_TELEPORT),
             speed_limit: Some(DEFAULT_SPEED_LIMIT),
+            projection: None,
             threads: 1,
         }
     }
@@ -157,6 +168,8 @@ struct BodyState {
     /// the frame of reference that follows the carried motion.
     carried_prev: Vec<[f32; 3]>,
     carried_next: Vec<[f32; 3]>,
+    /// Collision projection's buffers (only with [`SimConfig::projection`]).
+    projection: Option<Projection>,
 }
 
 /// One garment on one body, stepped by one model.
@@ -243,6 +256,9 @@ impl<'m> Sim<'m> {
         if cfg.pinning && any_pinned && !spec.effects.pinning {
             return Err(Error::UnsupportedEffect { effect: "pinning (the model was trained without pinned vertices)" });
         }
+        if cfg.projection.is_some() && !use_body {
+            return Err(Error::UnsupportedEffect { effect: "collision projection (needs a body and body collision)" });
+        }
         let m0 = garment.materials()[0];
         if !spec.effects.local_materials && garment.materials().iter().any(|m| *m != m0) {
             return Err(Error::UnsupportedEffect { effect: "per-vertex materials" });
@@ -269,6 +285,10 @@ impl<'m> Sim<'m> {
                     edge_pairs: vec![[0; 2]; n],
                     carried_prev: if cfg.speed_limit.is_some() { vec![[0.0; 3]; nb] } else { Vec::new() },
                     carried_next: if cfg.speed_limit.is_some() { vec![[0.0; 3]; nb] } else { Vec::new() },
+                    projection: match cfg.projection {
+                        Some(margin) => Some(Projection::new(b.mesh, n, margin)?),
+                        None => None,
+                    },
                 })
             }
             _ => None,
@@ -330,6 +350,11 @@ impl<'m> Sim<'m> {
     /// Body edges and active body nodes of the last network pass.
     pub fn last_body_counts(&self) -> (usize, usize) {
         self.last_body
+    }
+
+    /// Garment vertices the collision projection moved in the last step (0 when it is off).
+    pub fn last_projected(&self) -> usize {
+        self.body.as_ref().and_then(|b| b.projection.as_ref()).map_or(0, |p| p.moved())
     }
 
     /// The kernel path in use.
@@ -715,6 +740,12 @@ impl<'m> Sim<'m> {
         if carried {
             for p in self.new_pos.iter_mut() {
                 *p = [p[0] + carry[0], p[1] + carry[1], p[2] + carry[2]];
+            }
+        }
+        if let Some(b) = &mut self.body {
+            if let Some(proj) = &mut b.projection {
+                let at = body_next.unwrap_or(&self.state.body_pos);
+                proj.apply(&*self.exec, &b.mesh, at, &self.pinned, &mut self.new_pos, &mut self.new_vel)?;
             }
         }
         // Commit.

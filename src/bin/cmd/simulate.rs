@@ -73,6 +73,10 @@ pub struct SimulateArgs {
     /// nearest body face; "inside" counts what a viewer would call interpenetration.
     #[arg(long, default_value_t = 0)]
     inside_every: usize,
+    /// Collision projection: after every step, push garment vertices that end up within this
+    /// margin (m) of the body out to it (a post-process outside HOOD; without a value: 0.002).
+    #[arg(long, num_args = 0..=1, default_missing_value = "0.002")]
+    projection: Option<f32>,
     /// Objective of the printed figures and of the gap.
     #[arg(long, value_enum, default_value_t = ObjectiveArg::Evaluation)]
     objective: ObjectiveArg,
@@ -248,7 +252,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         objective: a.objective.objective(),
         ..RolloutOptions::default()
     };
-    let cfg = SimConfig { threads: a.threads.max(1), precision, ..SimConfig::default() };
+    let cfg = SimConfig { threads: a.threads.max(1), precision, projection: a.projection, ..SimConfig::default() };
     let faces = anim.garment().faces().to_vec();
     let body_faces = anim.body_mesh().map(|b| b.faces().to_vec());
     let write_obj = |stem: &str, f: usize, pos: &[[f32; 3]], tris: &[[u32; 3]]| -> Result<()> {
