@@ -180,6 +180,11 @@ pub struct RolloutOptions {
     pub inside_every: usize,
     /// Frames whose garment positions [`Rollout::kept`] keeps (0: the initial state).
     pub keep: Vec<usize>,
+    /// Model and solver together: every network step's prediction is refined by the implicit
+    /// step under these rules (f64 L-BFGS on `objective`, started from the prediction, e.g. a
+    /// few iterations), and the sim goes on from the refined positions. `step_ms` includes the
+    /// refinement. `None`: the model alone.
+    pub refine: Option<LbfgsParams>,
 }
 
 impl Default for RolloutOptions {
@@ -190,6 +195,7 @@ impl Default for RolloutOptions {
             gap_solver: converged_solver(),
             inside_every: 0,
             keep: Vec::new(),
+            refine: None,
         }
     }
 }
@@ -493,6 +499,23 @@ impl Scorer {
         stepper: &mut ImplicitStep<f64>,
         params: &LbfgsParams,
     ) -> Result<LbfgsReport> {
+        Self::implicit(self, anim, frames, Some(stepper), params)
+    }
+
+    /// Refines the loaded prediction `x` in place by the implicit step from there.
+    fn refine(&mut self, anim: &dyn Animation, frames: [usize; 3], params: &LbfgsParams) -> Result<LbfgsReport> {
+        Self::implicit(self, anim, frames, None, params)
+    }
+
+    /// The implicit step into `x`: from coasting with `stepper`, or (`None`) from the loaded
+    /// prediction with the scorer's own workspace.
+    fn implicit(
+        &mut self,
+        anim: &dyn Animation,
+        frames: [usize; 3],
+        stepper: Option<&mut ImplicitStep<f64>>,
+        params: &LbfgsParams,
+    ) -> Result<LbfgsReport> {
         let idx = self.body_slots(anim, frames)?;
         let body = step_body(self.ring.as_ref(), idx);
         let state = StepState {
@@ -502,7 +525,10 @@ impl Scorer {
             pinned: &self.pinned,
             targets: &self.targets,
         };
-        stepper.step(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x)
+        match stepper {
+            Some(st) => st.step(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x),
+            None => self.solver.refine(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x),
+        }
     }
 
     /// Scores the loaded step: terms, penetration, strain, speed and (if asked) the gap.
@@ -679,10 +705,6 @@ pub fn rollout_observed(
             }
             Err(e) => return Err(e),
         }
-        #[cfg(feature = "std")]
-        let step_ms = clock.elapsed().as_secs_f64() * 1e3;
-        #[cfg(not(feature = "std"))]
-        let step_ms = 0.0;
         let after = sim.state();
         let kind = if sim_body && after.body_pos != body_next {
             StepKind::Slept
@@ -698,6 +720,26 @@ pub fn rollout_observed(
         scorer.load(kind, &before, &targets, &after.pos, &after.velocity);
         let stepped = matches!(kind, StepKind::Stepped | StepKind::StartUp);
         let body_frames = if kind == StepKind::StartUp { [t - 1, t - 1, t] } else { [t.saturating_sub(2), t - 1, t] };
+        if let (true, Some(params)) = (stepped, &options.refine) {
+            scorer.refine(anim, body_frames, params)?;
+            let mut refined = sim.state().clone();
+            for i in 0..n {
+                let x = scorer.x[i].map(|c| c as f32);
+                let p = scorer.pos[i].map(|c| c as f32);
+                refined.velocity[i] = if scorer.pinned[i] { [0.0; 3] } else { [x[0] - p[0], x[1] - p[1], x[2] - p[2]] };
+                refined.pos[i] = x;
+            }
+            if refined.pos.iter().chain(&refined.velocity).any(|p| !p.iter().all(|c| c.is_finite())) {
+                out.failure = Some((t, Error::NonFinite { what: "refined step output", index: 0 }));
+                break;
+            }
+            sim.set_state(&refined)?;
+        }
+        #[cfg(feature = "std")]
+        let step_ms = clock.elapsed().as_secs_f64() * 1e3;
+        #[cfg(not(feature = "std"))]
+        let step_ms = 0.0;
+        let after = sim.state();
         let want_gap = stepped && options.gap_every > 0 && t % options.gap_every == 0;
         let (terms, penetrating_percent, gap) =
             scorer.score(anim, body_frames, stepped, want_gap.then_some(&options.gap_solver))?;

@@ -99,6 +99,28 @@ impl<T: Real> ImplicitStep<T> {
         params: &LbfgsParams,
         x: &mut [[T; 3]],
     ) -> Result<LbfgsReport> {
+        // Lengths are checked by `refine`.
+        for ((xi, p), v) in x.iter_mut().zip(state.pos).zip(state.velocity) {
+            *xi = add3(*p, *v);
+        }
+        self.refine(cloth, objective, state, body, params, x)
+    }
+
+    /// As [`ImplicitStep::step`], starting from the positions in `x` (e.g. a model's prediction:
+    /// a few iterations from there trade time for accuracy) instead of the coasting guess;
+    /// pinned vertices are put at their targets first. Allocates nothing.
+    ///
+    /// # Errors
+    /// As [`ImplicitStep::step`].
+    pub fn refine(
+        &mut self,
+        cloth: &Cloth<T>,
+        objective: &Objective,
+        state: &StepState<'_, T>,
+        body: Option<&StepBody<'_, T>>,
+        params: &LbfgsParams,
+        x: &mut [[T; 3]],
+    ) -> Result<LbfgsReport> {
         let n = cloth.n_vertices();
         check_len("implicit step workspace", self.lbfgs.n_vertices(), n)?;
         check_len("positions", x.len(), n)?;
@@ -114,12 +136,10 @@ impl<T: Real> ImplicitStep<T> {
         if body.is_none() && (objective.collision.is_some() || objective.friction.is_some()) {
             return Err(Error::Empty { what: "body (collision or friction enabled)" });
         }
-        for i in 0..n {
-            x[i] = if pinned.get(i).copied().unwrap_or(false) {
-                state.targets[i]
-            } else {
-                add3(state.pos[i], state.velocity[i])
-            };
+        for (i, &p) in pinned.iter().enumerate() {
+            if p {
+                x[i] = state.targets[i];
+            }
         }
         let Self { lbfgs, near_cur, near_a, near_b, x32, diag, precondition } = self;
         if *precondition {
