@@ -372,6 +372,15 @@ impl BodyRing {
     }
 }
 
+/// Where an implicit step starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Start {
+    /// `pos + velocity`.
+    Coasting,
+    /// The loaded prediction `x`.
+    Prediction,
+}
+
 /// Scores steps of one garment: the f64 cloth constants, the implicit step's workspace and the
 /// step's state in f64.
 struct Scorer {
@@ -490,31 +499,14 @@ impl Scorer {
         Ok(Some([p, c, nx]))
     }
 
-    /// Solves the loaded step with `stepper` (L-BFGS under `params`) into the prediction `x`:
-    /// the implicit solver as a simulator.
-    fn solve(
-        &mut self,
-        anim: &dyn Animation,
-        frames: [usize; 3],
-        stepper: &mut ImplicitStep<f64>,
-        params: &LbfgsParams,
-    ) -> Result<LbfgsReport> {
-        Self::implicit(self, anim, frames, Some(stepper), params)
-    }
-
-    /// Refines the loaded prediction `x` in place by the implicit step from there.
-    fn refine(&mut self, anim: &dyn Animation, frames: [usize; 3], params: &LbfgsParams) -> Result<LbfgsReport> {
-        Self::implicit(self, anim, frames, None, params)
-    }
-
-    /// The implicit step into `x`: from coasting with `stepper`, or (`None`) from the loaded
-    /// prediction with the scorer's own workspace.
+    /// The implicit step (L-BFGS under `params`) of the loaded state into `x`, from `start`: the
+    /// implicit solver as a simulator (coasting), or a model's prediction refined (prediction).
     fn implicit(
         &mut self,
         anim: &dyn Animation,
         frames: [usize; 3],
-        stepper: Option<&mut ImplicitStep<f64>>,
         params: &LbfgsParams,
+        start: Start,
     ) -> Result<LbfgsReport> {
         let idx = self.body_slots(anim, frames)?;
         let body = step_body(self.ring.as_ref(), idx);
@@ -525,10 +517,11 @@ impl Scorer {
             pinned: &self.pinned,
             targets: &self.targets,
         };
-        match stepper {
-            Some(st) => st.step(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x),
-            None => self.solver.refine(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x),
-        }
+        let solve = match start {
+            Start::Coasting => ImplicitStep::step,
+            Start::Prediction => ImplicitStep::refine,
+        };
+        solve(&mut self.solver, &self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x)
     }
 
     /// Scores the loaded step: terms, penetration, strain, speed and (if asked) the gap.
@@ -721,7 +714,7 @@ pub fn rollout_observed(
         let stepped = matches!(kind, StepKind::Stepped | StepKind::StartUp);
         let body_frames = if kind == StepKind::StartUp { [t - 1, t - 1, t] } else { [t.saturating_sub(2), t - 1, t] };
         if let (true, Some(params)) = (stepped, &options.refine) {
-            scorer.refine(anim, body_frames, params)?;
+            scorer.implicit(anim, body_frames, params, Start::Prediction)?;
             let mut refined = sim.state().clone();
             for i in 0..n {
                 let x = scorer.x[i].map(|c| c as f32);
@@ -781,7 +774,6 @@ pub fn implicit_rollout(
     let pinned = anim.garment().pinned().to_vec();
     let mut scorer = Scorer::new(anim, &options.objective)?;
     let mut inside = InsideCounter::new(anim, options.inside_every)?;
-    let mut stepper = ImplicitStep::<f64>::new(n, 10);
     let mut pos = anim.initial_garment()?;
     let mut vel = vec![[0.0f32; 3]; n];
     let mut targets = vec![[0.0f32; 3]; n];
@@ -796,7 +788,7 @@ pub fn implicit_rollout(
         let body_frames = [t.saturating_sub(2), t - 1, t];
         #[cfg(feature = "std")]
         let clock = std::time::Instant::now();
-        scorer.solve(anim, body_frames, &mut stepper, solver)?;
+        scorer.implicit(anim, body_frames, solver, Start::Coasting)?;
         #[cfg(feature = "std")]
         let step_ms = clock.elapsed().as_secs_f64() * 1e3;
         #[cfg(not(feature = "std"))]

@@ -8,9 +8,9 @@
 //! face's normal to the margin, and its velocity takes the same move, so the next step sees the
 //! cloth where it was put.
 
-use crate::body::{geometry, BodyMesh, Nearest, PointGrid};
+use crate::body::{BodyMesh, Nearest, PointGrid};
 use crate::error::{Error, Result};
-use crate::physics::{push_out, FaceFrame};
+use crate::physics::{face_frames, push_out, FaceFrame};
 use crate::sim::Executor;
 use alloc::vec;
 use alloc::vec::Vec;
@@ -80,8 +80,7 @@ impl Projection {
         pos: &mut [[f32; 3]],
         velocity: &mut [[f32; 3]],
     ) -> Result<()> {
-        mesh.face_centroids(body, &mut self.centroids)?;
-        geometry::face_normals(mesh.faces(), body, &mut self.normals);
+        face_frames(body, mesh.faces(), &mut self.centroids, &mut self.normals)?;
         self.grid.rebuild(&self.centroids)?;
         self.grid.nearest_within_on(exec, pos, PROJECTION_REACH, &self.hints, &mut self.nearest)?;
         let frame = FaceFrame { centroids: &self.centroids, normals: &self.normals };
