@@ -123,6 +123,8 @@ fn bench_effects(c: &mut Criterion) {
         ("body+normals", SimConfig { normals: true, ..base }),
         ("body+sleeping", SimConfig { sleeping: Some(Default::default()), ..base }),
         ("body+projection", SimConfig { projection: Some(hood::sim::DEFAULT_PROJECTION_MARGIN), ..base }),
+        ("body+refine 3", SimConfig { refine: Some(3), ..base }),
+        ("body+refine 10", SimConfig { refine: Some(10), ..base }),
     ] {
         let (mut s, st) = sim(&w, &model, cfg);
         let mut t = 0;

@@ -180,11 +180,6 @@ pub struct RolloutOptions {
     pub inside_every: usize,
     /// Frames whose garment positions [`Rollout::kept`] keeps (0: the initial state).
     pub keep: Vec<usize>,
-    /// Model and solver together: every network step's prediction is refined by the implicit
-    /// step under these rules (f64 L-BFGS on `objective`, started from the prediction, e.g. a
-    /// few iterations), and the sim goes on from the refined positions. `step_ms` includes the
-    /// refinement. `None`: the model alone.
-    pub refine: Option<LbfgsParams>,
 }
 
 impl Default for RolloutOptions {
@@ -195,7 +190,6 @@ impl Default for RolloutOptions {
             gap_solver: converged_solver(),
             inside_every: 0,
             keep: Vec::new(),
-            refine: None,
         }
     }
 }
@@ -372,15 +366,6 @@ impl BodyRing {
     }
 }
 
-/// Where an implicit step starts.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Start {
-    /// `pos + velocity`.
-    Coasting,
-    /// The loaded prediction `x`.
-    Prediction,
-}
-
 /// Scores steps of one garment: the f64 cloth constants, the implicit step's workspace and the
 /// step's state in f64.
 struct Scorer {
@@ -499,15 +484,9 @@ impl Scorer {
         Ok(Some([p, c, nx]))
     }
 
-    /// The implicit step (L-BFGS under `params`) of the loaded state into `x`, from `start`: the
-    /// implicit solver as a simulator (coasting), or a model's prediction refined (prediction).
-    fn implicit(
-        &mut self,
-        anim: &dyn Animation,
-        frames: [usize; 3],
-        params: &LbfgsParams,
-        start: Start,
-    ) -> Result<LbfgsReport> {
+    /// The implicit step (L-BFGS under `params`, from the coasting guess) of the loaded state
+    /// into `x`: the implicit solver as a simulator.
+    fn implicit(&mut self, anim: &dyn Animation, frames: [usize; 3], params: &LbfgsParams) -> Result<LbfgsReport> {
         let idx = self.body_slots(anim, frames)?;
         let body = step_body(self.ring.as_ref(), idx);
         let state = StepState {
@@ -517,11 +496,7 @@ impl Scorer {
             pinned: &self.pinned,
             targets: &self.targets,
         };
-        let solve = match start {
-            Start::Coasting => ImplicitStep::step,
-            Start::Prediction => ImplicitStep::refine,
-        };
-        solve(&mut self.solver, &self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x)
+        self.solver.step(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x)
     }
 
     /// Scores the loaded step: terms, penetration, strain, speed and (if asked) the gap.
@@ -698,6 +673,10 @@ pub fn rollout_observed(
             }
             Err(e) => return Err(e),
         }
+        #[cfg(feature = "std")]
+        let step_ms = clock.elapsed().as_secs_f64() * 1e3;
+        #[cfg(not(feature = "std"))]
+        let step_ms = 0.0;
         let after = sim.state();
         let kind = if sim_body && after.body_pos != body_next {
             StepKind::Slept
@@ -713,26 +692,6 @@ pub fn rollout_observed(
         scorer.load(kind, &before, &targets, &after.pos, &after.velocity);
         let stepped = matches!(kind, StepKind::Stepped | StepKind::StartUp);
         let body_frames = if kind == StepKind::StartUp { [t - 1, t - 1, t] } else { [t.saturating_sub(2), t - 1, t] };
-        if let (true, Some(params)) = (stepped, &options.refine) {
-            scorer.implicit(anim, body_frames, params, Start::Prediction)?;
-            let mut refined = sim.state().clone();
-            for i in 0..n {
-                let x = scorer.x[i].map(|c| c as f32);
-                let p = scorer.pos[i].map(|c| c as f32);
-                refined.velocity[i] = if scorer.pinned[i] { [0.0; 3] } else { [x[0] - p[0], x[1] - p[1], x[2] - p[2]] };
-                refined.pos[i] = x;
-            }
-            if refined.pos.iter().chain(&refined.velocity).any(|p| !p.iter().all(|c| c.is_finite())) {
-                out.failure = Some((t, Error::NonFinite { what: "refined step output", index: 0 }));
-                break;
-            }
-            sim.set_state(&refined)?;
-        }
-        #[cfg(feature = "std")]
-        let step_ms = clock.elapsed().as_secs_f64() * 1e3;
-        #[cfg(not(feature = "std"))]
-        let step_ms = 0.0;
-        let after = sim.state();
         let want_gap = stepped && options.gap_every > 0 && t % options.gap_every == 0;
         let (terms, penetrating_percent, gap) =
             scorer.score(anim, body_frames, stepped, want_gap.then_some(&options.gap_solver))?;
@@ -788,7 +747,7 @@ pub fn implicit_rollout(
         let body_frames = [t.saturating_sub(2), t - 1, t];
         #[cfg(feature = "std")]
         let clock = std::time::Instant::now();
-        scorer.implicit(anim, body_frames, solver, Start::Coasting)?;
+        scorer.implicit(anim, body_frames, solver)?;
         #[cfg(feature = "std")]
         let step_ms = clock.elapsed().as_secs_f64() * 1e3;
         #[cfg(not(feature = "std"))]

@@ -62,8 +62,10 @@ fn alloc_free_step_every_effect_precision_and_thread_count() {
                                 precision,
                                 threads,
                                 // Collision projection (needs the body) rides with the normals,
-                                // which keeps the combinations few.
+                                // solver refinement with the sleeping, which keeps the
+                                // combinations few.
                                 projection: (body && normals).then_some(0.004),
+                                refine: sleeping.map(|_| 3),
                                 ..SimConfig::default()
                             };
                             let b0 = scene.body_at(0);

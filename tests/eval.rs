@@ -143,42 +143,31 @@ fn eval_implicit_rollout_gap_is_zero_when_converged_and_below_one_when_truncated
     assert!(r.summary.max_edge_strain < 1.0);
 }
 
-/// Model and solver together: a converged refinement of every network step is the optimum (gap
-/// 0 on every scored frame), a two-iteration one lies between that and the model alone, and the
-/// sim goes on from the refined positions (the next frame starts where the refined one ended).
+/// The runtime's own solver refinement (f32, in the step) closes the gap the evaluation measures
+/// against the converged f64 implicit step of the same (training-form) objective: a few
+/// iterations improve on the model alone, enough of them reach the optimum to f32 precision.
 #[test]
-fn eval_refined_rollout_reaches_the_optimum_when_converged() {
-    use hood::eval::converged_solver;
-    use hood::solve::LbfgsParams;
+fn eval_runtime_refinement_closes_the_gap() {
+    use hood::sim::REFINE_COLLISION_WEIGHT;
     let m = Mannequin::with_spacing(0.04).unwrap();
     let scene = procedural(&m, GarmentKind::Skirt, 300, MotionKind::Walk, 0.5).unwrap();
     let bytes = random_model(16, 5, false);
     let model = bytes.model().unwrap();
     let frames = 6;
-    let run = |refine: Option<LbfgsParams>| {
-        let opts = RolloutOptions { gap_every: 2, refine, keep: (0..=frames).collect(), ..RolloutOptions::default() };
-        let r = rollout(&model, &scene, frames, SimConfig::default(), &opts).unwrap();
+    let run = |refine: Option<u32>| {
+        let opts = RolloutOptions {
+            gap_every: 2,
+            objective: Objective::training(REFINE_COLLISION_WEIGHT),
+            ..RolloutOptions::default()
+        };
+        let r = rollout(&model, &scene, frames, SimConfig { refine, ..SimConfig::default() }, &opts).unwrap();
         assert!(r.failure.is_none(), "{:?}", r.failure);
-        r
+        r.summary.gap_mean.unwrap()
     };
-    let alone = run(None);
-    let converged = run(Some(converged_solver()));
-    let two = run(Some(LbfgsParams { max_iterations: 2, ..converged_solver() }));
-    for f in &converged.frames {
-        if let Some(g) = f.gap {
-            assert!(g.relative.unwrap().abs() < 1e-6, "frame {}: {g:?}", f.frame);
-        }
-    }
-    let mean = |r: &hood::eval::Rollout| r.summary.gap_mean.unwrap();
-    println!(
-        "gap: model alone {:.3}, + 2 iterations {:.3}, converged {:.2e}",
-        mean(&alone),
-        mean(&two),
-        mean(&converged)
-    );
-    assert!(mean(&two) < mean(&alone), "two iterations improve on the model alone");
-    // Trajectories differ from the first refined frame on: the sim carries the refinement.
-    assert_ne!(converged.kept[2].1, alone.kept[2].1);
+    let (alone, three, many) = (run(None), run(Some(3)), run(Some(200)));
+    println!("gap: model alone {alone:.3}, + 3 iterations {three:.3}, + 200 iterations {many:.2e}");
+    assert!(three < 0.8 * alone, "three iterations improve on the model alone");
+    assert!(many < 1e-3, "enough iterations reach the optimum");
 }
 
 /// `hood simulate` end to end on a random model: the OBJ sequence and the preview strip appear.

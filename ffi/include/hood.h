@@ -140,6 +140,7 @@ hood_status hood_garment_face_count(const hood_garment *garment, size_t *out);
 #define HOOD_EFFECT_AUTO_TELEPORT 32u /* body jumps beyond teleport_threshold carry the garment along */
 #define HOOD_EFFECT_SPEED_LIMIT 64u   /* body speeds beyond speed_limit carry the garment along */
 #define HOOD_EFFECT_COLLISION_PROJECTION 128u /* push cloth that ends up in the body out of it */
+#define HOOD_EFFECT_REFINE 256u /* refine each step toward the physics optimum (refine_iterations) */
 
 #define HOOD_PRECISION_F32 0u  /* f32 weights and activations */
 #define HOOD_PRECISION_BF16 1u /* bf16 weights, f32 accumulation (model with bf16 weights) */
@@ -163,10 +164,15 @@ typedef struct hood_sim_config {
                                 nearest body face (by centroid, within 0.05 m), or behind it, moves
                                 along the face normal to the margin, velocity included. A
                                 post-process outside HOOD: one nearest-face search per step */
+    uint32_t refine_iterations; /* HOOD_EFFECT_REFINE: every network step is refined by this many
+                                   (1 ..= 1000) L-BFGS iterations of the physics objective (f32,
+                                   training form), started from the network's prediction. Trades
+                                   time for accuracy; the cost grows with the garment's vertices */
 } hood_sim_config;
 
 /* The defaults: body collision, pinning, start-up, auto-teleport (0.45 m) and the speed limit
- * (0.12 m/frame, 3.6 m/s) on; collision projection off (margin 0.002 m); f32; 1 thread;
+ * (0.12 m/frame, 3.6 m/s) on; collision projection off (margin 0.002 m); refinement off
+ * (10 iterations); f32; 1 thread;
  * sleeping after 3 frames below 1e-5 m/frame (when enabled). A NULL `out` is ignored
  * (only hood_last_error records it). */
 void hood_sim_config_default(hood_sim_config *out);

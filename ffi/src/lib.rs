@@ -87,7 +87,9 @@ pub const HOOD_EFFECT_AUTO_TELEPORT: u32 = 32;
 pub const HOOD_EFFECT_SPEED_LIMIT: u32 = 64;
 /// Push garment vertices that end up within `projection_margin` of the body out to it.
 pub const HOOD_EFFECT_COLLISION_PROJECTION: u32 = 128;
-const ALL_EFFECTS: u32 = 255;
+/// Refine every network step by `refine_iterations` L-BFGS iterations of the physics objective.
+pub const HOOD_EFFECT_REFINE: u32 = 256;
+const ALL_EFFECTS: u32 = 511;
 
 /// f32 arithmetic.
 pub const HOOD_PRECISION_F32: u32 = 0;
@@ -543,6 +545,8 @@ pub struct hood_sim_config {
     pub speed_limit: f32,
     /// Collision projection margin, m.
     pub projection_margin: f32,
+    /// Solver refinement iterations per step.
+    pub refine_iterations: u32,
 }
 
 /// The body of a scene (see the header).
@@ -613,7 +617,8 @@ pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
             | flag(d.startup, HOOD_EFFECT_STARTUP)
             | flag(d.teleport.is_some(), HOOD_EFFECT_AUTO_TELEPORT)
             | flag(d.speed_limit.is_some(), HOOD_EFFECT_SPEED_LIMIT)
-            | flag(d.projection.is_some(), HOOD_EFFECT_COLLISION_PROJECTION);
+            | flag(d.projection.is_some(), HOOD_EFFECT_COLLISION_PROJECTION)
+            | flag(d.refine.is_some(), HOOD_EFFECT_REFINE);
         let c = hood_sim_config {
             effects,
             precision: HOOD_PRECISION_F32,
@@ -623,6 +628,7 @@ pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
             teleport_threshold: d.teleport.unwrap_or(hood::sim::DEFAULT_TELEPORT),
             speed_limit: d.speed_limit.unwrap_or(hood::sim::DEFAULT_SPEED_LIMIT),
             projection_margin: d.projection.unwrap_or(hood::sim::DEFAULT_PROJECTION_MARGIN),
+            refine_iterations: d.refine.unwrap_or(hood::sim::DEFAULT_REFINE_ITERATIONS),
         };
         // SAFETY: non-null; writable by the caller's promise.
         unsafe { write_out(out, c) };
@@ -661,10 +667,13 @@ fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
     let speed_limit = distance(HOOD_EFFECT_SPEED_LIMIT, c.speed_limit, "config speed limit")?;
     // The margin's range is checked by the sim (0 <= margin < hood::sim::PROJECTION_REACH).
     let projection = (c.effects & HOOD_EFFECT_COLLISION_PROJECTION != 0).then_some(c.projection_margin);
+    // The count's range is checked by the sim (1 ..= hood::sim::MAX_REFINE_ITERATIONS).
+    let refine = (c.effects & HOOD_EFFECT_REFINE != 0).then_some(c.refine_iterations);
     Ok(SimConfig {
         teleport,
         speed_limit,
         projection,
+        refine,
         body_collision: c.effects & HOOD_EFFECT_BODY_COLLISION != 0,
         pinning: c.effects & HOOD_EFFECT_PINNING != 0,
         normals: c.effects & HOOD_EFFECT_NORMALS != 0,

@@ -692,6 +692,22 @@ fn config_effects_are_honoured() {
         assert_eq!(hood_sim_free(sim), HOOD_OK);
         proj.effects &= !HOOD_EFFECT_BODY_COLLISION;
         assert_eq!(hood_sim_new(l.model, g, &bd, &proj, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
+        // Solver refinement: off by default; its iteration count is range-checked; it runs with
+        // or without a body.
+        assert_eq!(cfg.effects & HOOD_EFFECT_REFINE, 0, "refinement is off by default");
+        assert_eq!(cfg.refine_iterations, hood::sim::DEFAULT_REFINE_ITERATIONS);
+        let mut refine = cfg;
+        refine.effects |= HOOD_EFFECT_REFINE;
+        for bad in [0, hood::sim::MAX_REFINE_ITERATIONS + 1] {
+            refine.refine_iterations = bad;
+            assert_eq!(hood_sim_new(l.model, g, &bd, &refine, &mut sim), HOOD_ERR_OUT_OF_RANGE, "{bad}");
+        }
+        refine.refine_iterations = 2;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &refine, &mut sim), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        refine.effects &= !HOOD_EFFECT_BODY_COLLISION;
+        assert_eq!(hood_sim_new(l.model, g, null(), &refine, &mut sim), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
         // Normals on, no body collision: the sim wants no body vertices.
         cfg.effects = (cfg.effects | HOOD_EFFECT_NORMALS) & !HOOD_EFFECT_BODY_COLLISION;
         cfg.threads = 2;

@@ -232,6 +232,7 @@ fn compiler_checks_types_constants_and_layouts() {
         HOOD_EFFECT_AUTO_TELEPORT,
         HOOD_EFFECT_SPEED_LIMIT,
         HOOD_EFFECT_COLLISION_PROJECTION,
+        HOOD_EFFECT_REFINE,
         HOOD_PRECISION_F32,
         HOOD_PRECISION_BF16,
         HOOD_VERSION_MAJOR,
@@ -286,7 +287,8 @@ fn compiler_checks_types_constants_and_layouts() {
             sleep_threshold,
             teleport_threshold,
             speed_limit,
-            projection_margin
+            projection_margin,
+            refine_iterations
         }
     );
     layout!(cpp, hood_body_desc { positions, n_vertices, indices, n_faces, omitted });

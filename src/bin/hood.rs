@@ -38,6 +38,8 @@ enum Command {
     Convert(ConvertArgs),
     /// Print a model file's shape, provenance and normaliser statistics.
     Info(InfoArgs),
+    /// Average the weights of several models of one shape (e.g. snapshots of one training run).
+    Average(AverageArgs),
     /// Train a model from physics alone (feature `train`); resumes the run in `--dir`.
     #[cfg(feature = "train")]
     Train(train_cmd::TrainArgs),
@@ -107,6 +109,47 @@ fn convert(a: ConvertArgs) -> hood::Result<()> {
 }
 
 #[derive(Args)]
+struct AverageArgs {
+    /// The `.hood` files (same shape). The normaliser statistics and provenance are the last
+    /// file's, with an `averaged_from` entry added.
+    #[arg(required = true)]
+    models: Vec<PathBuf>,
+    /// Output `.hood` file.
+    #[arg(long, short)]
+    out: PathBuf,
+}
+
+fn average(a: AverageArgs) -> hood::Result<()> {
+    let io = |p: &PathBuf, e: std::io::Error| hood::Error::Io { path: p.display().to_string(), message: e.to_string() };
+    let files: Vec<ModelBytes> = a
+        .models
+        .iter()
+        .map(|p| std::fs::read(p).map(|b| ModelBytes::new(&b)).map_err(|e| io(p, e)))
+        .collect::<Result<_, _>>()?;
+    let models: Vec<hood::model::Model<'_>> = files.iter().map(|f| f.model()).collect::<Result<_, _>>()?;
+    let params: Vec<Params> = models.iter().map(|m| m.to_params()).collect();
+    let mean = Params::average(&params)?;
+    let sources: Vec<String> = a
+        .models
+        .iter()
+        .zip(&models)
+        .map(|(p, m)| {
+            let its = m.provenance().find(|(k, _)| *k == "iterations").map_or("?", |(_, v)| v);
+            format!("{} ({its} it.)", p.display())
+        })
+        .collect();
+    let sources = sources.join(", ");
+    let last = models.last().expect("clap requires one model at least");
+    let mut prov: Vec<(&str, &str)> = last.provenance().filter(|(k, _)| *k != "averaged_from").collect();
+    prov.push(("averaged_from", &sources));
+    let bytes = write_model(&mean, last.has_bf16(), &prov)?;
+    ModelBytes::new(&bytes).model()?; // what we write must load
+    std::fs::write(&a.out, &bytes).map_err(|e| io(&a.out, e))?;
+    eprintln!("wrote {}: mean of {} models", a.out.display(), params.len());
+    Ok(())
+}
+
+#[derive(Args)]
 struct BenchArgs {
     /// Workloads (comma-separated); default: every one whose files are present.
     #[arg(long, value_delimiter = ',')]
@@ -146,6 +189,7 @@ fn main() -> ExitCode {
         Command::Bench(a) => bench(a),
         Command::Convert(a) => convert(a),
         Command::Info(a) => info(a),
+        Command::Average(a) => average(a),
         #[cfg(feature = "train")]
         Command::Train(a) => train_cmd::train(a),
     };

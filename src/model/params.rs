@@ -215,6 +215,67 @@ impl Params {
         v
     }
 
+    /// Every trainable tensor, mutable, in the fixed order of [`mlps`](Self::mlps) (each layer's
+    /// weight then bias, then the LayerNorm), followed by the two embedding tables.
+    pub fn tensors_mut(&mut self) -> Vec<&mut [f32]> {
+        let mut mlps: Vec<&mut Mlp> = vec![&mut self.node_encoder];
+        mlps.extend(self.edge_encoders.iter_mut());
+        mlps.extend(self.body_encoder.iter_mut());
+        for b in &mut self.blocks {
+            mlps.extend(b.edges.iter_mut());
+            mlps.extend(b.body.iter_mut());
+            mlps.push(&mut b.node);
+        }
+        mlps.push(&mut self.decoder);
+        let mut out: Vec<&mut [f32]> = Vec::new();
+        for m in mlps {
+            for l in &mut m.layers {
+                out.push(&mut l.weight);
+                out.push(&mut l.bias);
+            }
+            if let Some(n) = &mut m.norm {
+                out.push(&mut n.gamma);
+                out.push(&mut n.beta);
+            }
+        }
+        out.push(&mut self.node_type_embedding);
+        out.push(&mut self.level_embedding);
+        out
+    }
+
+    /// The element-wise mean of several models of one spec (weight averaging of training
+    /// snapshots: the snapshots of one run sit in one basin, and their mean is usually smoother
+    /// than any of them). The normaliser statistics are those of the last model, which has
+    /// seen the most data.
+    ///
+    /// # Errors
+    /// [`Error::IncompatibleModel`] when `models` is empty or the specs differ.
+    pub fn average(models: &[Params]) -> Result<Params> {
+        let Some(last) = models.last() else {
+            return Err(Error::IncompatibleModel { reason: "no models to average" });
+        };
+        if models.iter().any(|m| m.spec != last.spec) {
+            return Err(Error::IncompatibleModel { reason: "averaged models differ in shape" });
+        }
+        let mut mean = last.clone();
+        let mut sums: Vec<Vec<f64>> = mean.tensors_mut().iter().map(|t| vec![0.0; t.len()]).collect();
+        for m in models {
+            let mut m = m.clone();
+            for (sum, t) in sums.iter_mut().zip(m.tensors_mut()) {
+                for (s, &x) in sum.iter_mut().zip(t.iter()) {
+                    *s += f64::from(x);
+                }
+            }
+        }
+        let n = models.len() as f64;
+        for (sum, t) in sums.iter().zip(mean.tensors_mut()) {
+            for (x, &s) in t.iter_mut().zip(sum) {
+                *x = (s / n) as f32;
+            }
+        }
+        Ok(mean)
+    }
+
     /// Trainable parameter count (must equal [`ModelSpec::parameter_count`]).
     pub fn count(&self) -> usize {
         let mlp: usize = self
@@ -300,6 +361,28 @@ impl Params {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn model_params_average_is_the_elementwise_mean() {
+        let spec = ModelSpec::hood(16);
+        let a = Params::init(&spec, 1).unwrap();
+        let mut b = Params::init(&spec, 2).unwrap();
+        b.normalisers = Normalisers::unit_scale(9);
+        let mean = Params::average(&[a.clone(), b.clone()]).unwrap();
+        mean.validate().unwrap();
+        let (mut a, mut b, mut m) = (a, b.clone(), mean.clone());
+        let (ta, tb, tm) = (a.tensors_mut(), b.tensors_mut(), m.tensors_mut());
+        assert_eq!(tm.iter().map(|t| t.len()).sum::<usize>(), spec.parameter_count());
+        for ((x, y), z) in ta.iter().zip(&tb).zip(&tm) {
+            for ((x, y), z) in x.iter().zip(y.iter()).zip(z.iter()) {
+                assert!((z - 0.5 * (x + y)).abs() <= 1e-6 * (1.0 + x.abs() + y.abs()), "{z} vs {x}, {y}");
+            }
+        }
+        assert_eq!(mean.normalisers, b.normalisers);
+        assert_eq!(Params::average(&[a.clone()]).unwrap(), a);
+        assert!(Params::average(&[]).is_err());
+        assert!(Params::average(&[a, Params::init(&ModelSpec::hood(32), 1).unwrap()]).is_err());
+    }
 
     #[test]
     fn model_params_init_matches_spec() {

@@ -13,6 +13,7 @@ pub mod graph;
 pub mod network;
 pub(crate) mod par;
 mod projection;
+mod refine;
 
 use crate::body::rigid::{best_rigid_motion, RigidMotion};
 use crate::body::{BodyMesh, Nearest, PointGrid};
@@ -36,6 +37,8 @@ use network::{BodyEdges, Net, Workspace};
 pub use network::{Probe, Stage};
 use projection::Projection;
 pub use projection::{DEFAULT_PROJECTION_MARGIN, PROJECTION_REACH};
+use refine::{RefineBody, RefineInput, Refiner};
+pub use refine::{DEFAULT_REFINE_ITERATIONS, MAX_REFINE_ITERATIONS, REFINE_COLLISION_WEIGHT};
 
 /// Default teleport threshold, metres per frame: a fast run moves a hand about 0.35 m per
 /// frame; a jump of the whole body by a metre, or a 180° turn in one frame, moves far more.
@@ -112,6 +115,12 @@ pub struct SimConfig {
     /// must not show the body through the cloth; needs body collision. See
     /// [`DEFAULT_PROJECTION_MARGIN`].
     pub projection: Option<f32>,
+    /// Solver refinement: this many L-BFGS iterations (1 ..= [`MAX_REFINE_ITERATIONS`]) of the
+    /// physics objective (training form, collision weight [`REFINE_COLLISION_WEIGHT`]), started
+    /// from the network's prediction, before the projection (`None`: off). Not part of HOOD: it
+    /// trades time for accuracy, bringing each step toward the implicit step's optimum; its
+    /// cost grows with the garment's vertices. [`Sim::last_refinement`] reports each one.
+    pub refine: Option<u32>,
     /// Threads for the step's parallel parts when no executor is plugged in with
     /// [`Sim::set_executor`]: 1 runs serially; more starts a [`ThreadPool`] (feature `std`).
     pub threads: usize,
@@ -130,6 +139,7 @@ impl Default for SimConfig {
             teleport: Some(DEFAULT_TELEPORT),
             speed_limit: Some(DEFAULT_SPEED_LIMIT),
             projection: None,
+            refine: None,
             threads: 1,
         }
     }
@@ -182,6 +192,8 @@ pub struct Sim<'m> {
     pinned: Vec<bool>,
     pin_targets: Vec<[f32; 3]>,
     body: Option<BodyState>,
+    /// Solver refinement's buffers (only with [`SimConfig::refine`]).
+    refiner: Option<Refiner>,
     state: SimState,
     garment_normals: Vec<[f32; 3]>,
     new_pos: Vec<[f32; 3]>,
@@ -293,6 +305,10 @@ impl<'m> Sim<'m> {
             }
             _ => None,
         };
+        let refiner = match cfg.refine {
+            Some(iterations) => Some(Refiner::new(garment, body_state.as_ref().map(|b| &b.mesh), iterations)?),
+            None => None,
+        };
         let max_active = body_state.as_ref().map_or(0, |b| b.active.len());
         let net = Net { model, kernels, bf16: cfg.precision == Precision::Bf16 };
         let ws = Workspace::new(model, &graph, max_active)?;
@@ -310,6 +326,7 @@ impl<'m> Sim<'m> {
             garment: garment.clone(),
             graph,
             body: body_state,
+            refiner,
             state: SimState {
                 pos: garment.rest().to_vec(),
                 velocity: vec![[0.0; 3]; n],
@@ -355,6 +372,12 @@ impl<'m> Sim<'m> {
     /// Garment vertices the collision projection moved in the last step (0 when it is off).
     pub fn last_projected(&self) -> usize {
         self.body.as_ref().and_then(|b| b.projection.as_ref()).map_or(0, |p| p.moved())
+    }
+
+    /// The last step's solver refinement (iterations, objective before and after in J), when
+    /// [`SimConfig::refine`] is on and a network step ran.
+    pub fn last_refinement(&self) -> Option<&crate::solve::LbfgsReport> {
+        self.refiner.as_ref().and_then(|r| r.last())
     }
 
     /// The kernel path in use.
@@ -741,6 +764,18 @@ impl<'m> Sim<'m> {
             for p in self.new_pos.iter_mut() {
                 *p = [p[0] + carry[0], p[1] + carry[1], p[2] + carry[2]];
             }
+        }
+        if let Some(r) = &mut self.refiner {
+            let now = &self.state.body_pos[..];
+            let input = RefineInput {
+                pos: &self.state.pos,
+                velocity: &self.state.velocity,
+                carry,
+                dt,
+                pinned: &self.pinned,
+                body: self.body.as_ref().map(|b| RefineBody { mesh: &b.mesh, now, next: body_next.unwrap_or(now) }),
+            };
+            r.apply(&input, &mut self.new_pos, &mut self.new_vel)?;
         }
         if let Some(b) = &mut self.body {
             if let Some(proj) = &mut b.projection {

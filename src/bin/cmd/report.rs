@@ -38,9 +38,10 @@ pub struct ReportArgs {
     #[arg(long, value_delimiter = ',', default_value = "1,3,10,30,100")]
     iterations: Vec<usize>,
     /// Model and solver together: for every model (f32), also a variant whose every step is
-    /// refined by this many L-BFGS iterations from the network's prediction (comma-separated).
+    /// refined by this many L-BFGS iterations from the network's prediction (the runtime effect
+    /// `SimConfig::refine`; comma-separated).
     #[arg(long, value_delimiter = ',')]
-    refine: Vec<usize>,
+    refine: Vec<u32>,
     /// Threads of the network step.
     #[arg(long, default_value_t = 1)]
     threads: usize,
@@ -174,10 +175,9 @@ pub fn report(a: ReportArgs) -> Result<()> {
                 push(format!("{} {prec}", c.label), false, r);
             }
             for &k in &a.refine {
-                let refine = Some(LbfgsParams { max_iterations: k.max(1), ..converged_solver() });
-                let cfg = SimConfig { threads: a.threads.max(1), ..SimConfig::default() };
-                let r = rollout(&model, &*anim, frames, cfg, &RolloutOptions { refine, ..opts.clone() })?;
-                push(format!("{} f32 + L-BFGS {k} it. (f64)", c.label), false, r);
+                let cfg = SimConfig { threads: a.threads.max(1), refine: Some(k.max(1)), ..SimConfig::default() };
+                let r = rollout(&model, &*anim, frames, cfg, &opts)?;
+                push(format!("{} f32 + refine {k} it.", c.label), false, r);
             }
         }
         for &k in &a.iterations {
@@ -242,9 +242,10 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
     if !a.refine.is_empty() {
         let _ = writeln!(
             s,
-            "\"+ L-BFGS k it.\" rows are model and solver together: every network step is refined by k iterations \
-             of the implicit step (f64, on the objective above) started from the network's prediction, and the \
-             rollout goes on from the refined positions; ms/step includes both.\n"
+            "\"+ refine k it.\" rows are model and solver together (the runtime's solver refinement, \
+             `SimConfig::refine`): every network step is refined by k L-BFGS iterations of the training-form \
+             objective in f32, started from the network's prediction, and the rollout goes on from the refined \
+             positions; ms/step includes both.\n"
         );
     }
     if a.objective == ObjectiveArg::Evaluation {
@@ -386,6 +387,6 @@ fn load_average() -> Option<String> {
     (fields.len() == 3).then(|| fields.join(", "))
 }
 
-fn join(ks: &[usize]) -> String {
+fn join<T: ToString>(ks: &[T]) -> String {
     ks.iter().map(|k| k.to_string()).collect::<Vec<_>>().join(",")
 }

@@ -3,14 +3,13 @@
 
 use crate::objective::ObjectiveArg;
 use clap::Args;
-use hood::eval::{converged_solver, rollout_observed, strip_images, Animation, FrameRecord, Playback, RolloutOptions};
+use hood::eval::{rollout_observed, strip_images, Animation, FrameRecord, Playback, RolloutOptions};
 use hood::io::obj::Obj;
 use hood::mesh::{Garment, GarmentDesc};
 use hood::model::ModelBytes;
 use hood::rig::procedural::Mannequin;
 use hood::scene::{procedural, GarmentKind, MotionKind};
 use hood::sim::{Precision, SimConfig};
-use hood::solve::LbfgsParams;
 use hood::{Error, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -78,11 +77,11 @@ pub struct SimulateArgs {
     /// margin (m) of the body out to it (a post-process outside HOOD; without a value: 0.002).
     #[arg(long, num_args = 0..=1, default_missing_value = "0.002")]
     projection: Option<f32>,
-    /// Model and solver together: refine every network step by this many iterations of the
-    /// implicit step (f64 L-BFGS on --objective, started from the prediction; 0: the model
-    /// alone). Trades time for accuracy.
+    /// Solver refinement (the runtime effect `SimConfig::refine`): every network step is
+    /// refined by this many L-BFGS iterations of the training-form objective, in f32, started
+    /// from the prediction (0: the model alone). Trades time for accuracy.
     #[arg(long, default_value_t = 0)]
-    refine: usize,
+    refine: u32,
     /// Objective of the printed figures and of the gap.
     #[arg(long, value_enum, default_value_t = ObjectiveArg::Evaluation)]
     objective: ObjectiveArg,
@@ -256,10 +255,15 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         inside_every: a.inside_every,
         keep,
         objective: a.objective.objective(),
-        refine: (a.refine > 0).then(|| LbfgsParams { max_iterations: a.refine, ..converged_solver() }),
         ..RolloutOptions::default()
     };
-    let cfg = SimConfig { threads: a.threads.max(1), precision, projection: a.projection, ..SimConfig::default() };
+    let cfg = SimConfig {
+        threads: a.threads.max(1),
+        precision,
+        projection: a.projection,
+        refine: (a.refine > 0).then_some(a.refine),
+        ..SimConfig::default()
+    };
     let faces = anim.garment().faces().to_vec();
     let body_faces = anim.body_mesh().map(|b| b.faces().to_vec());
     let write_obj = |stem: &str, f: usize, pos: &[[f32; 3]], tris: &[[u32; 3]]| -> Result<()> {

@@ -1,0 +1,199 @@
+//! Solver refinement: a few iterations of the implicit step started from the network's
+//! prediction, in the step itself. Not part of HOOD (its network alone predicts the step); it
+//! trades time for accuracy: the relative objective gap (EVALUATION.md) of a prediction falls
+//! with every iteration, at a cost that grows with the garment, not with the model.
+//!
+//! The objective is the training form of MODEL.md section 6 at the recipe's final collision
+//! weight ([`REFINE_COLLISION_WEIGHT`]), in f32, minimised by the preconditioned L-BFGS of
+//! [`crate::solve`] over the free vertices; pinned vertices stay at their targets. The refined
+//! move is added to the velocity too, so the next step starts from the refined state.
+
+use crate::body::{BodyMesh, PointGrid};
+use crate::error::{Error, Result};
+use crate::math::finite3;
+use crate::mesh::Garment;
+use crate::physics::{face_frames, CentroidQuery, Cloth, FaceFrame, Objective};
+use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, StepBody, StepState};
+use alloc::vec;
+use alloc::vec::Vec;
+
+/// A useful default iteration count: it closes most of the gap a trained model leaves (the
+/// report's "+ refine" rows), at a few milliseconds for a garment of a thousand vertices.
+pub const DEFAULT_REFINE_ITERATIONS: u32 = 10;
+
+/// Most refinement iterations a step may ask for.
+pub const MAX_REFINE_ITERATIONS: u32 = 1000;
+
+/// Collision weight of the refinement's objective: the end of the training recipe's ramp
+/// (MODEL.md section 7), eps 2 mm.
+pub const REFINE_COLLISION_WEIGHT: f64 = 5e5;
+
+/// L-BFGS correction pairs kept (at most the iteration count).
+const REFINE_MEMORY: usize = 10;
+
+/// One body frame as the objective's contact terms read it: face centroids and unit normals,
+/// and a nearest-centroid grid.
+#[derive(Clone, Debug)]
+struct BodyFaces {
+    centroids: Vec<[f32; 3]>,
+    normals: Vec<[f32; 3]>,
+    grid: PointGrid,
+}
+
+impl BodyFaces {
+    fn new(mesh: &BodyMesh) -> Result<BodyFaces> {
+        let nf = mesh.n_faces();
+        Ok(BodyFaces {
+            centroids: vec![[0.0; 3]; nf],
+            normals: vec![[0.0; 3]; nf],
+            grid: PointGrid::new(nf, (8 * nf).max(64))?,
+        })
+    }
+
+    /// Recomputes everything at `body` (m, one per body vertex).
+    fn update(&mut self, mesh: &BodyMesh, body: &[[f32; 3]]) -> Result<()> {
+        face_frames(body, mesh.faces(), &mut self.centroids, &mut self.normals)?;
+        self.grid.rebuild(&self.centroids)
+    }
+
+    fn frame(&self) -> FaceFrame<'_, f32> {
+        FaceFrame { centroids: &self.centroids, normals: &self.normals }
+    }
+}
+
+/// What a refined step starts from, in world coordinates.
+pub(super) struct RefineInput<'a> {
+    /// Garment positions at the current frame, m.
+    pub pos: &'a [[f32; 3]],
+    /// Garment velocities as the network saw them, m/frame (relative to the speed limit's
+    /// frame of reference when it carries the garment).
+    pub velocity: &'a [[f32; 3]],
+    /// The speed limit's carry over this step, m (zero: none): the garment coasts by
+    /// `velocity + carry` in the world.
+    pub carry: [f32; 3],
+    /// Time step, s.
+    pub dt: f32,
+    /// Pinned flag per vertex.
+    pub pinned: &'a [bool],
+    /// The body, if the scene has one.
+    pub body: Option<RefineBody<'a>>,
+}
+
+/// The body around a refined step.
+#[derive(Clone, Copy)]
+pub(super) struct RefineBody<'a> {
+    /// Topology.
+    pub mesh: &'a BodyMesh,
+    /// Positions at the current frame, m.
+    pub now: &'a [[f32; 3]],
+    /// Positions at the next frame, m.
+    pub next: &'a [[f32; 3]],
+}
+
+/// Buffers of the refinement, sized once for one garment (and body).
+#[derive(Clone, Debug)]
+pub(super) struct Refiner {
+    cloth: Cloth<f32>,
+    objective: Objective,
+    solver: ImplicitStep<f32>,
+    params: LbfgsParams,
+    /// The garment's world-frame velocity (`velocity + carry`).
+    coast: Vec<[f32; 3]>,
+    /// The network's prediction (pinned vertices at their targets).
+    predicted: Vec<[f32; 3]>,
+    /// The body at the current and the next frame.
+    faces: Option<[BodyFaces; 2]>,
+    last: Option<LbfgsReport>,
+}
+
+impl Refiner {
+    /// `iterations` L-BFGS iterations per step for `garment` (its materials), with contact
+    /// terms against `mesh` when the scene has a body.
+    ///
+    /// # Errors
+    /// [`Error::OutOfRange`] for 0 or more than [`MAX_REFINE_ITERATIONS`] iterations.
+    pub(super) fn new(garment: &Garment, mesh: Option<&BodyMesh>, iterations: u32) -> Result<Refiner> {
+        if !(1..=MAX_REFINE_ITERATIONS).contains(&iterations) {
+            return Err(Error::OutOfRange { what: "refinement iterations (1 ..= 1000)", index: iterations as usize });
+        }
+        let n = garment.n_vertices();
+        let objective = match mesh {
+            Some(_) => Objective::training(REFINE_COLLISION_WEIGHT),
+            None => Objective::cloth_only(),
+        };
+        let faces = match mesh {
+            Some(m) => Some([BodyFaces::new(m)?, BodyFaces::new(m)?]),
+            None => None,
+        };
+        let params = LbfgsParams { max_iterations: iterations as usize, ..LbfgsParams::default() };
+        Ok(Refiner {
+            cloth: Cloth::new(garment),
+            objective,
+            solver: ImplicitStep::new(n, REFINE_MEMORY.min(iterations as usize)),
+            params,
+            coast: vec![[0.0; 3]; n],
+            predicted: vec![[0.0; 3]; n],
+            faces,
+            last: None,
+        })
+    }
+
+    /// The last refinement's report (iterations, objective before and after, J).
+    pub(super) fn last(&self) -> Option<&LbfgsReport> {
+        self.last.as_ref()
+    }
+
+    /// Refines the prediction `new_pos` (m, world, pinned vertices at their targets) in place and
+    /// adds each vertex's move to `new_vel`. Allocates nothing.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] when the refined positions are not finite; errors of the objective
+    /// (none for the buffers of [`new`](Self::new)). Nothing is written on error but `new_pos`,
+    /// which the caller discards.
+    pub(super) fn apply(
+        &mut self,
+        input: &RefineInput<'_>,
+        new_pos: &mut [[f32; 3]],
+        new_vel: &mut [[f32; 3]],
+    ) -> Result<()> {
+        let c = input.carry;
+        for (o, v) in self.coast.iter_mut().zip(input.velocity) {
+            *o = [v[0] + c[0], v[1] + c[1], v[2] + c[2]];
+        }
+        self.predicted.copy_from_slice(new_pos);
+        let body = match (&mut self.faces, input.body) {
+            (Some([now, next]), Some(b)) => {
+                now.update(b.mesh, b.now)?;
+                next.update(b.mesh, b.next)?;
+                Some(StepBody {
+                    prev: now.frame(), // not read: friction uses the current and next frames
+                    current: now.frame(),
+                    next: next.frame(),
+                    query_prev: &now.grid as &dyn CentroidQuery,
+                    query_current: &now.grid,
+                    query_next: &next.grid,
+                })
+            }
+            _ => None,
+        };
+        let state = StepState {
+            pos: input.pos,
+            velocity: &self.coast,
+            dt: input.dt,
+            pinned: input.pinned,
+            targets: &self.predicted,
+        };
+        self.last = None;
+        let report = self.solver.refine(&self.cloth, &self.objective, &state, body.as_ref(), &self.params, new_pos)?;
+        if let Some(i) = new_pos.iter().position(|p| !finite3(*p)) {
+            return Err(Error::NonFinite { what: "refined garment vertex", index: i });
+        }
+        for ((v, x), p) in new_vel.iter_mut().zip(new_pos.iter()).zip(&self.predicted) {
+            for k in 0..3 {
+                v[k] += x[k] - p[k];
+            }
+        }
+        self.last = Some(report);
+        Ok(())
+    }
+}
