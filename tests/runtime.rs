@@ -316,7 +316,12 @@ fn runtime_refinement_lowers_the_objective_and_keeps_the_state_consistent() {
         for t in 1..=4 {
             let before = sim.positions().to_vec();
             let b = scene.body_at(t);
+            // A fresh sim from the same state builds every body frame anew: the same step.
+            let mut fresh = new(Some(5), with_body).unwrap();
+            fresh.set_state(sim.state()).unwrap();
+            fresh.step(if with_body { &b } else { &[] }).unwrap();
             sim.step(if with_body { &b } else { &[] }).unwrap();
+            assert_eq!(sim.state(), fresh.state(), "frame {t}, body {with_body}");
             let r = *sim.last_refinement().unwrap();
             assert!(r.iterations >= 1 && r.f < r.f_start, "frame {t}, body {with_body}: {r:?}");
             for (i, (p, q)) in before.iter().zip(sim.positions()).enumerate() {

@@ -103,6 +103,9 @@ pub(super) struct Refiner {
     predicted: Vec<[f32; 3]>,
     /// The body at the current and the next frame.
     faces: Option<[BodyFaces; 2]>,
+    /// The body positions `faces[1]` was built at (m): when the next step's current frame is
+    /// this one (the common case), its faces are reused instead of rebuilt.
+    next_at: Vec<[f32; 3]>,
     last: Option<LbfgsReport>,
 }
 
@@ -125,6 +128,7 @@ impl Refiner {
             Some(m) => Some([BodyFaces::new(m)?, BodyFaces::new(m)?]),
             None => None,
         };
+        let next_at = Vec::with_capacity(mesh.map_or(0, |m| m.n_vertices()));
         let params = LbfgsParams { max_iterations: iterations as usize, ..LbfgsParams::default() };
         Ok(Refiner {
             cloth: Cloth::new(garment),
@@ -134,6 +138,7 @@ impl Refiner {
             coast: vec![[0.0; 3]; n],
             predicted: vec![[0.0; 3]; n],
             faces,
+            next_at,
             last: None,
         })
     }
@@ -162,9 +167,19 @@ impl Refiner {
         }
         self.predicted.copy_from_slice(new_pos);
         let body = match (&mut self.faces, input.body) {
-            (Some([now, next]), Some(b)) => {
-                now.update(b.mesh, b.now)?;
-                next.update(b.mesh, b.next)?;
+            (Some(faces), Some(b)) => {
+                if self.next_at.as_slice() == b.now {
+                    faces.swap(0, 1);
+                } else {
+                    faces[0].update(b.mesh, b.now)?;
+                }
+                // Marked stale until rebuilt, in case the rebuild fails.
+                self.next_at.clear();
+                faces[1].update(b.mesh, b.next)?;
+                if self.next_at.capacity() >= b.next.len() {
+                    self.next_at.extend_from_slice(b.next);
+                }
+                let [now, next] = &*faces;
                 Some(StepBody {
                     prev: now.frame(), // not read: friction uses the current and next frames
                     current: now.frame(),
