@@ -360,3 +360,36 @@ fn physics_stretching_of_uniform_scale_matches_closed_form() {
     let got = stretching(&cloth, &x, None).unwrap();
     assert!((got - want).abs() < 1e-6 * want, "{got} vs {want}");
 }
+
+/// The grid's hinted centroid query gives the brute-force answers whatever the hints: last
+/// answers, wrong faces, out-of-range indices.
+#[test]
+fn physics_centroid_query_hints_change_no_answer() {
+    let mut rng = Rng(41);
+    let cent: Vec<[f32; 3]> = (0..700)
+        .map(|_| [rng.uniform(-0.3, 0.3) as f32, rng.uniform(0.0, 1.0) as f32, rng.uniform(-0.2, 0.2) as f32])
+        .collect();
+    let mut grid = crate::body::PointGrid::new(cent.len(), 8 * cent.len()).unwrap();
+    grid.rebuild(&cent).unwrap();
+    let brute = BruteForceCentroids { centroids: cent.clone() };
+    let pts: Vec<[f32; 3]> = (0..500)
+        .map(|_| [rng.uniform(-0.6, 0.6) as f32, rng.uniform(-0.3, 1.3) as f32, rng.uniform(-0.5, 0.5) as f32])
+        .collect();
+    let mut want = vec![0u32; pts.len()];
+    brute.nearest_into(&pts, &mut want);
+    let n = cent.len() as u64;
+    let hint_sets: [Vec<u32>; 3] = [
+        want.clone(),
+        (0..pts.len()).map(|_| (rng.next_u64() % n) as u32).collect(),
+        (0..pts.len()).map(|i| if i % 2 == 0 { u32::MAX } else { n as u32 + i as u32 }).collect(),
+    ];
+    for hints in &hint_sets {
+        let mut got = vec![0u32; pts.len()];
+        grid.nearest_into_hinted(&pts, hints, &mut got);
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            // Ties (equal distance) may pick either face.
+            let d2 = |c: u32| (0..3).map(|k| (pts[i][k] - cent[c as usize][k]).powi(2)).sum::<f32>();
+            assert!(g == w || d2(*g) == d2(*w), "point {i}: {g} vs {w}");
+        }
+    }
+}

@@ -51,6 +51,8 @@ pub struct ImplicitStep<T: Real> {
     near_cur: Vec<u32>,
     near_a: Vec<u32>,
     near_b: Vec<u32>,
+    /// Friction's last nearest faces of `x`: hints for the next evaluation's search.
+    near_hint: Vec<u32>,
     x32: Vec<[f32; 3]>,
     diag: Vec<T>,
     precondition: bool,
@@ -70,6 +72,7 @@ impl<T: Real> ImplicitStep<T> {
             near_cur: vec![0; n],
             near_a: vec![0; n],
             near_b: vec![0; n],
+            near_hint: vec![0; n],
             x32: vec![[0.0; 3]; n],
             diag: vec![T::ZERO; n],
             precondition: true,
@@ -141,7 +144,7 @@ impl<T: Real> ImplicitStep<T> {
                 x[i] = state.targets[i];
             }
         }
-        let Self { lbfgs, near_cur, near_a, near_b, x32, diag, precondition } = self;
+        let Self { lbfgs, near_cur, near_a, near_b, near_hint, x32, diag, precondition } = self;
         if *precondition {
             diag.iter_mut().for_each(|d| *d = T::ZERO);
             cloth.stretch_stiffness_into(diag)?;
@@ -155,7 +158,8 @@ impl<T: Real> ImplicitStep<T> {
         }
         let friction_b = prepare_contacts(objective, state, body, near_cur, near_a, x32);
         let next = body.map(|b| b.next);
-        let mut scratch = Contacts { near_cur, near_a, near_b, x32 };
+        near_b.copy_from_slice(near_a);
+        let mut scratch = Contacts { near_cur, near_a, near_b, near_hint, x32 };
         lbfgs.minimize(x, params, |y, grad| {
             let t = eval_terms(cloth, objective, state, next, friction_b, &mut scratch, y, Some(&mut *grad))?;
             for (g, &p) in grad.iter_mut().zip(pinned) {
@@ -189,9 +193,10 @@ impl<T: Real> ImplicitStep<T> {
         if body.is_none() && (objective.collision.is_some() || objective.friction.is_some()) {
             return Err(Error::Empty { what: "body (collision or friction enabled)" });
         }
-        let Self { near_cur, near_a, near_b, x32, .. } = self;
+        let Self { near_cur, near_a, near_b, near_hint, x32, .. } = self;
         let friction_b = prepare_contacts(objective, state, body, near_cur, near_a, x32);
-        let mut scratch = Contacts { near_cur, near_a, near_b, x32 };
+        near_b.copy_from_slice(near_a);
+        let mut scratch = Contacts { near_cur, near_a, near_b, near_hint, x32 };
         eval_terms(cloth, objective, state, body.map(|b| b.next), friction_b, &mut scratch, x, None)
     }
 }
@@ -200,7 +205,10 @@ impl<T: Real> ImplicitStep<T> {
 struct Contacts<'a> {
     near_cur: &'a mut [u32],
     near_a: &'a mut [u32],
+    /// Friction's nearest faces of the last evaluated `x` (at `B_b`); they start as those of
+    /// `pos` at `B_a`, the hints of the first search.
     near_b: &'a mut [u32],
+    near_hint: &'a mut [u32],
     x32: &'a mut [[f32; 3]],
 }
 
@@ -247,7 +255,8 @@ fn eval_terms<T: Real>(
     }
     if let Some((qb, fa, fb)) = friction_b {
         to_f32(y, c.x32);
-        qb.nearest_into(c.x32, c.near_b);
+        c.near_hint.copy_from_slice(c.near_b);
+        qb.nearest_into_hinted(c.x32, c.near_hint, c.near_b);
         inputs.friction = Some(FrictionInput { frame_a: fa, frame_b: fb, nearest_a: c.near_a, nearest_b: c.near_b });
     }
     objective.eval(cloth, &inputs, y, grad)
