@@ -58,12 +58,20 @@ pub trait CentroidQuery {
         }
     }
 
-    /// As [`CentroidQuery::nearest_into`], each search starting from `hints[i]` (a guess such as
-    /// the last answer for a point that moved a little): the same answers, usually faster. The
-    /// default ignores the hints.
+    /// As [`CentroidQuery::nearest`], the search starting from `hint` (a guess such as the last
+    /// answer for a point that moved a little): the same answer, usually faster. The default
+    /// ignores the hint.
+    fn nearest_hinted(&self, p: [f32; 3], hint: u32) -> u32 {
+        let _ = hint;
+        self.nearest(p)
+    }
+
+    /// [`CentroidQuery::nearest_hinted`] for every point of `points` into `out`, with `hints[i]`
+    /// for point `i` (all three the same length).
     fn nearest_into_hinted(&self, points: &[[f32; 3]], hints: &[u32], out: &mut [u32]) {
-        let _ = hints;
-        self.nearest_into(points, out);
+        for ((p, &h), o) in points.iter().zip(hints).zip(out.iter_mut()) {
+            *o = self.nearest_hinted(*p, h);
+        }
     }
 }
 
@@ -74,10 +82,8 @@ impl CentroidQuery for crate::body::PointGrid {
         self.nearest_one(p).map_or(0, |n| n.index)
     }
 
-    fn nearest_into_hinted(&self, points: &[[f32; 3]], hints: &[u32], out: &mut [u32]) {
-        for ((p, &h), o) in points.iter().zip(hints).zip(out.iter_mut()) {
-            *o = self.nearest_one_hinted(*p, h).map_or(0, |n| n.index);
-        }
+    fn nearest_hinted(&self, p: [f32; 3], hint: u32) -> u32 {
+        self.nearest_one_hinted(p, hint).map_or(0, |n| n.index)
     }
 }
 

@@ -65,6 +65,16 @@ impl Default for FrictionParams {
     }
 }
 
+/// Whether a point at `p` is within the contact radius of a face centroid `c` (m), as `params`
+/// compares it: friction's test on either side. A vertex that fails it at `B_a` takes no part
+/// whatever its face at `B_b`, so a solver need not search that face.
+pub fn within_friction_radius<T: Real>(p: [T; 3], c: [T; 3], params: &FrictionParams) -> bool {
+    let d = sub3(p, c);
+    let r2 = dot3(d, d);
+    let r = if params.radius_mode == RadiusMode::SquaredDistance { r2 } else { r2.sqrt() };
+    r < T::from_f64(params.radius)
+}
+
 /// Friction energy (J). For every vertex, `u = nearest_a[i]` is the face whose centroid at `B_a`
 /// is nearest to `pos_i`, `w = nearest_b[i]` the one whose centroid at `B_b` is nearest to `x_i`;
 /// the vertex takes part when both distances are below the radius. With
@@ -104,8 +114,6 @@ pub fn friction<T: Real>(
     if axis > 2 {
         return Err(Error::IndexOutOfRange { what: "floor axis", at: 0, index: axis, len: 3 });
     }
-    let radius = T::from_f64(params.radius);
-    let squared = params.radius_mode == RadiusMode::SquaredDistance;
     let mu_g = T::from_f64(params.mu * GRAVITY);
     let half = T::from_f64(0.5);
     let reg = T::from_f64(1e-4);
@@ -116,14 +124,9 @@ pub fn friction<T: Real>(
         if u >= nf || w >= nf {
             return Err(Error::IndexOutOfRange { what: "friction nearest body face", at: i, index: u.max(w), len: nf });
         }
-        let da = sub3(pos[i], frame_a.centroids[u]);
-        let db = sub3(x[i], frame_b.centroids[w]);
-        let (mut ra, mut rb) = (dot3(da, da), dot3(db, db));
-        if !squared {
-            ra = ra.sqrt();
-            rb = rb.sqrt();
-        }
-        if !(ra < radius && rb < radius) {
+        if !(within_friction_radius(pos[i], frame_a.centroids[u], params)
+            && within_friction_radius(x[i], frame_b.centroids[w], params))
+        {
             continue;
         }
         let nrm = scale3(add3(frame_a.normals[u], frame_b.normals[w]), half);

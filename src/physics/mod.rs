@@ -42,7 +42,7 @@ pub use cloth::{BendHinge, Cloth};
 pub use collision::{
     collision, face_frames, plane_distance, plane_distances, push_out, BruteForceCentroids, CentroidQuery, FaceFrame,
 };
-pub use friction::{friction, FrictionFrames, FrictionParams, RadiusMode};
+pub use friction::{friction, within_friction_radius, FrictionFrames, FrictionParams, RadiusMode};
 pub use inertia::{gravity, inertia};
 pub use metrics::{max_edge_strain, score_rollout, score_rollout_with, FrameScore, RolloutScore, PENETRATION_DEPTH};
 pub use objective::{CollisionInput, CollisionParams, FrictionInput, Objective, StepInputs, Terms};

@@ -4,7 +4,7 @@ use super::{Lbfgs, LbfgsParams, LbfgsReport};
 use crate::error::{Error, Result};
 use crate::math::{add3, Real};
 use crate::physics::{check_len, CentroidQuery, Cloth, CollisionInput, FaceFrame, FrictionFrames, FrictionInput};
-use crate::physics::{Objective, StepInputs, Terms};
+use crate::physics::{within_friction_radius, Objective, StepInputs, Terms};
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -156,10 +156,9 @@ impl<T: Real> ImplicitStep<T> {
         } else {
             lbfgs.set_preconditioner(None)?;
         }
-        let friction_b = prepare_contacts(objective, state, body, near_cur, near_a, x32);
-        let next = body.map(|b| b.next);
-        near_b.copy_from_slice(near_a);
         let mut scratch = Contacts { near_cur, near_a, near_b, near_hint, x32 };
+        let friction_b = prepare_contacts(objective, state, body, &mut scratch);
+        let next = body.map(|b| b.next);
         lbfgs.minimize(x, params, |y, grad| {
             let t = eval_terms(cloth, objective, state, next, friction_b, &mut scratch, y, Some(&mut *grad))?;
             for (g, &p) in grad.iter_mut().zip(pinned) {
@@ -194,9 +193,8 @@ impl<T: Real> ImplicitStep<T> {
             return Err(Error::Empty { what: "body (collision or friction enabled)" });
         }
         let Self { near_cur, near_a, near_b, near_hint, x32, .. } = self;
-        let friction_b = prepare_contacts(objective, state, body, near_cur, near_a, x32);
-        near_b.copy_from_slice(near_a);
         let mut scratch = Contacts { near_cur, near_a, near_b, near_hint, x32 };
+        let friction_b = prepare_contacts(objective, state, body, &mut scratch);
         eval_terms(cloth, objective, state, body.map(|b| b.next), friction_b, &mut scratch, x, None)
     }
 }
@@ -208,6 +206,7 @@ struct Contacts<'a> {
     /// Friction's nearest faces of the last evaluated `x` (at `B_b`); they start as those of
     /// `pos` at `B_a`, the hints of the first search.
     near_b: &'a mut [u32],
+    /// Search hints (a copy of the answers being refreshed).
     near_hint: &'a mut [u32],
     x32: &'a mut [[f32; 3]],
 }
@@ -215,24 +214,30 @@ struct Contacts<'a> {
 /// What friction needs per evaluation: the query at `B_b` and the two frames.
 type FrictionFramesOf<'a, T> = (&'a dyn CentroidQuery, FaceFrame<'a, T>, FaceFrame<'a, T>);
 
-/// Nearest faces of `pos` (collision at the current frame, friction at `B_a`).
+/// Nearest faces of `pos` (collision at the current frame, friction at `B_a`), each search
+/// starting from the last call's answers (a step's garment moves little; the answers do not
+/// depend on the hints); friction's faces of `x` start as those of `pos`.
 fn prepare_contacts<'a, T: Real>(
     objective: &Objective,
     state: &StepState<'_, T>,
     body: Option<&StepBody<'a, T>>,
-    near_cur: &mut [u32],
-    near_a: &mut [u32],
-    x32: &mut [[f32; 3]],
+    c: &mut Contacts<'_>,
 ) -> Option<FrictionFramesOf<'a, T>> {
     let b = body?;
-    to_f32(state.pos, x32);
-    b.query_current.nearest_into(x32, near_cur);
+    to_f32(state.pos, c.x32);
+    c.near_hint.copy_from_slice(c.near_cur);
+    b.query_current.nearest_into_hinted(c.x32, c.near_hint, c.near_cur);
     let fp = objective.friction.as_ref()?;
     let (qa, fa, qb, fb) = match fp.frames {
         FrictionFrames::CurrentNext => (b.query_current, b.current, b.query_next, b.next),
         FrictionFrames::PrevCurrent => (b.query_prev, b.prev, b.query_current, b.current),
     };
-    qa.nearest_into(x32, near_a);
+    if core::ptr::addr_eq(qa, b.query_current) {
+        c.near_a.copy_from_slice(c.near_cur);
+    } else {
+        qa.nearest_into_hinted(c.x32, c.near_cur, c.near_a);
+    }
+    c.near_b.copy_from_slice(c.near_a);
     Some((qb, fa, fb))
 }
 
@@ -253,10 +258,16 @@ fn eval_terms<T: Real>(
     if let Some(next) = next {
         inputs.collision = Some(CollisionInput { nearest: c.near_cur, next });
     }
-    if let Some((qb, fa, fb)) = friction_b {
-        to_f32(y, c.x32);
-        c.near_hint.copy_from_slice(c.near_b);
-        qb.nearest_into_hinted(c.x32, c.near_hint, c.near_b);
+    if let (Some((qb, fa, fb)), Some(fp)) = (friction_b, &objective.friction) {
+        // Only vertices within the radius at `B_a` can take part: the others' face at `B_b`
+        // changes nothing, and keeps its last (valid) value.
+        let nf = fa.centroids.len();
+        for (i, (p, y)) in state.pos.iter().zip(y).enumerate() {
+            let u = c.near_a[i] as usize;
+            if u >= nf || within_friction_radius(*p, fa.centroids[u], fp) {
+                c.near_b[i] = qb.nearest_hinted(y.map(|v| v.to_f64() as f32), c.near_b[i]);
+            }
+        }
         inputs.friction = Some(FrictionInput { frame_a: fa, frame_b: fb, nearest_a: c.near_a, nearest_b: c.near_b });
     }
     objective.eval(cloth, &inputs, y, grad)
