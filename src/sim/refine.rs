@@ -161,6 +161,7 @@ impl Refiner {
         new_pos: &mut [[f32; 3]],
         new_vel: &mut [[f32; 3]],
     ) -> Result<()> {
+        self.last = None;
         let c = input.carry;
         for (o, v) in self.coast.iter_mut().zip(input.velocity) {
             *o = [v[0] + c[0], v[1] + c[1], v[2] + c[2]];
@@ -198,7 +199,6 @@ impl Refiner {
             pinned: input.pinned,
             targets: &self.predicted,
         };
-        self.last = None;
         let report = self.solver.refine(&self.cloth, &self.objective, &state, body.as_ref(), &self.params, new_pos)?;
         if let Some(i) = new_pos.iter().position(|p| !finite3(*p)) {
             return Err(Error::NonFinite { what: "refined garment vertex", index: i });

@@ -51,7 +51,7 @@ pub struct ImplicitStep<T: Real> {
     near_cur: Vec<u32>,
     near_a: Vec<u32>,
     near_b: Vec<u32>,
-    /// Friction's last nearest faces of `x`: hints for the next evaluation's search.
+    /// Scratch: a copy of the last call's collision faces, the hints of their refresh.
     near_hint: Vec<u32>,
     x32: Vec<[f32; 3]>,
     diag: Vec<T>,
@@ -206,7 +206,7 @@ struct Contacts<'a> {
     /// Friction's nearest faces of the last evaluated `x` (at `B_b`); they start as those of
     /// `pos` at `B_a`, the hints of the first search.
     near_b: &'a mut [u32],
-    /// Search hints (a copy of the answers being refreshed).
+    /// Search hints (a copy of the collision faces being refreshed).
     near_hint: &'a mut [u32],
     x32: &'a mut [[f32; 3]],
 }
