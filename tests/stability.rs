@@ -11,7 +11,8 @@
 //! medium model (42,500 iterations) meets those three and misses one always-on case, degenerate
 //! input (0.61 against 0.5 for two free-falling grids with coincident edge vertices); the bounds
 //! stay where they are. `HOOD_STABILITY_RANDOM=1` runs the opt-in cases on a random model instead
-//! (for debugging the harness: the bounds are then expected to fail).
+//! (for debugging the harness: the bounds are then expected to fail). `HOOD_STABILITY_REFINE=K`
+//! runs every case with K iterations of solver refinement in the step.
 //!
 //! Scenes are small (a ~300-vertex skirt on the coarse procedural mannequin) to keep the file
 //! fast. Under debug assertions (CI runs `cargo test` in the test profile) the long cases run
@@ -123,7 +124,13 @@ impl Animation for Looped<'_> {
     }
 }
 
+/// Rolls `model` out over `anim`. `HOOD_STABILITY_REFINE=K` turns on the solver refinement
+/// (`SimConfig::refine`, K iterations) in every case: the hard cases with the model and solver
+/// together.
 fn run(model: &ModelBytes, anim: &dyn Animation, frames: usize, cfg: SimConfig, keep: Vec<usize>) -> Rollout {
+    let refine =
+        std::env::var("HOOD_STABILITY_REFINE").ok().map(|k| k.parse().expect("HOOD_STABILITY_REFINE: a count"));
+    let cfg = SimConfig { refine: cfg.refine.or(refine), ..cfg };
     let model = model.model().unwrap();
     let opts = RolloutOptions { keep, ..RolloutOptions::default() };
     rollout(&model, anim, frames, cfg, &opts).unwrap()

@@ -117,7 +117,8 @@ pub struct SimConfig {
     pub projection: Option<f32>,
     /// Solver refinement: this many L-BFGS iterations (1 ..= [`MAX_REFINE_ITERATIONS`]) of the
     /// physics objective (training form, collision weight [`REFINE_COLLISION_WEIGHT`]), started
-    /// from the network's prediction, before the projection (`None`: off). Not part of HOOD: it
+    /// from the network's prediction, before the projection, on every step but the start-up
+    /// (`None`: off). Not part of HOOD: it
     /// trades time for accuracy, bringing each step toward the implicit step's optimum; its
     /// cost grows with the garment's vertices. [`Sim::last_refinement`] reports each one.
     pub refine: Option<u32>,
@@ -765,7 +766,10 @@ impl<'m> Sim<'m> {
                 *p = [p[0] + carry[0], p[1] + carry[1], p[2] + carry[2]];
             }
         }
-        if let Some(r) = &mut self.refiner {
+        // Not the start-up step: its optimum at dt = 1/3 s is a relaxation (for cloth without a
+        // body, a free fall of a metre), and the velocity it leaves would carry that into the
+        // first frame. The network's own start-up prediction is HOOD's.
+        if let (Some(r), false) = (&mut self.refiner, first_step) {
             let now = &self.state.body_pos[..];
             let input = RefineInput {
                 pos: &self.state.pos,
