@@ -92,6 +92,10 @@ impl CentroidQuery for crate::body::BodyFrame {
     fn nearest(&self, p: [f32; 3]) -> u32 {
         CentroidQuery::nearest(self.centroid_grid(), p)
     }
+
+    fn nearest_hinted(&self, p: [f32; 3], hint: u32) -> u32 {
+        CentroidQuery::nearest_hinted(self.centroid_grid(), p, hint)
+    }
 }
 
 /// Exact nearest centroid by scanning them all (O(faces) per query): for tests and small bodies.
