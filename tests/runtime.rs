@@ -344,3 +344,77 @@ fn runtime_refinement_lowers_the_objective_and_keeps_the_state_consistent() {
         assert!(matches!(new(Some(bad), true).err(), Some(Error::OutOfRange { .. })), "{bad} iterations");
     }
 }
+
+/// Under the speed limit's carry the refinement minimises the objective of the world's
+/// coasting (`velocity + carry`): an independent implicit step started from the refined
+/// positions finds almost nothing left to gain, against what the step gained from coasting.
+#[test]
+fn runtime_refinement_coasts_in_the_carried_frame() {
+    use hood::physics::{face_frames, Cloth, FaceFrame, Objective};
+    use hood::sim::REFINE_COLLISION_WEIGHT;
+    use hood::solve::{ImplicitStep, LbfgsParams, StepBody, StepState};
+    let scene = Scene::new(10, 10);
+    let bytes = random_model(16, 13, false);
+    let model = bytes.model().unwrap();
+    let b0 = scene.body_at(0);
+    let limit = 0.05;
+    let cfg = SimConfig { refine: Some(300), speed_limit: Some(limit), teleport: None, ..SimConfig::default() };
+    let mut sim = Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap();
+    // The body slides by 0.08 m a frame along x: the limit carries 0.03 m of it.
+    let body =
+        |t: usize| -> Vec<[f32; 3]> { scene.body_at(0).iter().map(|p| [p[0] + 0.08 * t as f32, p[1], p[2]]).collect() };
+    sim.step(&body(1)).unwrap();
+    let faces = scene.body.faces();
+    let frame_of = |b: &[[f32; 3]]| {
+        let (mut c, mut n) = (vec![[0.0f32; 3]; faces.len()], vec![[0.0f32; 3]; faces.len()]);
+        face_frames(b, faces, &mut c, &mut n).unwrap();
+        let mut grid = hood::body::PointGrid::new(c.len(), 8 * c.len()).unwrap();
+        grid.rebuild(&c).unwrap();
+        (c, n, grid)
+    };
+    for t in 2..=3 {
+        let before = sim.state().clone();
+        sim.step(&body(t)).unwrap();
+        let x = sim.positions().to_vec();
+        let carry = [0.08 - limit, 0.0, 0.0];
+        let coast: Vec<[f32; 3]> = before.velocity.iter().map(|v| [v[0] + carry[0], v[1], v[2]]).collect();
+        let (now, next) = (frame_of(&before.body_pos), frame_of(&body(t)));
+        let (fnow, fnext) =
+            (FaceFrame { centroids: &now.0, normals: &now.1 }, FaceFrame { centroids: &next.0, normals: &next.1 });
+        let sb = StepBody {
+            prev: fnow,
+            current: fnow,
+            next: fnext,
+            query_prev: &now.2,
+            query_current: &now.2,
+            query_next: &next.2,
+        };
+        let pinned = scene.garment.pinned();
+        let state = StepState { pos: &before.pos, velocity: &coast, dt: hood::features::DT, pinned, targets: &x };
+        let cloth = Cloth::<f32>::new(&scene.garment);
+        let objective = Objective::training(REFINE_COLLISION_WEIGHT);
+        let mut solver = ImplicitStep::<f32>::new(x.len(), 10);
+        let mut coasted: Vec<[f32; 3]> =
+            before.pos.iter().zip(&coast).map(|(p, v)| [p[0] + v[0], p[1] + v[1], p[2] + v[2]]).collect();
+        for (i, c) in coasted.iter_mut().enumerate() {
+            if pinned[i] {
+                *c = x[i];
+            }
+        }
+        let e_coast = solver.evaluate(&cloth, &objective, &state, Some(&sb), &coasted).unwrap().total();
+        let mut y = x.clone();
+        let r = solver
+            .refine(
+                &cloth,
+                &objective,
+                &state,
+                Some(&sb),
+                &LbfgsParams { max_iterations: 50, ..LbfgsParams::default() },
+                &mut y,
+            )
+            .unwrap();
+        let (gained, left) = (e_coast as f64 - r.f_start, r.f_start - r.f);
+        println!("frame {t}: the step gained {gained:.3e} J from coasting; {left:.3e} J left");
+        assert!(gained > 0.0 && left <= 1e-3 * gained, "frame {t}: {left:e} J left of {gained:e}");
+    }
+}
