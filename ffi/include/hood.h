@@ -199,6 +199,15 @@ hood_status hood_sim_new(const hood_model *model, const hood_garment *garment, c
 hood_status hood_sim_free(hood_sim *sim);
 
 /* Garment vertices of the sim. */
+/* The last network step's solver refinement (HOOD_EFFECT_REFINE; HOOD_ERR_UNSUPPORTED_EFFECT when
+ * it is off): accepted L-BFGS iterations and the objective (J) at the network's prediction and
+ * after. All zero before the first refined step; the start-up step is not refined. */
+typedef struct hood_refinement {
+    uint32_t iterations;
+    float energy_before;
+    float energy_after;
+} hood_refinement;
+hood_status hood_sim_last_refinement(const hood_sim *sim, hood_refinement *out);
 hood_status hood_sim_vertex_count(const hood_sim *sim, size_t *out);
 /* Body vertices the sim expects per step (0 without a body or without HOOD_EFFECT_BODY_COLLISION). */
 hood_status hood_sim_body_vertex_count(const hood_sim *sim, size_t *out);

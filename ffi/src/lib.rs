@@ -804,6 +804,42 @@ pub unsafe extern "C" fn hood_sim_vertex_count(sim: *const hood_sim, out: *mut u
     })
 }
 
+/// The last network step's solver refinement (see the header).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct hood_refinement {
+    /// Accepted L-BFGS iterations.
+    pub iterations: u32,
+    /// Objective at the network's prediction, J.
+    pub energy_before: f32,
+    /// Objective after the refinement, J.
+    pub energy_after: f32,
+}
+
+/// The last network step's solver refinement (all zero before the first one).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_last_refinement(sim: *const hood_sim, out: *mut hood_refinement) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_ref`.
+        let s = unsafe { sim_ref(sim)? };
+        require(out, "out")?;
+        if s.sim.config().refine.is_none() {
+            return Err(Error::UnsupportedEffect { effect: "refinement (HOOD_EFFECT_REFINE is off)" }.into());
+        }
+        let r = s.sim.last_refinement().map_or(hood_refinement::default(), |r| hood_refinement {
+            iterations: r.iterations as u32,
+            energy_before: r.f_start as f32,
+            energy_after: r.f as f32,
+        });
+        // SAFETY: `out` non-null.
+        unsafe { write_out(out, r) };
+        Ok(())
+    })
+}
+
 /// Body vertex count expected per step (0 without a body).
 ///
 /// # Safety

@@ -704,6 +704,18 @@ fn config_effects_are_honoured() {
         }
         refine.refine_iterations = 2;
         assert_eq!(hood_sim_new(l.model, g, &bd, &refine, &mut sim), HOOD_OK, "{}", last_error());
+        let mut rep = hood_refinement { iterations: 9, energy_before: 9.0, energy_after: 9.0 };
+        assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_OK);
+        assert_eq!(rep, hood_refinement::default(), "nothing refined yet");
+        assert_eq!(hood_sim_last_refinement(sim, null_mut()), HOOD_ERR_NULL_POINTER);
+        let body = sc.body_at(1, [0.0; 3]);
+        let mut buf = vec![[0.0f32; 3]; n];
+        assert_eq!(hood_sim_step(sim, body.as_ptr().cast(), body.len(), buf.as_mut_ptr().cast(), n), HOOD_OK);
+        assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_OK);
+        assert!(rep.iterations >= 1 && rep.energy_after < rep.energy_before, "{rep:?}");
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        assert_eq!(hood_sim_new(l.model, g, &bd, &cfg, &mut sim), HOOD_OK);
+        assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_ERR_UNSUPPORTED_EFFECT);
         assert_eq!(hood_sim_free(sim), HOOD_OK);
         refine.effects &= !HOOD_EFFECT_BODY_COLLISION;
         assert_eq!(hood_sim_new(l.model, g, null(), &refine, &mut sim), HOOD_OK, "{}", last_error());

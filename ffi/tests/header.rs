@@ -292,6 +292,7 @@ fn compiler_checks_types_constants_and_layouts() {
         }
     );
     layout!(cpp, hood_body_desc { positions, n_vertices, indices, n_faces, omitted });
+    layout!(cpp, hood_refinement { iterations, energy_before, energy_after });
     layout!(cpp, hood_executor { user, parallelism, run });
     cpp.push_str("int main() { return 0; }\n");
 
