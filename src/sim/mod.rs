@@ -769,7 +769,8 @@ impl<'m> Sim<'m> {
         // Not the start-up step: its optimum at dt = 1/3 s is a relaxation (for cloth without a
         // body, a free fall of a metre), and the velocity it leaves would carry that into the
         // first frame. The network's own start-up prediction is HOOD's.
-        if let (Some(r), false) = (&mut self.refiner, first_step) {
+        let refined = self.refiner.is_some() && !first_step;
+        if let (Some(r), true) = (&mut self.refiner, refined) {
             let now = &self.state.body_pos[..];
             let input = RefineInput {
                 pos: &self.state.pos,
@@ -784,7 +785,9 @@ impl<'m> Sim<'m> {
         if let Some(b) = &mut self.body {
             if let Some(proj) = &mut b.projection {
                 let at = body_next.unwrap_or(&self.state.body_pos);
-                proj.apply(&*self.exec, &b.mesh, at, &self.pinned, &mut self.new_pos, &mut self.new_vel)?;
+                // A refined step has built the faces at the same frame.
+                let built = if refined { self.refiner.as_ref().and_then(Refiner::next_faces) } else { None };
+                proj.apply(&*self.exec, &b.mesh, at, built, &self.pinned, &mut self.new_pos, &mut self.new_vel)?;
             }
         }
         // Commit.

@@ -66,24 +66,32 @@ impl Projection {
     }
 
     /// Pushes every free vertex of `pos` (m) out of the body at `body` (its vertices at the frame
-    /// `pos` belongs to), adding each move to `velocity` too. Pinned vertices stay. Allocates
-    /// nothing.
+    /// `pos` belongs to), adding each move to `velocity` too. Pinned vertices stay. `built`: the
+    /// body's faces and centroid grid at that frame when the step already has them (the
+    /// refinement's), else they are built here. Allocates nothing.
     ///
     /// # Errors
     /// Size mismatches of the grid query (none for the buffers of [`new`](Self::new)).
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn apply(
         &mut self,
         exec: &dyn Executor,
         mesh: &BodyMesh,
         body: &[[f32; 3]],
+        built: Option<(FaceFrame<'_, f32>, &PointGrid)>,
         pinned: &[bool],
         pos: &mut [[f32; 3]],
         velocity: &mut [[f32; 3]],
     ) -> Result<()> {
-        face_frames(body, mesh.faces(), &mut self.centroids, &mut self.normals)?;
-        self.grid.rebuild(&self.centroids)?;
-        self.grid.nearest_within_on(exec, pos, PROJECTION_REACH, &self.hints, &mut self.nearest)?;
-        let frame = FaceFrame { centroids: &self.centroids, normals: &self.normals };
+        let (frame, grid) = match built {
+            Some(b) => b,
+            None => {
+                face_frames(body, mesh.faces(), &mut self.centroids, &mut self.normals)?;
+                self.grid.rebuild(&self.centroids)?;
+                (FaceFrame { centroids: &self.centroids, normals: &self.normals }, &self.grid)
+            }
+        };
+        grid.nearest_within_on(exec, pos, PROJECTION_REACH, &self.hints, &mut self.nearest)?;
         let mut moved = 0;
         for (i, near) in self.nearest.iter().enumerate() {
             let Some(near) = near else { continue };

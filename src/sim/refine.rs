@@ -143,6 +143,12 @@ impl Refiner {
         })
     }
 
+    /// The body's faces and centroid grid at the next frame of the last refined step with a
+    /// body (for the projection, which needs the same).
+    pub(super) fn next_faces(&self) -> Option<(FaceFrame<'_, f32>, &PointGrid)> {
+        self.faces.as_ref().map(|[_, next]| (next.frame(), &next.grid))
+    }
+
     /// The last refinement's report (iterations, objective before and after, J).
     pub(super) fn last(&self) -> Option<&LbfgsReport> {
         self.last.as_ref()
