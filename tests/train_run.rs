@@ -59,7 +59,12 @@ fn train_schedules_follow_the_recipe() {
 
 #[test]
 fn train_resume_is_exact() {
-    let cfg = tiny_config();
+    resume_is_exact(tiny_config());
+    // With carried rollouts the checkpoint holds the tracks' states too.
+    resume_is_exact(TrainConfig { carry: (2, 0.0), ..tiny_config() });
+}
+
+fn resume_is_exact(cfg: TrainConfig) {
     let total = 7;
     let mut straight = Trainer::new(cfg.clone(), data(&cfg)).unwrap();
     let mut expected = Vec::new();
@@ -68,6 +73,9 @@ fn train_resume_is_exact() {
     }
     assert!(expected.iter().any(|r| r.steps.len() >= 2), "the curriculum should reach rollouts of 2+ steps");
     assert!(expected.iter().flat_map(|r| &r.steps).all(|s| !s.skipped && s.total.is_finite()));
+    if cfg.carry.0 > 0 {
+        assert!(expected[4..].iter().any(|r| r.carried_from.is_some()), "a carried rollout after the checkpoint");
+    }
 
     let dir = std::env::temp_dir().join(format!("hood-resume-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -91,6 +99,59 @@ fn train_resume_is_exact() {
     }
     assert_eq!(resumed.params(), straight.params(), "final parameters and statistics");
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Frame the rollout of `r` ended at.
+fn end_frame(r: &hood::train::IterationReport) -> usize {
+    let startup = r.carried_from.is_none();
+    r.start_frame + r.steps.len() - usize::from(startup)
+}
+
+/// `carry`: a drawn track continues from the frame and the state its last rollout ended in
+/// (the rollout's first step is no start-up step), and starts afresh at the scene's end or
+/// when the draw restarts it.
+#[test]
+fn train_carried_rollouts_continue_where_they_ended() {
+    let cfg = TrainConfig { carry: (1, 0.0), rollout_every: 1, ..tiny_config() };
+    let mut t = Trainer::new(cfg.clone(), data(&cfg)).unwrap();
+    let reports: Vec<_> = (0..14).map(|_| t.iteration().unwrap()).collect();
+    let n_frames = t.data.scenes[0].n_frames();
+    let mut carried = 0;
+    for w in reports[cfg.warmup_iterations as usize..].windows(2) {
+        let (a, b) = (&w[0], &w[1]);
+        assert!(b.steps.iter().all(|s| !s.skipped));
+        match b.carried_from {
+            Some(f) => {
+                carried += 1;
+                assert_eq!(f, end_frame(a), "iteration {} continues where {} ended", b.iteration, a.iteration);
+                assert_eq!(b.start_frame, f);
+                assert!(!b.steps[0].startup);
+            }
+            None => {
+                assert!(end_frame(a) + b.steps.len() >= n_frames, "iteration {} restarted early", b.iteration);
+                assert!(b.steps[0].startup);
+            }
+        }
+    }
+    assert!(carried >= 5, "{carried} carried rollouts");
+
+    // The state is carried, not just the frame: a track moved by 1 cm changes the next step's
+    // loss, unless the draw restarts the track.
+    for (reset, carries) in [(0.0, true), (1.0, false)] {
+        let cfg = TrainConfig { carry: (1, reset), ..cfg.clone() };
+        let (mut a, mut b) =
+            (Trainer::new(cfg.clone(), data(&cfg)).unwrap(), Trainer::new(cfg.clone(), data(&cfg)).unwrap());
+        for _ in 0..4 {
+            assert_eq!(a.iteration().unwrap(), b.iteration().unwrap());
+        }
+        b.track_mut(0).unwrap().pos.iter_mut().for_each(|p| p[1] += 0.01);
+        let (ra, rb) = (a.iteration().unwrap(), b.iteration().unwrap());
+        assert_eq!(ra.carried_from.is_some(), carries);
+        assert_eq!(ra.steps[0].total != rb.steps[0].total, carries, "reset {reset}");
+    }
+    assert!(Trainer::new(tiny_config(), data(&tiny_config())).unwrap().track_mut(0).is_none());
+    assert!(TrainConfig::from_json("{\"carry\": [2, 1.5]}").is_err());
+    assert_eq!(hood::train::config::parse_carry("8,0.1").unwrap(), (8, 0.1));
 }
 
 #[test]

@@ -99,6 +99,12 @@ pub struct TrainConfig {
     /// (see [`crate::train::StepLoss::add_pull`]), the iteration it stops at, and the L-BFGS
     /// iterations of the f32 implicit step that finds the optimum.
     pub supervised: (f64, u64, usize),
+    /// Carried rollouts (off when 0 tracks): the number of tracks and the probability that a
+    /// track is restarted from the skinned garment when drawn. A track keeps the state its last
+    /// rollout ended in and the next draw of it continues from there, so that the network also
+    /// learns from the states of its own long rollouts (a sample otherwise starts from the
+    /// skinned garment and ends `rollout_max` steps later).
+    pub carry: (usize, f64),
     /// Worker threads for the network passes.
     pub threads: usize,
     /// Seed of the model initialisation and of the sample stream.
@@ -143,6 +149,7 @@ impl Default for TrainConfig {
             validate_every: 500,
             validation: (4, 30),
             supervised: (0.0, 0, 30),
+            carry: (0, 0.0),
             threads: 2,
             seed: 1,
         }
@@ -192,6 +199,25 @@ fn scene(j: &Json) -> Result<SceneSource> {
         return Err(bad("seconds", "at least 0.2"));
     }
     Ok(SceneSource::Procedural { garment: kind, vertices, motion, seconds })
+}
+
+/// `[tracks, reset_probability]`, the probability within `0..=1`.
+fn carry(j: &Json) -> Result<(usize, f64)> {
+    let key = "carry";
+    let a = j.as_f64_vec().filter(|a| a.len() == 2).ok_or_else(|| bad(key, "expected [tracks, reset_probability]"))?;
+    let tracks = uint(&Json::Number(a[0]), key)?;
+    if tracks > 4096 || !(0.0..=1.0).contains(&a[1]) {
+        return Err(bad(key, "at most 4096 tracks, a reset probability within 0..=1"));
+    }
+    Ok((tracks as usize, a[1]))
+}
+
+/// Parses `TRACKS,RESET` (the command line's form of the `carry` key).
+///
+/// # Errors
+/// [`Error::Parse`] as for the JSON key.
+pub fn parse_carry(text: &str) -> Result<(usize, f64)> {
+    carry(&Json::parse(&format!("[{text}]"))?)
 }
 
 impl TrainConfig {
@@ -248,6 +274,7 @@ impl TrainConfig {
                         })?;
                     c.supervised = (a[0], a[1] as u64, (a[2] as usize).max(1));
                 }
+                "carry" => c.carry = carry(v)?,
                 "threads" => c.threads = uint(v, key)?.max(1) as usize,
                 "seed" => c.seed = uint(v, key)?,
                 _ => return Err(bad(key, "unknown key")),
@@ -291,7 +318,7 @@ impl TrainConfig {
              \"clip\": {},\n  \"rollout_max\": {}, \"rollout_every\": {}, \"noise\": {:e}, \
              \"collision_weight\": [{:e}, {:e}], \"collision_ramp\": {},\n  \"decoder_init_scale\": {}, \"random_materials\": {}, \
              \"random_centres\": {}, \"checkpoint_every\": {}, \"validate_every\": {}, \"validation\": [{}, {}], \
-             \"supervised\": [{:e}, {}, {}], \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
+             \"supervised\": [{:e}, {}, {}], \"carry\": [{}, {}], \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
             self.latent,
             self.hidden_layers,
             self.levels,
@@ -317,6 +344,8 @@ impl TrainConfig {
             self.supervised.0,
             self.supervised.1,
             self.supervised.2,
+            self.carry.0,
+            self.carry.1,
             self.threads,
             self.seed,
             scenes.join(",\n    ")

@@ -31,4 +31,4 @@ pub use layout::Layout;
 pub use loss::{LossBody, StepLoss};
 pub use network::{Network, Stats, Tape};
 pub use optim::{clip_global_norm, learning_rate, Adam};
-pub use session::{IterationReport, StepReport, Trainer, ValidationReport};
+pub use session::{IterationReport, StepReport, Track, Trainer, ValidationReport};

@@ -16,6 +16,7 @@ use crate::eval::converged_solver;
 use crate::features::{DT, DT_STARTUP, EDGE_WIDTH, NODE_WIDTH};
 use crate::hierarchy::{CentreChoice, Hierarchy, HierarchyConfig};
 use crate::io::safetensors::{self, SafeTensors, TensorData};
+use crate::mesh::Material;
 use crate::model::{write_model, Model, Normalisers, Params};
 use crate::normaliser::Normaliser;
 use crate::physics::{score_rollout, Objective, RolloutScore, Terms};
@@ -63,6 +64,11 @@ pub struct IterationReport {
     pub learning_rate: f64,
     /// Collision weight.
     pub collision_weight: f64,
+    /// The body frame the rollout starts at.
+    pub start_frame: usize,
+    /// The frame a carried rollout continued from (`None`: a fresh sample from the skinned
+    /// garment, start-up step first).
+    pub carried_from: Option<usize>,
     /// One entry per optimiser step.
     pub steps: Vec<StepReport>,
 }
@@ -117,6 +123,21 @@ pub struct Trainer {
     ws: FastWorkspace,
     builder: InputBuilder,
     step: StepData,
+    /// Carried rollouts (config `carry`), one slot per track.
+    tracks: Vec<Option<Track>>,
+}
+
+/// A rollout's end state kept for a later iteration to continue from (config `carry`).
+#[derive(Clone, Debug)]
+pub struct Track {
+    /// The sample it belongs to (scene, material, hierarchy centre).
+    pub sample: Sample,
+    /// The body frame `pos` is at.
+    pub frame: usize,
+    /// Garment positions at `frame`, m.
+    pub pos: Vec<[f32; 3]>,
+    /// `pos` minus the positions one frame earlier, m per frame.
+    pub velocity: Vec<[f32; 3]>,
 }
 
 fn noisy(rng: &mut Rng, x: &[[f32; 3]], pinned: &[bool], std: f32) -> Vec<[f32; 3]> {
@@ -150,14 +171,15 @@ fn graph_of(sample: &Sample, levels: usize) -> Result<Graph> {
     Graph::new(&sample.garment, &h)
 }
 
-/// Body frames (previous, current, next) and dt of rollout step `k` starting at frame `start`:
-/// the start-up step is static at `start`; step `k >= 1` goes from `start + k - 1` to
-/// `start + k`, as `Sim` does after its start-up step.
-fn frames_of(start: usize, k: usize) -> (usize, usize, usize, f32) {
-    if k == 0 {
-        (start, start, start, DT_STARTUP)
-    } else {
-        (start + k.max(2) - 2, start + k - 1, start + k, DT)
+/// Body frames (previous, current, next) and dt of rollout step `k` starting at frame `start`.
+/// A fresh rollout (`startup`) begins with the start-up step, static at `start`; its step
+/// `k >= 1` goes from `start + k - 1` to `start + k`, as `Sim` does after its start-up step. A
+/// carried rollout's step `k` goes from `start + k` to `start + k + 1`.
+fn frames_of(start: usize, k: usize, startup: bool) -> (usize, usize, usize, f32) {
+    match (startup, k) {
+        (true, 0) => (start, start, start, DT_STARTUP),
+        (true, _) => (start + k.max(2) - 2, start + k - 1, start + k, DT),
+        (false, _) => ((start + k).saturating_sub(1), start + k, start + k + 1, DT),
     }
 }
 
@@ -178,6 +200,7 @@ impl Trainer {
         let adam = Adam::new(theta.len());
         let rng = Rng::new(cfg.seed ^ 0x7a1e_5eed);
         let pool = ThreadPool::new(cfg.threads);
+        let cfg_tracks = cfg.carry.0;
         Ok(Trainer {
             cfg,
             data,
@@ -193,7 +216,36 @@ impl Trainer {
             ws: FastWorkspace::default(),
             builder: InputBuilder::default(),
             step: StepData::default(),
+            tracks: vec![None; cfg_tracks],
         })
+    }
+
+    /// Changes the carried rollouts (config `carry`) of the following iterations: tracks beyond
+    /// the new count are dropped, new ones start empty.
+    pub fn set_carry(&mut self, carry: (usize, f64)) {
+        self.cfg.carry = carry;
+        self.tracks.resize(carry.0, None);
+    }
+
+    /// The state a carried track holds (config `carry`), open to change (for tools and tests;
+    /// keep its vertex count); `None` for an empty or absent slot.
+    pub fn track_mut(&mut self, slot: usize) -> Option<&mut Track> {
+        self.tracks.get_mut(slot)?.as_mut()
+    }
+
+    /// Draws a track for a rollout of `steps` steps: its slot, and its state unless the slot is
+    /// empty, the scene ends too soon or the draw restarts it. Draws nothing when carrying is
+    /// off, so that such runs keep their sample stream.
+    fn draw_track(&mut self, steps: usize) -> (Option<usize>, Option<Track>) {
+        if self.tracks.is_empty() {
+            return (None, None);
+        }
+        let slot = self.rng.below(self.tracks.len());
+        let restart = self.rng.uniform(0.0, 1.0) < self.cfg.carry.1;
+        let track = self.tracks[slot]
+            .take()
+            .filter(|t| !restart && t.frame + steps < self.data.scenes[t.sample.scene].n_frames());
+        (Some(slot), track)
     }
 
     /// Runs the following iterations on `threads` threads (at least 1). Results do not depend on
@@ -229,7 +281,11 @@ impl Trainer {
         let it = self.iteration;
         let warmup = it < self.cfg.warmup_iterations;
         let steps = if warmup { self.cfg.rollout_max.min(3) } else { self.cfg.rollout_length(it) };
-        let sample = self.data.sample(&mut self.rng, steps, &self.cfg)?;
+        let (slot, carried) = if warmup { (None, None) } else { self.draw_track(steps) };
+        let (sample, carried) = match carried {
+            Some(t) => (t.sample, Some((t.frame, t.pos, t.velocity))),
+            None => (self.data.sample(&mut self.rng, steps, &self.cfg)?, None),
+        };
         let graph = graph_of(&sample, self.cfg.levels)?;
         let scene = &self.data.scenes[sample.scene];
         let garment = &sample.garment;
@@ -244,20 +300,28 @@ impl Trainer {
             warmup,
             learning_rate: self.cfg.learning_rate_at(self.optimiser_steps),
             collision_weight: cw,
+            start_frame: carried.as_ref().map_or(sample.start, |c| c.0),
+            carried_from: carried.as_ref().map(|c| c.0),
             steps: Vec::new(),
         };
-        let x0 = scene.initial_garment(sample.start)?;
-        let mut pos = noisy(&mut self.rng, &x0, &pinned, self.cfg.noise);
-        let prev = noisy(&mut self.rng, &x0, &pinned, self.cfg.noise);
-        let mut velocity: Vec<[f32; 3]> =
-            pos.iter().zip(&prev).map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]]).collect();
+        let startup = carried.is_none();
+        let (start, mut pos, mut velocity) = match carried {
+            Some(c) => c,
+            None => {
+                let x0 = scene.initial_garment(sample.start)?;
+                let pos = noisy(&mut self.rng, &x0, &pinned, self.cfg.noise);
+                let prev = noisy(&mut self.rng, &x0, &pinned, self.cfg.noise);
+                let velocity = pos.iter().zip(&prev).map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]]).collect();
+                (sample.start, pos, velocity)
+            }
+        };
         let mut loss = StepLoss::new(garment, &scene.body)?;
         let mut skinned = [vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]];
         let mut grad = vec![0.0f32; self.theta.len()];
         let (mut solver, mut x_star) = (None, vec![[0.0f32; 3]; n]);
         let spec = self.net.spec.clone();
         for k in 0..steps {
-            let (fp, fc, fnx, dt) = frames_of(sample.start, k);
+            let (fp, fc, fnx, dt) = frames_of(start, k, startup);
             // The skinned garment two frames back, one back and at the next frame: true
             // frame-to-frame differences (unlike the body frames right after the start-up step).
             for (buf, f) in skinned.iter_mut().zip([fnx.saturating_sub(2), fnx.saturating_sub(1), fnx]) {
@@ -294,7 +358,7 @@ impl Trainer {
             let exec: &dyn Executor = &self.pool;
             self.net.forward_fast(&mut self.ws, exec, &self.theta, &stats, &graph, step)?;
             let lb = LossBody { mesh: &scene.body, current: scene.body_frame(fc), next: scene.body_frame(fnx) };
-            let mut sr = StepReport { startup: k == 0, ..StepReport::default() };
+            let mut sr = StepReport { startup: startup && k == 0, ..StepReport::default() };
             let ok = finite(&self.ws.new_pos);
             if ok {
                 let (terms, _) = loss.eval(&objective, &lb, &step.pos, &step.velocity, dt, &self.ws.new_pos)?;
@@ -338,6 +402,14 @@ impl Trainer {
                 velocity[i] = [0, 1, 2].map(|c| self.ws.new_pos[i][c] - step.pos[i][c]);
             }
             pos.copy_from_slice(&self.ws.new_pos);
+        }
+        if let Some(slot) = slot {
+            // A rollout that diverged leaves its track empty (the next draw starts afresh).
+            let done = report.steps.len();
+            if report.steps.last().is_some_and(|s| !s.skipped) && done == steps {
+                let frame = if startup { start + done - 1 } else { start + done };
+                self.tracks[slot] = Some(Track { sample, frame, pos, velocity });
+            }
         }
         self.iteration += 1;
         Ok(report)
@@ -385,7 +457,7 @@ impl Trainer {
             let mut body_frames: Vec<Vec<[f32; 3]>> = Vec::new();
             let mut ok = true;
             for k in 0..frames {
-                let (fp, fc, fnx, dt) = frames_of(sample.start, k);
+                let (fp, fc, fnx, dt) = frames_of(sample.start, k, true);
                 scene.skinned_garment(fnx, &mut targets)?;
                 let gs = GarmentState { pos: &pos, velocity: &velocity, pinned: &pinned, pin_targets: &targets };
                 let body = BodyFrames {
@@ -475,6 +547,16 @@ impl Trainer {
         for (a, s) in acc.iter().zip(&shapes) {
             tensors.push((&a.0, s, TensorData::F64(&a.1)));
         }
+        // Carried tracks: their states as tensors, the rest in the metadata.
+        let kept: Vec<(usize, &Track)> =
+            self.tracks.iter().enumerate().filter_map(|(i, t)| Some((i, t.as_ref()?))).collect();
+        let names: Vec<[String; 2]> =
+            kept.iter().map(|(i, _)| [format!("track.{i}.pos"), format!("track.{i}.velocity")]).collect();
+        let track_shapes: Vec<[usize; 1]> = kept.iter().map(|(_, t)| [3 * t.pos.len()]).collect();
+        for ((name, (_, t)), shape) in names.iter().zip(&kept).zip(&track_shapes) {
+            tensors.push((&name[0], shape, TensorData::F32(bytemuck::cast_slice(&t.pos))));
+            tensors.push((&name[1], shape, TensorData::F32(bytemuck::cast_slice(&t.velocity))));
+        }
         let rng = self.rng.state().map(|w| w.to_string()).join(",");
         let meta = [
             ("format", CHECKPOINT_FORMAT.to_string()),
@@ -485,6 +567,10 @@ impl Trainer {
             ("rng", rng),
             ("seconds", format!("{}", self.seconds)),
         ];
+        let track_meta: Vec<(String, String)> =
+            kept.iter().map(|(i, t)| (format!("track.{i}"), track_header(t))).collect();
+        let meta: Vec<(&str, String)> =
+            meta.into_iter().chain(track_meta.iter().map(|(k, v)| (k.as_str(), v.clone()))).collect();
         let meta_ref: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (*k, v.as_str())).collect();
         let bytes = safetensors::to_bytes(&tensors, &meta_ref)?;
         let tmp = path.with_extension("tmp");
@@ -547,6 +633,13 @@ impl Trainer {
             }
             *norm = Normaliser::from_accumulators(&sum, &sq, c[0]);
         }
+        for slot in 0..t.tracks.len() {
+            if let Ok(header) = meta(&format!("track.{slot}")) {
+                let pos = st.f32(&format!("track.{slot}.pos"))?.data;
+                let velocity = st.f32(&format!("track.{slot}.velocity"))?.data;
+                t.tracks[slot] = Some(read_track(&t.data, &header, &pos, &velocity)?);
+            }
+        }
         Ok(t)
     }
 
@@ -572,6 +665,46 @@ impl Trainer {
         t.rng = Rng::new(t.cfg.seed ^ 0x7a1e_5eed ^ t.iteration.wrapping_mul(0x9e37_79b9_7f4a_7c15));
         Ok(t)
     }
+}
+
+/// A track's checkpoint header: `scene start frame centre material…` (the centre seed `-` when
+/// none; the material's four values as `f32` bit patterns, so that they come back exactly).
+fn track_header(t: &Track) -> String {
+    let s = &t.sample;
+    let m = &s.material;
+    let centre = s.centre_seed.map_or("-".to_string(), |c| c.to_string());
+    let bits = [m.density, m.mu, m.lambda, m.bending].map(|x| x.to_bits().to_string()).join(" ");
+    format!("{} {} {} {centre} {bits}", s.scene, s.start, t.frame)
+}
+
+/// The inverse of [`track_header`] with the state tensors.
+fn read_track(data: &Dataset, header: &str, pos: &[f32], velocity: &[f32]) -> Result<Track> {
+    let bad = || Error::parse("checkpoint", 0, format!("bad track '{header}'"));
+    let w: Vec<&str> = header.split(' ').collect();
+    if w.len() != 8 {
+        return Err(bad());
+    }
+    let num = |i: usize| w[i].parse::<u64>().map_err(|_| bad());
+    let (scene, start, frame) = (num(0)? as usize, num(1)? as usize, num(2)? as usize);
+    let centre_seed = if w[3] == "-" { None } else { Some(num(3)?) };
+    let f = |i: usize| -> Result<f32> { Ok(f32::from_bits(w[i].parse::<u32>().map_err(|_| bad())?)) };
+    let material = Material { density: f(4)?, mu: f(5)?, lambda: f(6)?, bending: f(7)? };
+    let s = data.scenes.get(scene).ok_or_else(bad)?;
+    if frame >= s.n_frames() {
+        return Err(bad());
+    }
+    let garment = s.garment_with_material(material)?;
+    let n = garment.n_vertices();
+    if pos.len() != 3 * n || velocity.len() != 3 * n {
+        return Err(Error::SizeMismatch { what: "checkpoint track", expected: 3 * n, got: pos.len() });
+    }
+    let rows = |x: &[f32]| x.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    Ok(Track {
+        sample: Sample { scene, start, garment, material, centre_seed },
+        frame,
+        pos: rows(pos),
+        velocity: rows(velocity),
+    })
 }
 
 /// The config stored in a checkpoint.

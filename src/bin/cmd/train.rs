@@ -25,6 +25,11 @@ pub struct TrainArgs {
     /// scenes first: the periodic validation rolls out the first ones.
     #[arg(long)]
     scenes_from: Option<PathBuf>,
+    /// Carried rollouts `TRACKS,RESET` (config key `carry`), overriding the config's, also when
+    /// resuming: TRACKS rollouts continue from where they last ended, each restarted from the
+    /// skinned garment with probability RESET when drawn (`0,0` turns carrying off).
+    #[arg(long, value_parser = parse_carry)]
+    carry: Option<(usize, f64)>,
     /// Start from an exported model's weights and statistics when the folder has no
     /// checkpoint (for example a committed `models/*.hood`).
     #[arg(long)]
@@ -48,6 +53,10 @@ pub struct TrainArgs {
     /// Start afresh even when the folder holds a checkpoint.
     #[arg(long)]
     fresh: bool,
+}
+
+fn parse_carry(text: &str) -> Result<(usize, f64), String> {
+    hood::train::config::parse_carry(text).map_err(|e| e.to_string())
 }
 
 fn io_err(path: &Path, e: std::io::Error) -> Error {
@@ -86,13 +95,14 @@ fn iteration_json(r: &IterationReport, seconds: f64) -> String {
         .collect();
     format!(
         "{{\"iteration\":{},\"scene\":{},\"vertices\":{},\"warmup\":{},\"lr\":{:e},\"collision_weight\":{:e},\
-         \"seconds\":{:.1},\"steps\":[{}]}}",
+         \"carried_from\":{},\"seconds\":{:.1},\"steps\":[{}]}}",
         r.iteration,
         r.scene,
         r.vertices,
         r.warmup,
         r.learning_rate,
         r.collision_weight,
+        r.carried_from.map_or("null".to_string(), |f| f.to_string()),
         seconds,
         steps.join(",")
     )
@@ -229,6 +239,9 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     }
     if let Some(n) = a.threads {
         t.set_threads(n);
+    }
+    if let Some(c) = a.carry {
+        t.set_carry(c);
     }
     truncate_log(&log, t.iteration)?;
     truncate_log(&vlog, t.iteration + 1)?;
