@@ -62,6 +62,8 @@ fn train_resume_is_exact() {
     resume_is_exact(tiny_config());
     // With carried rollouts the checkpoint holds the tracks' states too.
     resume_is_exact(TrainConfig { carry: (2, 0.0), ..tiny_config() });
+    // With a weight average the checkpoint holds the average too.
+    resume_is_exact(TrainConfig { ema: 0.9, ..tiny_config() });
 }
 
 fn resume_is_exact(cfg: TrainConfig) {
@@ -98,7 +100,61 @@ fn resume_is_exact(cfg: TrainConfig) {
         assert_eq!(a, b, "iteration {} differs after resuming", a.iteration);
     }
     assert_eq!(resumed.params(), straight.params(), "final parameters and statistics");
+    assert_eq!(resumed.model_params(), straight.model_params(), "the weights exports use");
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The weights of `p` in one vector (the order of `Params::tensors_mut`).
+fn weights(p: &hood::model::Params) -> Vec<f32> {
+    let mut p = p.clone();
+    p.tensors_mut().iter().flat_map(|t| t.iter().copied()).collect()
+}
+
+/// `ema`: exports and validation use the moving average of the weights, updated after every
+/// optimiser step; the optimiser's own weights and the losses are those of a run without it.
+#[test]
+fn train_weight_average_follows_the_weights() {
+    let decay = 0.75;
+    // Rollouts of one step: one optimiser step per iteration after the warm-up.
+    let plain_cfg = TrainConfig { rollout_every: 1_000_000, ..tiny_config() };
+    let cfg = TrainConfig { ema: decay, ..plain_cfg.clone() };
+    let mut plain = Trainer::new(plain_cfg.clone(), data(&plain_cfg)).unwrap();
+    let mut t = Trainer::new(cfg.clone(), data(&cfg)).unwrap();
+    let mut expected: Option<Vec<f32>> = None;
+    for _ in 0..7 {
+        let before = t.optimiser_steps;
+        assert_eq!(plain.iteration().unwrap(), t.iteration().unwrap(), "the average must not feed back");
+        assert_eq!(plain.params(), t.params());
+        let current = weights(&t.params());
+        match t.optimiser_steps - before {
+            0 => {}
+            1 => {
+                let w = (1.0 - decay) as f32;
+                expected = Some(match expected {
+                    None => current.clone(),
+                    Some(mut e) => {
+                        e.iter_mut().zip(&current).for_each(|(a, &x)| *a += w * (x - *a));
+                        e
+                    }
+                });
+            }
+            n => panic!("{n} optimiser steps in one iteration"),
+        }
+        match &expected {
+            None => assert_eq!(t.model_params(), t.params(), "before the first step: the weights themselves"),
+            Some(e) => assert!(weights(&t.model_params()) == *e, "iteration {}: the average", t.iteration),
+        }
+    }
+    assert!(t.optimiser_steps >= 3);
+    let averaged = weights(&t.model_params());
+    assert_ne!(averaged, weights(&t.params()), "after several steps the average lags the weights");
+    assert_eq!(plain.model_params(), plain.params(), "without `ema` exports use the weights");
+    // The export carries the average (its f32 weights), and says so.
+    let bytes = t.export(&[]).unwrap();
+    let model = hood::model::ModelBytes::new(&bytes);
+    let model = model.model().unwrap();
+    assert_eq!(weights(&model.to_params()), averaged);
+    assert!(model.provenance().any(|(k, v)| k == "weights" && v == "moving average"));
 }
 
 /// Frame the rollout of `r` ended at.

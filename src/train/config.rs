@@ -105,6 +105,11 @@ pub struct TrainConfig {
     /// learns from the states of its own long rollouts (a sample otherwise starts from the
     /// skinned garment and ends `rollout_max` steps later).
     pub carry: (usize, f64),
+    /// Decay of an exponential moving average of the weights taken after every optimiser step
+    /// (off when 0; e.g. 0.999 averages over about the last 1,000 steps). When on, exports and
+    /// the periodic validation use the averaged weights: they vary less from snapshot to
+    /// snapshot than the weights the optimiser holds, which move with every noisy step.
+    pub ema: f64,
     /// Worker threads for the network passes.
     pub threads: usize,
     /// Seed of the model initialisation and of the sample stream.
@@ -150,6 +155,7 @@ impl Default for TrainConfig {
             validation: (4, 30),
             supervised: (0.0, 0, 30),
             carry: (0, 0.0),
+            ema: 0.0,
             threads: 2,
             seed: 1,
         }
@@ -210,6 +216,15 @@ fn carry(j: &Json) -> Result<(usize, f64)> {
         return Err(bad(key, "at most 4096 tracks, a reset probability within 0..=1"));
     }
     Ok((tracks as usize, a[1]))
+}
+
+/// Checks a weight-average decay (config key `ema`): within `[0, 1)`.
+pub fn ema(decay: f64) -> Result<f64> {
+    if (0.0..1.0).contains(&decay) {
+        Ok(decay)
+    } else {
+        Err(bad("ema", "expected a decay within [0, 1)"))
+    }
 }
 
 /// Parses `TRACKS,RESET` (the command line's form of the `carry` key).
@@ -275,6 +290,7 @@ impl TrainConfig {
                     c.supervised = (a[0], a[1] as u64, (a[2] as usize).max(1));
                 }
                 "carry" => c.carry = carry(v)?,
+                "ema" => c.ema = ema(float(v, key)?)?,
                 "threads" => c.threads = uint(v, key)?.max(1) as usize,
                 "seed" => c.seed = uint(v, key)?,
                 _ => return Err(bad(key, "unknown key")),
@@ -318,7 +334,7 @@ impl TrainConfig {
              \"clip\": {},\n  \"rollout_max\": {}, \"rollout_every\": {}, \"noise\": {:e}, \
              \"collision_weight\": [{:e}, {:e}], \"collision_ramp\": {},\n  \"decoder_init_scale\": {}, \"random_materials\": {}, \
              \"random_centres\": {}, \"checkpoint_every\": {}, \"validate_every\": {}, \"validation\": [{}, {}], \
-             \"supervised\": [{:e}, {}, {}], \"carry\": [{}, {}], \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
+             \"supervised\": [{:e}, {}, {}], \"carry\": [{}, {}], \"ema\": {}, \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
             self.latent,
             self.hidden_layers,
             self.levels,
@@ -346,6 +362,7 @@ impl TrainConfig {
             self.supervised.2,
             self.carry.0,
             self.carry.1,
+            self.ema,
             self.threads,
             self.seed,
             scenes.join(",\n    ")

@@ -110,6 +110,8 @@ pub struct Trainer {
     /// Shape and normalisers (the weights live in `theta`).
     params: Params,
     theta: Vec<f32>,
+    /// Moving average of `theta` (config `ema`; empty while off or before the first step).
+    ema: Vec<f32>,
     adam: Adam,
     rng: Rng,
     /// Iterations done.
@@ -207,6 +209,7 @@ impl Trainer {
             net,
             params,
             theta,
+            ema: Vec::new(),
             adam,
             rng,
             iteration: 0,
@@ -264,6 +267,26 @@ impl Trainer {
         let mut p = self.params.clone();
         self.net.layout.unflatten(&self.theta, &mut p);
         p
+    }
+
+    /// The parameters exports and validation use: the moving average of the weights when
+    /// config `ema` is on (and a step has been taken), else the current ones, with the current
+    /// normaliser statistics.
+    pub fn model_params(&self) -> Params {
+        let mut p = self.params.clone();
+        self.net.layout.unflatten(model_weights(self.cfg.ema, &self.ema, &self.theta), &mut p);
+        p
+    }
+
+    /// Changes the weight average's decay (config `ema`) from now on; turning it on starts the
+    /// average at the current weights (also when it was on before with another decay: the
+    /// average so far is kept).
+    pub fn set_ema(&mut self, decay: f64) -> Result<()> {
+        self.cfg.ema = super::config::ema(decay)?;
+        if decay == 0.0 {
+            self.ema = Vec::new();
+        }
+        Ok(())
     }
 
     /// Parameter count.
@@ -396,6 +419,7 @@ impl Trainer {
             let lr = self.cfg.learning_rate_at(self.optimiser_steps);
             self.adam.step_on(&self.pool, &mut self.theta, &grad, lr);
             self.optimiser_steps += 1;
+            update_average(&mut self.ema, &self.theta, self.cfg.ema);
             report.steps.push(sr);
             // Detached hand-over: the prediction becomes the next step's state.
             for i in 0..n {
@@ -468,7 +492,8 @@ impl Trainer {
                 };
                 self.builder.build(&self.net.spec, garment, &graph, &gs, Some(&body), dt, &mut self.step)?;
                 let step = &self.step;
-                self.net.forward_fast(&mut self.ws, &self.pool, &self.theta, &stats, &graph, step)?;
+                let weights = model_weights(self.cfg.ema, &self.ema, &self.theta);
+                self.net.forward_fast(&mut self.ws, &self.pool, weights, &stats, &graph, step)?;
                 let new_pos = &self.ws.new_pos;
                 if !finite(new_pos) {
                     ok = false;
@@ -520,8 +545,13 @@ impl Trainer {
             ("train_seconds", &secs),
             ("scenes", &scenes),
         ];
+        let ema = format!("{}", self.cfg.ema);
+        if self.cfg.ema > 0.0 && !self.ema.is_empty() {
+            prov.push(("weights", "moving average"));
+            prov.push(("ema", &ema));
+        }
         prov.extend_from_slice(extra);
-        write_model(&self.params(), true, &prov)
+        write_model(&self.model_params(), true, &prov)
     }
 
     /// Writes the whole state to `path` (safetensors; atomically, through a temporary file).
@@ -543,6 +573,9 @@ impl Trainer {
             ("adam.m", &len, TensorData::F32(&self.adam.m)),
             ("adam.v", &len, TensorData::F32(&self.adam.v)),
         ];
+        if !self.ema.is_empty() {
+            tensors.push(("ema", &len, TensorData::F32(&self.ema)));
+        }
         let shapes: Vec<[usize; 1]> = acc.iter().map(|a| [a.1.len()]).collect();
         for (a, s) in acc.iter().zip(&shapes) {
             tensors.push((&a.0, s, TensorData::F64(&a.1)));
@@ -610,6 +643,10 @@ impl Trainer {
         t.theta = vec32("theta")?;
         t.adam.m = vec32("adam.m")?;
         t.adam.v = vec32("adam.v")?;
+        // Absent in checkpoints taken with the average off (or before `ema` existed).
+        if st.tensors().iter().any(|(name, _)| name == "ema") {
+            t.ema = vec32("ema")?;
+        }
         t.adam.t = num("adam_t")?;
         t.iteration = num("iteration")?;
         t.optimiser_steps = num("optimiser_steps")?;
@@ -664,6 +701,33 @@ impl Trainer {
         // A different stream from the original run's, reproducible from the iteration.
         t.rng = Rng::new(t.cfg.seed ^ 0x7a1e_5eed ^ t.iteration.wrapping_mul(0x9e37_79b9_7f4a_7c15));
         Ok(t)
+    }
+}
+
+/// `ema ← d·ema + (1 − d)·theta` after an optimiser step, with `d = decay` (nothing when 0;
+/// the first step copies `theta`).
+fn update_average(ema: &mut Vec<f32>, theta: &[f32], decay: f64) {
+    if decay <= 0.0 {
+        return;
+    }
+    if ema.len() != theta.len() {
+        ema.clear();
+        ema.extend_from_slice(theta);
+        return;
+    }
+    let w = (1.0 - decay) as f32;
+    for (a, &t) in ema.iter_mut().zip(theta) {
+        *a += w * (t - *a);
+    }
+}
+
+/// The weights exports and validation use: the moving average `ema` when the decay is on and
+/// the average has started, else `theta`.
+fn model_weights<'a>(decay: f64, ema: &'a [f32], theta: &'a [f32]) -> &'a [f32] {
+    if decay > 0.0 && !ema.is_empty() {
+        ema
+    } else {
+        theta
     }
 }
 

@@ -30,6 +30,16 @@ pub struct TrainArgs {
     /// skinned garment with probability RESET when drawn (`0,0` turns carrying off).
     #[arg(long, value_parser = parse_carry)]
     carry: Option<(usize, f64)>,
+    /// Base learning rate (config key `learning_rate`), overriding the config's, also when
+    /// resuming (a deliberate fork: the schedule's halvings so far still apply, so the rate in
+    /// force becomes `BASE · (0.5^halvings + 0.01)`; it is printed).
+    #[arg(long)]
+    learning_rate: Option<f64>,
+    /// Decay of the moving average of the weights that exports and validation use (config key
+    /// `ema`, e.g. 0.999; 0 turns it off), overriding the config's, also when resuming (the
+    /// average then starts at the current weights unless the checkpoint holds one).
+    #[arg(long)]
+    ema: Option<f64>,
     /// Start from an exported model's weights and statistics when the folder has no
     /// checkpoint (for example a committed `models/*.hood`).
     #[arg(long)]
@@ -242,6 +252,16 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     }
     if let Some(c) = a.carry {
         t.set_carry(c);
+    }
+    if let Some(d) = a.ema {
+        t.set_ema(d)?;
+    }
+    if let Some(lr) = a.learning_rate {
+        if !(lr.is_finite() && lr > 0.0) {
+            return Err(hood::Error::parse("--learning-rate", 0, format!("{lr} is not a positive rate")));
+        }
+        t.cfg.learning_rate = lr;
+        eprintln!("base learning rate {lr:e}: {:e} in force", t.cfg.learning_rate_at(t.optimiser_steps));
     }
     truncate_log(&log, t.iteration)?;
     truncate_log(&vlog, t.iteration + 1)?;
