@@ -10,9 +10,7 @@ fn rollout(threads: usize, precision: Precision, steps: usize) -> Vec<[f32; 3]> 
     let scene = Scene::new(16, 14);
     let bytes = random_model(32, 2, true);
     let model = bytes.model().unwrap();
-    let b0 = scene.body_at(0);
-    let cfg = SimConfig { threads, precision, ..SimConfig::default() };
-    let mut sim = Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap();
+    let mut sim = scene.sim(&model, SimConfig { threads, precision, ..SimConfig::default() }).unwrap();
     for t in 1..=steps {
         sim.step(&scene.body_at(t)).unwrap();
     }
@@ -34,10 +32,7 @@ fn runtime_refuses_non_finite_body_and_keeps_state() {
     let scene = Scene::new(8, 8);
     let bytes = random_model(16, 3, false);
     let model = bytes.model().unwrap();
-    let b0 = scene.body_at(0);
-    let mut sim =
-        Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), SimConfig::default())
-            .unwrap();
+    let mut sim = scene.sim(&model, SimConfig::default()).unwrap();
     sim.step(&scene.body_at(1)).unwrap();
     let before = sim.state().clone();
     for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
@@ -92,10 +87,7 @@ fn runtime_teleport_carries_the_garment_rigidly() {
     let scene = Scene::new(10, 10);
     let bytes = random_model(16, 6, false);
     let model = bytes.model().unwrap();
-    let b0 = scene.body_at(0);
-    let mut sim =
-        Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), SimConfig::default())
-            .unwrap();
+    let mut sim = scene.sim(&model, SimConfig::default()).unwrap();
     sim.step(&scene.body_at(1)).unwrap();
     let before = sim.positions().to_vec();
     let vel = sim.state().velocity.clone();
@@ -128,14 +120,7 @@ fn runtime_fixed_step_driver_runs_at_30_hz() {
     let bytes = random_model(16, 7, false);
     let model = bytes.model().unwrap();
     for (hz, want) in [(60.0f32, 30u64), (144.0, 30), (30.0, 30), (24.0, 30)] {
-        let b0 = scene.body_at(0);
-        let sim = Sim::new(
-            &model,
-            &scene.garment,
-            Some(BodyDesc { mesh: &scene.body, positions: &b0 }),
-            SimConfig::default(),
-        )
-        .unwrap();
+        let sim = scene.sim(&model, SimConfig::default()).unwrap();
         let mut d = hood::sim::FixedStep::new(sim);
         let frames = hz as usize;
         for f in 1..=frames {
@@ -368,10 +353,9 @@ fn runtime_refinement_coasts_in_the_carried_frame() {
     let scene = Scene::new(10, 10);
     let bytes = random_model(16, 13, false);
     let model = bytes.model().unwrap();
-    let b0 = scene.body_at(0);
     let limit = 0.05;
     let cfg = SimConfig { refine: Some(300), speed_limit: Some(limit), teleport: None, ..SimConfig::default() };
-    let mut sim = Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap();
+    let mut sim = scene.sim(&model, cfg).unwrap();
     // The body slides by 0.08 m a frame along x: the limit carries 0.03 m of it.
     let body =
         |t: usize| -> Vec<[f32; 3]> { scene.body_at(0).iter().map(|p| [p[0] + 0.08 * t as f32, p[1], p[2]]).collect() };

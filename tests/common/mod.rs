@@ -100,4 +100,14 @@ impl Scene {
         let dx = 0.01 * (t as f32 * 0.3).sin();
         self.body_rest.iter().map(|p| [p[0] + dx, p[1], p[2]]).collect()
     }
+
+    /// A simulator of this scene's garment, with the body at frame 0.
+    pub fn sim<'m>(
+        &self,
+        model: &'m hood::model::Model<'m>,
+        cfg: hood::sim::SimConfig,
+    ) -> hood::Result<hood::sim::Sim<'m>> {
+        let b0 = self.body_at(0);
+        hood::sim::Sim::new(model, &self.garment, Some(hood::sim::BodyDesc { mesh: &self.body, positions: &b0 }), cfg)
+    }
 }
