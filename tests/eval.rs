@@ -199,6 +199,24 @@ fn eval_cli_simulate_writes_obj_sequence_and_strip() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+/// `hood info m.hood | head` must not panic: output into a closed pipe ends the command quietly.
+#[cfg(feature = "cli")]
+#[test]
+fn eval_cli_output_into_a_closed_pipe_ends_quietly() {
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/models/compact.hood");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+        .args(["info", model])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Closed before the command has read the model, so its first line meets a broken pipe.
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && !stderr.contains("panicked"), "{:?}: {stderr}", o.status);
+}
+
 #[test]
 fn eval_counts_vertices_inside_the_body_on_the_picked_frames() {
     use hood::body::winding_number_exact;

@@ -8,6 +8,22 @@ use hood::workloads::{default_shared_dir, workload, NAMES};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+/// `println!` for the command's output, without its panic: a closed stdout (`hood info m.hood |
+/// head`) ends the program quietly, any other write error with a message and status 1.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let mut out = std::io::stdout().lock();
+        if let Err(e) = writeln!(out, $($arg)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+            eprintln!("hood: writing to stdout: {e}");
+            std::process::exit(1);
+        }
+    }};
+}
+
 #[path = "cmd/objective.rs"]
 mod objective;
 #[path = "cmd/report.rs"]
@@ -58,7 +74,7 @@ fn info(a: InfoArgs) -> hood::Result<()> {
     );
     let m = bytes.model()?;
     let spec = m.spec();
-    println!(
+    say!(
         "{}: h = {}, {} blocks, {} levels, {} parameters, bf16 weights: {}",
         a.model.display(),
         spec.latent,
@@ -69,14 +85,14 @@ fn info(a: InfoArgs) -> hood::Result<()> {
     );
     let show = |name: &str, (mean, std): (&[f32], &[f32])| {
         let f = |v: &[f32]| v.iter().map(|x| format!("{x:.3e}")).collect::<Vec<_>>().join(" ");
-        println!("{name} mean [{}]\n{name} std  [{}]", f(mean), f(std));
+        say!("{name} mean [{}]\n{name} std  [{}]", f(mean), f(std));
     };
     show("node", m.node_stats());
     show("edge", m.edge_stats());
     show("body edge", m.body_edge_stats());
     show("output", m.output_stats());
     for (k, v) in m.provenance() {
-        println!("{k}: {v}");
+        say!("{k}: {v}");
     }
     Ok(())
 }
@@ -256,19 +272,29 @@ fn bench(a: BenchArgs) -> hood::Result<()> {
         }
     }
     if a.json {
-        println!("{}", to_json(&rows, &peak));
+        say!("{}", to_json(&rows, &peak));
     }
     Ok(())
 }
 
 fn print_row(r: &BenchRow, header: bool) {
     if header {
-        println!(
+        say!(
             "{:<9} {:>6} {:>6} {:>4} {:>5} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6}",
-            "workload", "verts", "bodyE", "h", "prec", "thr", "median ms", "GFLOP/step", "GFLOP/s", "peak", "eff"
+            "workload",
+            "verts",
+            "bodyE",
+            "h",
+            "prec",
+            "thr",
+            "median ms",
+            "GFLOP/step",
+            "GFLOP/s",
+            "peak",
+            "eff"
         );
     }
-    println!(
+    say!(
         "{:<9} {:>6} {:>6} {:>4} {:>5} {:>3} {:>10.2} {:>10.3} {:>9.1} {:>8.1} {:>5.0}%",
         r.workload,
         r.vertices,

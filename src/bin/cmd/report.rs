@@ -194,7 +194,7 @@ pub fn report(a: ReportArgs) -> Result<()> {
     for (file, text) in [("report.md", md), ("report.svg", svg)] {
         let p = a.out.join(file);
         std::fs::write(&p, text).map_err(|e| Error::Io { path: p.display().to_string(), message: e.to_string() })?;
-        println!("wrote {}", p.display());
+        say!("wrote {}", p.display());
     }
     Ok(())
 }

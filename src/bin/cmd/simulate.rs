@@ -206,7 +206,7 @@ fn print_frame(r: &FrameRecord, frames: usize) {
     if let Some(p) = r.inside_percent {
         optional.push_str(&format!("  inside {p:.2}%"));
     }
-    println!(
+    say!(
         "frame {:>4}/{frames}  {:>7.2} ms  objective {:>10.4} J (stretch {:.4}, bend {:.2e}, inertia {:.4}, gravity {:.4}, collision {:.2e}, friction {:.2e})  penetrating {:>5.2}%  strain {:.3}  speed {:.2} m/s{optional}{}",
         r.frame,
         r.step_ms,
@@ -291,7 +291,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     if let Some((f, e)) = &r.failure {
         eprintln!("stopped at frame {f}: {e}");
     }
-    println!(
+    say!(
         "{} frames, {}: step median {:.2} ms (mean {:.2}); objective mean {:.4} J; penetrating mean {:.2}% (max {:.2}%); largest strain {:.3}, speed {:.2} m/s{}",
         s.frames,
         if s.finite { "finite throughout" } else { "NOT finite" },
@@ -310,7 +310,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
             _ => String::new(),
         }
     );
-    println!(
+    say!(
         "wrote {}{}",
         strip.display(),
         if a.no_obj { String::new() } else { format!(" and the OBJ sequence in {}", a.out.display()) }
