@@ -307,6 +307,9 @@ fn train_supervised_pull_toward_the_optimum() {
     assert!(pulled > 0, "no step recorded a pull");
     assert_ne!(a.params().mlps(), b.params().mlps());
     assert_eq!(TrainConfig::from_json(&on.to_json()).unwrap(), on);
+    assert_eq!(hood::train::config::parse_supervised("0, 0, 30").unwrap(), (0.0, 0, 30));
+    assert!(hood::train::config::parse_supervised("1, 100").is_err());
+    assert!(hood::train::config::parse_supervised("-1, 100, 30").is_err());
 }
 
 /// `hood train --scenes-from`: a resumed run forks onto other scenes (recorded in `config.json`
@@ -343,13 +346,17 @@ fn train_cli_resume_with_other_scenes() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("--scenes-from"), "{}", String::from_utf8_lossy(&o.stderr));
     let o = hood(&["--config", first.to_str().unwrap(), "--iterations", "2"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = hood(&["--scenes-from", second.to_str().unwrap(), "--iterations", "3"]);
+    // The fork also switches the supervised pull on (`--supervised`), recorded like the scenes.
+    let o = hood(&["--scenes-from", second.to_str().unwrap(), "--iterations", "3", "--supervised", "2,5,7"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let recorded = TrainConfig::from_json(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
     assert_eq!(recorded.scenes.len(), 2);
+    assert_eq!(recorded.supervised, (2.0, 5, 7));
     let st = hood::io::safetensors::SafeTensors::read(run.join("checkpoint.safetensors")).unwrap();
     let in_checkpoint = hood::train::session::checkpoint_config(&st).unwrap();
     assert_eq!(in_checkpoint.scenes, recorded.scenes);
+    assert_eq!(in_checkpoint.supervised, (2.0, 5, 7));
+    assert!(!hood(&["--supervised", "2,5"]).status.success(), "three values are required");
     assert_eq!(in_checkpoint.latent, cfg.latent, "only the scenes change");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -218,6 +218,22 @@ fn carry(j: &Json) -> Result<(usize, f64)> {
     Ok((tracks as usize, a[1]))
 }
 
+/// `[weight, until_iteration, lbfgs_iterations]`, all non-negative (at least one L-BFGS
+/// iteration is run).
+fn supervised(j: &Json) -> Result<(f64, u64, usize)> {
+    let a = j
+        .as_f64_vec()
+        .filter(|a| a.len() == 3 && a.iter().all(|x| x.is_finite() && *x >= 0.0))
+        .ok_or_else(|| bad("supervised", "expected [weight, until_iteration, lbfgs_iterations], non-negative"))?;
+    Ok((a[0], a[1] as u64, (a[2] as usize).max(1)))
+}
+
+/// Parses `WEIGHT,UNTIL,ITERATIONS` (the config key `supervised` without brackets), e.g. for a
+/// command-line override.
+pub fn parse_supervised(text: &str) -> Result<(f64, u64, usize)> {
+    supervised(&Json::parse(&format!("[{text}]"))?)
+}
+
 /// Checks a weight-average decay (config key `ema`): within `[0, 1)`.
 pub fn ema(decay: f64) -> Result<f64> {
     if (0.0..1.0).contains(&decay) {
@@ -280,15 +296,7 @@ impl TrainConfig {
                         .ok_or_else(|| bad(key, "expected [samples, frames]"))?;
                     c.validation = (a[0].max(0.0) as usize, a[1].max(1.0) as usize);
                 }
-                "supervised" => {
-                    let a = v
-                        .as_f64_vec()
-                        .filter(|a| a.len() == 3 && a.iter().all(|x| x.is_finite() && *x >= 0.0))
-                        .ok_or_else(|| {
-                            bad(key, "expected [weight, until_iteration, lbfgs_iterations], non-negative")
-                        })?;
-                    c.supervised = (a[0], a[1] as u64, (a[2] as usize).max(1));
-                }
+                "supervised" => c.supervised = supervised(v)?,
                 "carry" => c.carry = carry(v)?,
                 "ema" => c.ema = ema(float(v, key)?)?,
                 "threads" => c.threads = uint(v, key)?.max(1) as usize,

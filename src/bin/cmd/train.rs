@@ -30,6 +30,12 @@ pub struct TrainArgs {
     /// skinned garment with probability RESET when drawn (`0,0` turns carrying off).
     #[arg(long, value_parser = parse_carry)]
     carry: Option<(usize, f64)>,
+    /// The supervised pull toward the implicit step's optimum `WEIGHT,UNTIL,ITERATIONS` (config
+    /// key `supervised`), overriding the config's, also when resuming: weight, the iteration at
+    /// which the pull ends (the objective alone after it), L-BFGS iterations per optimum. For
+    /// example `0,0,30` continues a supervised run on the objective alone.
+    #[arg(long, value_parser = parse_supervised)]
+    supervised: Option<(f64, u64, usize)>,
     /// Base learning rate (config key `learning_rate`), overriding the config's, also when
     /// resuming (a deliberate fork: the schedule's halvings so far still apply, so the rate in
     /// force becomes `BASE · (0.5^halvings + 0.01)`; it is printed).
@@ -67,6 +73,10 @@ pub struct TrainArgs {
 
 fn parse_carry(text: &str) -> Result<(usize, f64), String> {
     hood::train::config::parse_carry(text).map_err(|e| e.to_string())
+}
+
+fn parse_supervised(text: &str) -> Result<(f64, u64, usize), String> {
+    hood::train::config::parse_supervised(text).map_err(|e| e.to_string())
 }
 
 fn io_err(path: &Path, e: std::io::Error) -> Error {
@@ -252,6 +262,10 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     }
     if let Some(c) = a.carry {
         t.set_carry(c);
+    }
+    if let Some(s) = a.supervised {
+        t.cfg.supervised = s;
+        eprintln!("supervised pull: weight {:e} until iteration {}, {} L-BFGS iterations", s.0, s.1, s.2);
     }
     if let Some(d) = a.ema {
         t.set_ema(d)?;
