@@ -221,6 +221,9 @@ pub struct Gap {
     pub model: f64,
     /// Objective at the converged implicit step's optimum.
     pub optimum: f64,
+    /// Its terms (their total is `optimum`): with the model's terms (the frame's
+    /// [`FrameRecord::terms`]) they split the gap by term, see [`Gap::by_term`].
+    pub optimum_terms: Terms<f64>,
     /// Objective at the coasting guess `pos + velocity` (pinned vertices at their targets).
     pub coasting: f64,
     /// `(model - optimum) / (coasting - optimum)`: 0 at the optimum, 1 no better than coasting
@@ -230,6 +233,26 @@ pub struct Gap {
     pub iterations: usize,
     /// Whether the implicit step met a convergence criterion (else it hit a cap).
     pub converged: bool,
+}
+
+impl Gap {
+    /// The relative gap split by term: `(model_t - optimum_t) / (coasting - optimum)` for every
+    /// term `t`, given the model's terms; they sum to [`Gap::relative`]. A negative part is a
+    /// term the model left lower than the optimum does (paid for by the others). `None` where
+    /// the relative gap is.
+    pub fn by_term(&self, model: &Terms<f64>) -> Option<Terms<f64>> {
+        self.relative?;
+        let descent = self.coasting - self.optimum;
+        let o = &self.optimum_terms;
+        Some(Terms {
+            stretching: (model.stretching - o.stretching) / descent,
+            bending: (model.bending - o.bending) / descent,
+            inertia: (model.inertia - o.inertia) / descent,
+            gravity: (model.gravity - o.gravity) / descent,
+            collision: (model.collision - o.collision) / descent,
+            friction: (model.friction - o.friction) / descent,
+        })
+    }
 }
 
 /// The figures of one frame.
@@ -285,6 +308,9 @@ pub struct Summary {
     pub gap_mean: Option<f64>,
     /// 95th percentile (nearest rank) of the same.
     pub gap_p95: Option<f64>,
+    /// The mean relative gap split by term ([`Gap::by_term`] averaged over the same frames; the
+    /// parts sum to `gap_mean`).
+    pub gap_by_term: Option<Terms<f64>>,
     /// How many frames the gap figures average.
     pub gap_frames: usize,
     /// Mean % of vertices inside the body over the frames where it was counted.
@@ -537,9 +563,12 @@ impl Scorer {
                 let model = terms.total();
                 let descent = r.f_start - r.f;
                 let relative = (descent > 1e-12 * r.f_start.abs().max(1e-3)).then(|| (model - r.f) / descent);
+                let optimum_terms =
+                    self.solver.evaluate(&self.cloth, &self.objective, &state, body.as_ref(), &self.x_star)?;
                 Some(Gap {
                     model,
                     optimum: r.f,
+                    optimum_terms,
                     coasting: r.f_start,
                     relative,
                     iterations: r.iterations,
@@ -804,6 +833,22 @@ fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
     if !gaps.is_empty() {
         s.gap_mean = Some(gaps.iter().sum::<f64>() / gaps.len() as f64);
         s.gap_p95 = Some(percentile(&mut gaps, 0.95));
+        let parts: Vec<Terms<f64>> = frames
+            .iter()
+            .filter_map(|f| f.gap.as_ref().zip(f.terms.as_ref()))
+            .filter_map(|(g, t)| g.by_term(t))
+            .collect();
+        let k = parts.len().max(1) as f64;
+        let mut mean = Terms::<f64>::default();
+        for p in &parts {
+            mean.stretching += p.stretching / k;
+            mean.bending += p.bending / k;
+            mean.inertia += p.inertia / k;
+            mean.gravity += p.gravity / k;
+            mean.collision += p.collision / k;
+            mean.friction += p.friction / k;
+        }
+        s.gap_by_term = Some(mean);
     }
     let inside: Vec<f64> = frames.iter().filter_map(|f| f.inside_percent).collect();
     s.inside_frames = inside.len();

@@ -47,6 +47,11 @@ fn eval_rollout_records_every_frame_and_orders_the_gap() {
             let tol = 1e-9 * g.coasting.abs().max(1.0);
             assert!(g.optimum <= g.coasting + tol, "{g:?}");
             assert!(g.optimum <= g.model + tol, "{g:?}");
+            // The parts by term add up to the relative gap.
+            assert!((g.optimum_terms.total() - g.optimum).abs() <= tol, "{g:?}");
+            if let (Some(rel), Some(parts)) = (g.relative, g.by_term(&t)) {
+                assert!((parts.total() - rel).abs() <= 1e-6 * rel.abs().max(1.0), "{parts:?} against {rel}");
+            }
             println!("frame {}: {g:?}", f.frame);
         }
     }
@@ -54,6 +59,8 @@ fn eval_rollout_records_every_frame_and_orders_the_gap() {
         assert_eq!(r.summary.gap_frames, 2);
         let (m, p) = (r.summary.gap_mean.unwrap(), r.summary.gap_p95.unwrap());
         assert!(m >= -1e-6 && p >= m - 1e-12, "mean {m}, p95 {p}");
+        let parts = r.summary.gap_by_term.unwrap();
+        assert!((parts.total() - m).abs() <= 1e-6 * m.abs().max(1.0), "{parts:?} against {m}");
     }
     let images = strip_images(&scene, &r.kept, 60, 100);
     assert_eq!(images.len(), r.kept.len());

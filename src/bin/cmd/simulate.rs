@@ -310,6 +310,17 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
             _ => String::new(),
         }
     );
+    if let Some(t) = s.gap_by_term {
+        say!(
+            "relative gap by term: stretching {:+.3}, bending {:+.3}, inertia {:+.3}, gravity {:+.3}, collision {:+.3}, friction {:+.3}",
+            t.stretching,
+            t.bending,
+            t.inertia,
+            t.gravity,
+            t.collision,
+            t.friction
+        );
+    }
     say!(
         "wrote {}{}",
         strip.display(),
