@@ -8,3 +8,4 @@ pub mod makehuman;
 pub mod obj;
 pub mod png;
 pub mod safetensors;
+pub mod zlib;

@@ -202,7 +202,10 @@ fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
 
 fn print_frame(r: &FrameRecord, frames: usize) {
     let t = r.terms.unwrap_or_default();
-    let mut optional = r.gap.and_then(|g| g.relative).map_or(String::new(), |g| format!("  gap {g:.3}"));
+    // The relative gap, then the absolute gap and the descent available (coasting - optimum).
+    let mut optional = r.gap.and_then(|g| Some((g.relative?, g))).map_or(String::new(), |(rel, g)| {
+        format!("  gap {rel:.3} ({:.2e} of {:.2e} J)", g.model - g.optimum, g.coasting - g.optimum)
+    });
     if let Some(p) = r.inside_percent {
         optional.push_str(&format!("  inside {p:.2}%"));
     }
