@@ -308,6 +308,10 @@ pub struct Summary {
     pub gap_mean: Option<f64>,
     /// 95th percentile (nearest rank) of the same.
     pub gap_p95: Option<f64>,
+    /// Mean absolute gap `model - optimum` (J) over the same frames: unlike the relative gap it
+    /// does not depend on the descent available at the rollout's own states (a calmer rollout
+    /// has less, which raises its relative gap at an equal absolute one).
+    pub gap_abs_mean: Option<f64>,
     /// The mean relative gap split by term ([`Gap::by_term`] averaged over the same frames; the
     /// parts sum to `gap_mean`).
     pub gap_by_term: Option<Terms<f64>>,
@@ -832,6 +836,8 @@ fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
     s.gap_frames = gaps.len();
     if !gaps.is_empty() {
         s.gap_mean = Some(gaps.iter().sum::<f64>() / gaps.len() as f64);
+        let absolute = frames.iter().filter_map(|f| f.gap.and_then(|g| g.relative.map(|_| g.model - g.optimum)));
+        s.gap_abs_mean = Some(absolute.sum::<f64>() / gaps.len() as f64);
         s.gap_p95 = Some(percentile(&mut gaps, 0.95));
         let parts: Vec<Terms<f64>> = frames
             .iter()

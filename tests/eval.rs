@@ -59,6 +59,14 @@ fn eval_rollout_records_every_frame_and_orders_the_gap() {
         assert_eq!(r.summary.gap_frames, 2);
         let (m, p) = (r.summary.gap_mean.unwrap(), r.summary.gap_p95.unwrap());
         assert!(m >= -1e-6 && p >= m - 1e-12, "mean {m}, p95 {p}");
+        let abs: Vec<f64> = r
+            .frames
+            .iter()
+            .filter_map(|f| f.gap.filter(|g| g.relative.is_some()))
+            .map(|g| g.model - g.optimum)
+            .collect();
+        let abs_mean = abs.iter().sum::<f64>() / abs.len() as f64;
+        assert!((r.summary.gap_abs_mean.unwrap() - abs_mean).abs() <= 1e-12 * abs_mean.abs().max(1e-9));
         let parts = r.summary.gap_by_term.unwrap();
         assert!((parts.total() - m).abs() <= 1e-6 * m.abs().max(1.0), "{parts:?} against {m}");
     }

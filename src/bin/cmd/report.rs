@@ -264,14 +264,14 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
     }
     let _ = writeln!(
         s,
-        "\n| workload | vertices | variant | ms/step | gap mean | of which stretching | gap p95 | penetrating % (mean) | inside % (mean) | max strain | finite |"
+        "\n| workload | vertices | variant | ms/step | gap mean | of which stretching | gap p95 | absolute gap mean (mJ) | penetrating % (mean) | inside % (mean) | max strain | finite |"
     );
-    let _ = writeln!(s, "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---|");
+    let _ = writeln!(s, "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---|");
     for r in rows {
         let m = &r.summary;
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {:.2} | {} | {} | {} | {:.2} | {} | {:.3} | {} |",
+            "| {} | {} | {} | {:.2} | {} | {} | {} | {} | {:.2} | {} | {:.3} | {} |",
             r.workload,
             r.vertices,
             r.variant,
@@ -279,6 +279,7 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
             fmt_opt(m.gap_mean),
             fmt_opt(m.gap_by_term.map(|t| t.stretching)),
             fmt_opt(m.gap_p95),
+            m.gap_abs_mean.map_or("-".to_string(), |g| format!("{:.2}", 1e3 * g)),
             m.mean_penetrating_percent,
             m.inside_mean.map_or("-".to_string(), |v| format!("{v:.2}")),
             m.max_edge_strain,

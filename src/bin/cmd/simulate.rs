@@ -306,7 +306,11 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         s.max_edge_strain,
         s.max_speed,
         match (s.gap_mean, s.gap_p95) {
-            (Some(m), Some(p)) => format!("; relative gap mean {m:.3}, p95 {p:.3} ({} frames)", s.gap_frames),
+            (Some(m), Some(p)) => format!(
+                "; relative gap mean {m:.3}, p95 {p:.3} ({} frames; absolute {:.2e} J)",
+                s.gap_frames,
+                s.gap_abs_mean.unwrap_or(f64::NAN)
+            ),
             _ => String::new(),
         } + &match (s.inside_mean, s.inside_max) {
             (Some(m), Some(x)) => format!("; inside the body mean {m:.2}% (max {x:.2}%, {} frames)", s.inside_frames),
