@@ -230,8 +230,12 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
     let _ = writeln!(
         s,
         "Gap: relative objective gap (E(x) - E(x*)) / (E(x_hat) - E(x*)) against the converged implicit step from the \
-         same state (0: optimal, 1: no better than coasting), every {} frames, {} objective. ms/step: \
-         median wall time of one step on this machine (the implicit solver in f64).\n",
+         same state (0: optimal, 1: no better than coasting), every {} frames, {} objective; \"of which \
+         stretching\": the stretching term's part of it ((E_stretch(x) - E_stretch(x*)) / (E(x_hat) - E(x*)), the \
+         parts of all terms add up to the gap); absolute gap: E(x) - E(x*) in mJ. Both are scored on each rollout's \
+         own states: a rollout that keeps calmer states has less descent available, which raises its relative gap \
+         at an equal absolute one, and one that blows up has more. ms/step: median wall time of one step on this \
+         machine (the implicit solver in f64).\n",
         a.gap_every,
         a.objective.name()
     );
