@@ -812,16 +812,8 @@ pub fn implicit_rollout(
 fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
     let mut s = Summary { frames: frames.len(), finite, ..Summary::default() };
     let scored: Vec<Terms<f64>> = frames.iter().filter_map(|f| f.terms).collect();
-    let k = scored.len().max(1) as f64;
-    for t in &scored {
-        s.mean_terms.stretching += t.stretching / k;
-        s.mean_terms.bending += t.bending / k;
-        s.mean_terms.inertia += t.inertia / k;
-        s.mean_terms.gravity += t.gravity / k;
-        s.mean_terms.collision += t.collision / k;
-        s.mean_terms.friction += t.friction / k;
-        s.mean_total += t.total() / k;
-    }
+    s.mean_terms = mean_terms(&scored);
+    s.mean_total = scored.iter().map(|t| t.total() / scored.len() as f64).sum();
     let nf = frames.len().max(1) as f64;
     for f in frames {
         s.mean_penetrating_percent += f.penetrating_percent / nf;
@@ -844,17 +836,7 @@ fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
             .filter_map(|f| f.gap.as_ref().zip(f.terms.as_ref()))
             .filter_map(|(g, t)| g.by_term(t))
             .collect();
-        let k = parts.len().max(1) as f64;
-        let mut mean = Terms::<f64>::default();
-        for p in &parts {
-            mean.stretching += p.stretching / k;
-            mean.bending += p.bending / k;
-            mean.inertia += p.inertia / k;
-            mean.gravity += p.gravity / k;
-            mean.collision += p.collision / k;
-            mean.friction += p.friction / k;
-        }
-        s.gap_by_term = Some(mean);
+        s.gap_by_term = Some(mean_terms(&parts));
     }
     let inside: Vec<f64> = frames.iter().filter_map(|f| f.inside_percent).collect();
     s.inside_frames = inside.len();
@@ -867,6 +849,21 @@ fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
         s.median_step_ms = percentile(&mut ms, 0.5);
     }
     s
+}
+
+/// The mean of every term (zero for none).
+fn mean_terms(terms: &[Terms<f64>]) -> Terms<f64> {
+    let k = terms.len().max(1) as f64;
+    let mut mean = Terms::<f64>::default();
+    for t in terms {
+        mean.stretching += t.stretching / k;
+        mean.bending += t.bending / k;
+        mean.inertia += t.inertia / k;
+        mean.gravity += t.gravity / k;
+        mean.collision += t.collision / k;
+        mean.friction += t.friction / k;
+    }
+    mean
 }
 
 /// Nearest-rank percentile `q` (0-1) of `v` (sorted in place; not empty).
