@@ -38,7 +38,7 @@ pub fn encode(image: &Image) -> Vec<u8> {
     let mut ihdr = Vec::with_capacity(13);
     ihdr.extend_from_slice(&(image.width as u32).to_be_bytes());
     ihdr.extend_from_slice(&(image.height as u32).to_be_bytes());
-    ihdr.extend_from_slice(&[8, 2, 0, 0, 0]); // 8 bits, RGB, deflate, no filter choice, no interlace
+    ihdr.extend_from_slice(&[8, 2, 0, 0, 0]); // 8 bits, RGB, deflate, filter method 0 (five row filters), no interlace
     chunk(&mut out, b"IHDR", &ihdr);
     chunk(&mut out, b"IDAT", &zlib::compress(&filtered(image)));
     chunk(&mut out, b"IEND", &[]);
