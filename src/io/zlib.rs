@@ -244,18 +244,10 @@ mod tests {
         assert_eq!(inflate::zlib(&z).unwrap(), data);
     }
 
-    /// splitmix64 bytes.
+    /// Random bytes from the crate's generator.
     fn noise(n: usize, seed: u64) -> Vec<u8> {
-        let mut s = seed;
-        (0..n)
-            .map(|_| {
-                s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-                let mut z = s;
-                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-                (z ^ (z >> 31)) as u8
-            })
-            .collect()
+        let mut rng = crate::rng::Rng::new(seed);
+        (0..n).map(|_| rng.next_u64() as u8).collect()
     }
 
     #[test]
