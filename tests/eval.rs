@@ -279,3 +279,86 @@ fn eval_counts_vertices_inside_the_body_on_the_picked_frames() {
     assert!(counted >= 1 && r.summary.inside_mean.unwrap() > 5.0, "{:?}", r.summary);
     assert!(r.summary.inside_max.unwrap() >= r.summary.inside_mean.unwrap());
 }
+
+/// One step from common states: the reference states are those of the converged implicit
+/// rollout, every method is scored against the converged step from them (the converged method
+/// itself at zero gap, truncated solves and a refined network in between), and methods do not
+/// affect each other.
+#[test]
+fn eval_common_states_score_every_method_from_the_reference_states() {
+    use hood::eval::{common_state_gaps, converged_solver, implicit_rollout, Method, Reference};
+    use hood::sim::REFINE_COLLISION_WEIGHT;
+    use hood::solve::LbfgsParams;
+    let m = Mannequin::with_spacing(0.04).unwrap();
+    let scene = procedural(&m, GarmentKind::Skirt, 300, MotionKind::Walk, 0.5).unwrap();
+    let bytes = random_model(16, 5, false);
+    let model = bytes.model().unwrap();
+    let frames = 6;
+    let training = Objective::training(REFINE_COLLISION_WEIGHT);
+    let opts = RolloutOptions { gap_every: 2, objective: training, ..RolloutOptions::default() };
+    let two = LbfgsParams { max_iterations: 2, ..converged_solver() };
+    let methods = [
+        Method::Network { model: &model, cfg: SimConfig::default() },
+        Method::Network { model: &model, cfg: SimConfig { refine: Some(200), ..SimConfig::default() } },
+        Method::Implicit(converged_solver()),
+        Method::Implicit(two),
+    ];
+    let out = common_state_gaps(&scene, frames, &methods, Reference::Converged(training), &opts).unwrap();
+    assert_eq!(out.len(), methods.len());
+    for r in &out {
+        assert!(r.failure.is_none(), "{:?}", r.failure);
+        assert_eq!(r.frames.iter().map(|f| f.frame).collect::<Vec<_>>(), [2, 4, 6]);
+        assert!(r.frames.iter().all(|f| f.kind == StepKind::Stepped && f.gap.is_some()));
+        assert_eq!(r.summary.gap_frames, 3);
+        // Every method is compared with the same optimum.
+        for (f, g) in r.frames.iter().zip(&out[2].frames) {
+            assert_eq!(f.gap.unwrap().optimum, g.gap.unwrap().optimum);
+            assert_eq!(f.gap.unwrap().coasting, g.gap.unwrap().coasting);
+        }
+    }
+    let gap = |i: usize| out[i].summary.gap_mean.unwrap();
+    println!(
+        "gap from common states: network {:.3}, + refine 200 {:.2e}, converged {:.1e}, 2 it. {:.3}",
+        gap(0),
+        gap(1),
+        gap(2),
+        gap(3)
+    );
+    assert!(gap(2).abs() < 1e-9, "the converged step is the optimum");
+    assert!(gap(3) > 1e-6 && gap(3) <= 1.0 + 1e-9);
+    assert!(gap(1) < 1e-3 && gap(1) < gap(0));
+    // The states are those of the converged implicit rollout: the converged method's scores
+    // there are that rollout's.
+    let own = implicit_rollout(&scene, frames, &converged_solver(), &opts, &mut |_, _| Ok(())).unwrap();
+    for f in &out[2].frames {
+        let o = &own.frames[f.frame - 1];
+        assert_eq!((o.frame, o.terms, o.max_edge_strain), (f.frame, f.terms, f.max_edge_strain));
+    }
+    // A method alone scores as it does among others.
+    let alone = common_state_gaps(&scene, frames, &methods[..1], Reference::Converged(training), &opts).unwrap();
+    for (a, b) in alone[0].frames.iter().zip(&out[0].frames) {
+        assert_eq!((a.terms, a.gap, a.max_edge_strain), (b.terms, b.gap, b.max_edge_strain));
+    }
+    // Scored under another objective than the reference's: the optimum is that objective's.
+    let eval_opts = RolloutOptions { objective: Objective::evaluation(), ..opts.clone() };
+    let other = common_state_gaps(&scene, frames, &methods[2..], Reference::Converged(training), &eval_opts).unwrap();
+    let g = other[0].summary.gap_mean.unwrap();
+    assert!(g.abs() < 1e-9, "converged under the scoring objective: {g}");
+    assert!(other[1].summary.gap_mean.unwrap() > 1e-6);
+    // From a runtime reference, the model scores as on its own rollout (past the start-up step).
+    let net = &methods[..1];
+    let from_own =
+        common_state_gaps(&scene, frames, net, Reference::Network { model: &model, cfg: SimConfig::default() }, &opts)
+            .unwrap();
+    let own = rollout(&model, &scene, frames, SimConfig::default(), &opts).unwrap();
+    assert!(own.failure.is_none());
+    for f in &from_own[0].frames {
+        let o = &own.frames[f.frame - 1];
+        assert_eq!((o.frame, o.kind, o.terms, o.gap), (f.frame, f.kind, f.terms, f.gap));
+        assert_eq!((o.max_edge_strain, o.penetrating_percent), (f.max_edge_strain, f.penetrating_percent));
+    }
+    assert!(matches!(
+        common_state_gaps(&scene, 0, &methods, Reference::Converged(training), &opts),
+        Err(hood::Error::Empty { .. })
+    ));
+}

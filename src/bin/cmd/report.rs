@@ -4,7 +4,8 @@
 
 use crate::objective::ObjectiveArg;
 use clap::Args;
-use hood::eval::{converged_solver, implicit_rollout, rollout, Animation, Rollout, RolloutOptions};
+use hood::eval::{common_state_gaps, converged_solver, implicit_rollout, rollout, Animation, Method, Rollout};
+use hood::eval::{Reference, RolloutOptions, Summary};
 use hood::model::spec::format_schedule;
 use hood::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
 use hood::rig::procedural::Mannequin;
@@ -45,6 +46,11 @@ pub struct ReportArgs {
     /// Threads of the network step.
     #[arg(long, default_value_t = 1)]
     threads: usize,
+    /// Also score every variant one step at a time from common states (those of a converged
+    /// implicit rollout of the training objective), on the frames `--gap-every` picks: a second
+    /// table and `report-common.svg`.
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    common_states: bool,
     /// Objective of the frames and of the gap.
     #[arg(long, value_enum, default_value_t = ObjectiveArg::Evaluation)]
     objective: ObjectiveArg,
@@ -62,7 +68,9 @@ struct Row {
     vertices: usize,
     variant: String,
     implicit: bool,
-    summary: hood::eval::Summary,
+    /// Scored one step at a time from common states rather than on its own rollout.
+    common: bool,
+    summary: Summary,
 }
 
 /// A model to report: its bytes and a label; `trained` false for random stand-ins.
@@ -152,46 +160,65 @@ pub fn report(a: ReportArgs) -> Result<()> {
         let Some(anim) = workload(&a, name, &mannequin)? else { continue };
         let frames = a.frames.min(anim.n_frames() - 1);
         let verts = anim.garment().n_vertices();
-        let mut push = |variant: String, implicit: bool, r: Rollout| {
+        let mut push = |variant: String, implicit: bool, common: bool, r: Rollout| {
             let s = r.summary;
             eprintln!(
-                "{name:<6} {variant:<40} {:>8.2} ms/step  gap mean {:>7}  p95 {:>7}  penetrating {:>5.2}%{}",
+                "{name:<6} {variant:<40}{} {:>8.2} ms/step  gap mean {:>7}  p95 {:>7}  penetrating {:>5.2}%{}",
+                if common { " (common states)" } else { "" },
                 s.median_step_ms,
                 fmt_opt(s.gap_mean),
                 fmt_opt(s.gap_p95),
                 s.mean_penetrating_percent,
                 if s.finite { "" } else { "  NOT FINITE" }
             );
-            rows.push(Row { workload: name.clone(), vertices: verts, variant, implicit, summary: s });
+            rows.push(Row { workload: name.clone(), vertices: verts, variant, implicit, common, summary: s });
         };
-        for c in &models {
-            let model = c.bytes.model()?;
+        let loaded: Vec<_> = models.iter().map(|c| c.bytes.model()).collect::<Result<_>>()?;
+        // The variants: (label, method).
+        let mut variants: Vec<(String, Method<'_>)> = Vec::new();
+        for (c, model) in models.iter().zip(&loaded) {
             let precisions: &[Precision] =
                 if model.has_bf16() { &[Precision::F32, Precision::Bf16] } else { &[Precision::F32] };
             for &p in precisions {
                 let cfg = SimConfig { precision: p, threads: a.threads.max(1), ..SimConfig::default() };
-                let r = rollout(&model, &*anim, frames, cfg, &opts)?;
                 let prec = if p == Precision::Bf16 { "bf16" } else { "f32" };
-                push(format!("{} {prec}", c.label), false, r);
+                variants.push((format!("{} {prec}", c.label), Method::Network { model, cfg }));
             }
             for &k in &a.refine {
                 let cfg = SimConfig { threads: a.threads.max(1), refine: Some(k.max(1)), ..SimConfig::default() };
-                let r = rollout(&model, &*anim, frames, cfg, &opts)?;
-                push(format!("{} f32 + refine {k} it.", c.label), false, r);
+                variants.push((format!("{} f32 + refine {k} it.", c.label), Method::Network { model, cfg }));
             }
         }
         for &k in &a.iterations {
             let solver = LbfgsParams { max_iterations: k.max(1), ..converged_solver() };
-            let r = implicit_rollout(&*anim, frames, &solver, &opts, &mut |_, _| Ok(()))?;
-            push(format!("implicit L-BFGS {k} it. (f64)"), true, r);
+            variants.push((format!("implicit L-BFGS {k} it. (f64)"), Method::Implicit(solver)));
+        }
+        for (label, method) in &variants {
+            let r = match method {
+                Method::Network { model, cfg } => rollout(model, &*anim, frames, *cfg, &opts)?,
+                Method::Implicit(solver) => implicit_rollout(&*anim, frames, solver, &opts, &mut |_, _| Ok(()))?,
+            };
+            push(label.clone(), matches!(method, Method::Implicit(_)), false, r);
+        }
+        if a.common_states {
+            let methods: Vec<Method<'_>> = variants.iter().map(|v| v.1).collect();
+            let reference = Reference::Converged(ObjectiveArg::Training.objective());
+            let out = common_state_gaps(&*anim, frames, &methods, reference, &opts)?;
+            for ((label, method), r) in variants.iter().zip(out) {
+                push(label.clone(), matches!(method, Method::Implicit(_)), true, r);
+            }
         }
     }
     std::fs::create_dir_all(&a.out)
         .map_err(|e| Error::Io { path: a.out.display().to_string(), message: e.to_string() })?;
     let trained = models.iter().all(|m| m.trained);
     let md = markdown(&a, &rows, &models, trained);
-    let svg = svg_plot(&rows);
-    for (file, text) in [("report.md", md), ("report.svg", svg)] {
+    let (own, common): (Vec<Row>, Vec<Row>) = rows.into_iter().partition(|r| !r.common);
+    let mut files = vec![("report.md", md), ("report.svg", svg_plot(&own))];
+    if !common.is_empty() {
+        files.push(("report-common.svg", svg_plot(&common)));
+    }
+    for (file, text) in files {
         let p = a.out.join(file);
         std::fs::write(&p, text).map_err(|e| Error::Io { path: p.display().to_string(), message: e.to_string() })?;
         say!("wrote {}", p.display());
@@ -209,7 +236,7 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
     let _ = writeln!(
         s,
         "Generated by `hood report --workload {} --vertices {} --frames {} --gap-every {} --iterations {}{} --threads {} \
-         --objective {}` \
+         --objective {}{}` \
          (EVALUATION.md \"Accuracy against time\"; the figure is [report.svg](report.svg)).\n",
         a.workload.join(","),
         a.vertices,
@@ -218,7 +245,8 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
         join(&a.iterations),
         if a.refine.is_empty() { String::new() } else { format!(" --refine {}", join(&a.refine)) },
         a.threads,
-        a.objective.name()
+        a.objective.name(),
+        if a.common_states { "" } else { " --common-states false" }
     );
     if !trained {
         let _ = writeln!(
@@ -266,9 +294,31 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
             let _ = writeln!(s, "* `{}`: schedule `{}`", m.label, format_schedule(&spec.blocks));
         }
     }
+    let _ = writeln!(s);
+    table(&mut s, rows.iter().filter(|r| !r.common));
+    if rows.iter().any(|r| r.common) {
+        let _ = writeln!(
+            s,
+            "\n## One step from common states\n\n\
+             The same variants, each stepped once from the same states: those of a rollout of the converged \
+             implicit step under the training objective (collision-respecting states, the same for every variant), \
+             on the frames the gap is computed on, scored against the converged step of the {} objective from \
+             each of them. Every variant thus has the same descent available, and a model is not scored on the \
+             states its own errors led to. The network starts each step from the state alone (past its start-up \
+             step, no history); ms/step is the median of these single steps. The plot is \
+             [report-common.svg](report-common.svg).\n",
+            a.objective.name()
+        );
+        table(&mut s, rows.iter().filter(|r| r.common));
+    }
+    s
+}
+
+/// The Markdown table of `rows`.
+fn table<'a>(s: &mut String, rows: impl Iterator<Item = &'a Row>) {
     let _ = writeln!(
         s,
-        "\n| workload | vertices | variant | ms/step | gap mean | of which stretching | gap p95 | absolute gap mean (mJ) | penetrating % (mean) | inside % (mean) | max strain | finite |"
+        "| workload | vertices | variant | ms/step | gap mean | of which stretching | gap p95 | absolute gap mean (mJ) | penetrating % (mean) | inside % (mean) | max strain | finite |"
     );
     let _ = writeln!(s, "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---|");
     for r in rows {
@@ -290,7 +340,6 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
             if m.finite { "yes" } else { "no" }
         );
     }
-    s
 }
 
 /// Gap (mean, with a bar to the 95th percentile) against ms/step on a log axis.

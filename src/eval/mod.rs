@@ -34,6 +34,9 @@ use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, StepBody, StepState};
 use alloc::vec;
 use alloc::vec::Vec;
 
+mod common;
+pub use common::{common_state_gaps, Method, Reference};
+
 /// What a rollout plays: a garment, the body's frames (30 Hz), the pinned vertices' targets per
 /// frame and the garment's initial positions.
 pub trait Animation {
@@ -561,27 +564,52 @@ impl Scorer {
         };
         let terms = self.solver.evaluate(&self.cloth, &self.objective, &state, body.as_ref(), &self.x)?;
         let gap = match gap {
-            Some(params) => {
-                let r =
-                    self.solver.step(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x_star)?;
-                let model = terms.total();
-                let descent = r.f_start - r.f;
-                let relative = (descent > 1e-12 * r.f_start.abs().max(1e-3)).then(|| (model - r.f) / descent);
-                let optimum_terms =
-                    self.solver.evaluate(&self.cloth, &self.objective, &state, body.as_ref(), &self.x_star)?;
-                Some(Gap {
-                    model,
-                    optimum: r.f,
-                    optimum_terms,
-                    coasting: r.f_start,
-                    relative,
-                    iterations: r.iterations,
-                    converged: r.converged(),
-                })
-            }
+            Some(params) => Some(self.optimum(anim, frames, params)?.gap(terms.total())),
             None => None,
         };
         Ok((Some(terms), penetrating, gap))
+    }
+
+    /// The converged implicit step of the loaded state (L-BFGS under `params` on the scoring
+    /// objective, from the coasting guess) into `x_star`, with its terms.
+    fn optimum(&mut self, anim: &dyn Animation, frames: [usize; 3], params: &LbfgsParams) -> Result<Optimum> {
+        let idx = self.body_slots(anim, frames)?;
+        let body = step_body(self.ring.as_ref(), idx);
+        let state = StepState {
+            pos: &self.pos,
+            velocity: &self.vel,
+            dt: DT as f64,
+            pinned: &self.pinned,
+            targets: &self.targets,
+        };
+        let r = self.solver.step(&self.cloth, &self.objective, &state, body.as_ref(), params, &mut self.x_star)?;
+        let terms = self.solver.evaluate(&self.cloth, &self.objective, &state, body.as_ref(), &self.x_star)?;
+        Ok(Optimum { report: r, terms })
+    }
+}
+
+/// The converged implicit step of one state: what a step's objective is compared with.
+struct Optimum {
+    report: LbfgsReport,
+    /// Terms at the optimum (their total is `report.f`).
+    terms: Terms<f64>,
+}
+
+impl Optimum {
+    /// The gap of a step whose objective is `model` (J), from the same state.
+    fn gap(&self, model: f64) -> Gap {
+        let r = &self.report;
+        let descent = r.f_start - r.f;
+        let relative = (descent > 1e-12 * r.f_start.abs().max(1e-3)).then(|| (model - r.f) / descent);
+        Gap {
+            model,
+            optimum: r.f,
+            optimum_terms: self.terms,
+            coasting: r.f_start,
+            relative,
+            iterations: r.iterations,
+            converged: r.converged(),
+        }
     }
 }
 
@@ -630,6 +658,33 @@ fn step_body(ring: Option<&BodyRing>, idx: Option<[usize; 3]>) -> Option<StepBod
     })
 }
 
+/// What the runtime did in a step from `before` to `after` toward the body frame `body_next`
+/// (`sim_body`: whether the Sim has a body).
+fn step_kind(sim_body: bool, before: &SimState, after: &SimState, body_next: &[[f32; 3]]) -> StepKind {
+    if sim_body && after.body_pos != body_next {
+        StepKind::Slept
+    } else if sim_body && before.body_pos != body_next && after.body_prev == body_next {
+        StepKind::Teleported
+    } else if !sim_body && after.pos == before.pos && after.velocity == before.velocity {
+        StepKind::Slept
+    } else if !before.started && after.started {
+        StepKind::StartUp
+    } else {
+        StepKind::Stepped
+    }
+}
+
+/// Refuses a rollout of no frames or past the animation's last frame.
+fn check_frames(anim: &dyn Animation, frames: usize) -> Result<()> {
+    if frames == 0 {
+        return Err(Error::Empty { what: "rollout frames" });
+    }
+    if frames >= anim.n_frames() {
+        return Err(Error::OutOfRange { what: "rollout frames (past the animation's last frame)", index: frames });
+    }
+    Ok(())
+}
+
 /// [`rollout_observed`] without an observer.
 ///
 /// # Errors
@@ -663,12 +718,7 @@ pub fn rollout_observed(
     options: &RolloutOptions,
     observer: &mut FrameObserver<'_>,
 ) -> Result<Rollout> {
-    if frames == 0 {
-        return Err(Error::Empty { what: "rollout frames" });
-    }
-    if frames >= anim.n_frames() {
-        return Err(Error::OutOfRange { what: "rollout frames (past the animation's last frame)", index: frames });
-    }
+    check_frames(anim, frames)?;
     let garment = anim.garment();
     let n = garment.n_vertices();
     let b0 = anim.body_frame(0);
@@ -711,17 +761,7 @@ pub fn rollout_observed(
         #[cfg(not(feature = "std"))]
         let step_ms = 0.0;
         let after = sim.state();
-        let kind = if sim_body && after.body_pos != body_next {
-            StepKind::Slept
-        } else if sim_body && before.body_pos != body_next && after.body_prev == body_next {
-            StepKind::Teleported
-        } else if !sim_body && after.pos == before.pos && after.velocity == before.velocity {
-            StepKind::Slept
-        } else if !before.started && after.started {
-            StepKind::StartUp
-        } else {
-            StepKind::Stepped
-        };
+        let kind = step_kind(sim_body, &before, after, body_next);
         scorer.load(kind, &before, &targets, &after.pos, &after.velocity);
         let stepped = matches!(kind, StepKind::Stepped | StepKind::StartUp);
         let body_frames = if kind == StepKind::StartUp { [t - 1, t - 1, t] } else { [t.saturating_sub(2), t - 1, t] };
@@ -756,12 +796,7 @@ pub fn implicit_rollout(
     options: &RolloutOptions,
     observer: &mut FrameObserver<'_>,
 ) -> Result<Rollout> {
-    if frames == 0 {
-        return Err(Error::Empty { what: "rollout frames" });
-    }
-    if frames >= anim.n_frames() {
-        return Err(Error::OutOfRange { what: "rollout frames (past the animation's last frame)", index: frames });
-    }
+    check_frames(anim, frames)?;
     let n = anim.garment().n_vertices();
     let pinned = anim.garment().pinned().to_vec();
     let mut scorer = Scorer::new(anim, &options.objective)?;
