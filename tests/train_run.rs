@@ -360,3 +360,57 @@ fn train_cli_resume_with_other_scenes() {
     assert_eq!(in_checkpoint.latent, cfg.latent, "only the scenes change");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `reference_states`: the scenes' reference rollouts (implicit steps of the training objective)
+/// are computed once and cached, and fresh samples start from their states (past the start-up
+/// step) with the configured probability; without them attached, from the skinned garment.
+#[test]
+fn train_reference_states_start_fresh_samples_from_the_reference_rollout() {
+    let cfg = TrainConfig { reference_states: 1.0, ..tiny_config() };
+    let dir = std::env::temp_dir().join(format!("hood-reference-{}", std::process::id()));
+    let mut d = data(&cfg);
+    let mut computed = 0;
+    d.attach_reference_states(Some(&dir), 5e5, |_, _, _| computed += 1).unwrap();
+    let n_frames = d.scenes[0].n_frames();
+    assert_eq!(computed, n_frames - 1);
+    let states = &d.reference[0];
+    assert_eq!(states.len(), n_frames);
+    assert_eq!(states[0], d.scenes[0].initial_garment(0).unwrap());
+    assert!(states.iter().flatten().flatten().all(|c| c.is_finite()));
+    assert_ne!(states[1], states[0], "the garment moves");
+    let (pos, vel) = d.reference_state(0, 3).unwrap();
+    assert_eq!(pos, states[3]);
+    assert_eq!(vel[5], [0, 1, 2].map(|a| states[3][5][a] - states[2][5][a]));
+    assert!(d.reference_state(0, 0).is_none() && d.reference_state(0, n_frames).is_none());
+    // The cache gives the same states without computing; a file of another garment is redone.
+    let mut again = data(&cfg);
+    again.attach_reference_states(Some(&dir), 5e5, |_, _, _| panic!("computed again")).unwrap();
+    assert_eq!(again.reference, d.reference);
+    let file = std::fs::read_dir(&dir).unwrap().next().unwrap().unwrap().path();
+    let mut bytes = std::fs::read(&file).unwrap();
+    bytes[12] ^= 1;
+    std::fs::write(&file, &bytes).unwrap();
+    let mut redone = 0;
+    again.attach_reference_states(Some(&dir), 5e5, |_, _, _| redone += 1).unwrap();
+    assert_eq!((redone, &again.reference), (n_frames - 1, &d.reference));
+    std::fs::remove_dir_all(&dir).ok();
+
+    let mut t = Trainer::new(cfg.clone(), d).unwrap();
+    for _ in 0..8 {
+        let r = t.iteration().unwrap();
+        assert!(r.steps.iter().all(|s| !s.skipped && s.total.is_finite()));
+        assert_eq!(r.from_reference, !r.warmup, "iteration {}", r.iteration);
+        if r.from_reference {
+            assert!(r.start_frame >= 1 && r.carried_from.is_none() && !r.steps[0].startup);
+            assert!(r.start_frame + r.steps.len() < n_frames);
+        }
+    }
+    // Without the states attached, fresh samples start from the skinned garment.
+    let mut t = Trainer::new(cfg.clone(), data(&cfg)).unwrap();
+    for _ in 0..4 {
+        let r = t.iteration().unwrap();
+        assert!(!r.from_reference && (r.warmup || r.steps[0].startup));
+    }
+    assert!(TrainConfig::from_json("{\"reference_states\": 1.5}").is_err());
+    assert_eq!(TrainConfig::from_json(&cfg.to_json()).unwrap(), cfg);
+}

@@ -105,6 +105,12 @@ pub struct TrainConfig {
     /// learns from the states of its own long rollouts (a sample otherwise starts from the
     /// skinned garment and ends `rollout_max` steps later).
     pub carry: (usize, f64),
+    /// Probability (0-1) that a fresh sample starts from a state of its scene's reference
+    /// rollout (the converged implicit step of the training objective, default material; see
+    /// [`crate::train::Dataset::attach_reference_states`]) rather than from the skinned garment
+    /// with a start-up step: the network then also learns from the states the physics leads
+    /// to, not only from its own. Off (0) by default.
+    pub reference_states: f64,
     /// Decay of an exponential moving average of the weights taken after every optimiser step
     /// (off when 0; e.g. 0.999 averages over about the last 1,000 steps). When on, exports and
     /// the periodic validation use the averaged weights: they vary less from snapshot to
@@ -155,6 +161,7 @@ impl Default for TrainConfig {
             validation: (4, 30),
             supervised: (0.0, 0, 30),
             carry: (0, 0.0),
+            reference_states: 0.0,
             ema: 0.0,
             threads: 2,
             seed: 1,
@@ -243,6 +250,15 @@ pub fn ema(decay: f64) -> Result<f64> {
     }
 }
 
+/// `p` if it is a probability (0 to 1), else an error naming `key`.
+pub fn probability(p: f64, key: &str) -> Result<f64> {
+    if (0.0..=1.0).contains(&p) {
+        Ok(p)
+    } else {
+        Err(bad(key, "expected a probability from 0 to 1"))
+    }
+}
+
 /// Parses `TRACKS,RESET` (the command line's form of the `carry` key).
 ///
 /// # Errors
@@ -298,6 +314,7 @@ impl TrainConfig {
                 }
                 "supervised" => c.supervised = supervised(v)?,
                 "carry" => c.carry = carry(v)?,
+                "reference_states" => c.reference_states = probability(float(v, key)?, key)?,
                 "ema" => c.ema = ema(float(v, key)?)?,
                 "threads" => c.threads = uint(v, key)?.max(1) as usize,
                 "seed" => c.seed = uint(v, key)?,
@@ -342,7 +359,7 @@ impl TrainConfig {
              \"clip\": {},\n  \"rollout_max\": {}, \"rollout_every\": {}, \"noise\": {:e}, \
              \"collision_weight\": [{:e}, {:e}], \"collision_ramp\": {},\n  \"decoder_init_scale\": {}, \"random_materials\": {}, \
              \"random_centres\": {}, \"checkpoint_every\": {}, \"validate_every\": {}, \"validation\": [{}, {}], \
-             \"supervised\": [{:e}, {}, {}], \"carry\": [{}, {}], \"ema\": {}, \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
+             \"supervised\": [{:e}, {}, {}], \"carry\": [{}, {}], \"reference_states\": {}, \"ema\": {}, \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
             self.latent,
             self.hidden_layers,
             self.levels,
@@ -370,6 +387,7 @@ impl TrainConfig {
             self.supervised.2,
             self.carry.0,
             self.carry.1,
+            self.reference_states,
             self.ema,
             self.threads,
             self.seed,

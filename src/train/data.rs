@@ -9,7 +9,7 @@ use crate::rig::procedural::Mannequin;
 use crate::rng::Rng;
 use crate::scene::{self, MakeHumanGarment, Scene};
 use std::path::Path;
-use std::string::String;
+use std::string::{String, ToString};
 use std::vec::Vec;
 
 /// The scenes a run samples from.
@@ -20,6 +20,9 @@ pub struct Dataset {
     pub names: Vec<String>,
     /// Config entries that could not be built, with the reason (e.g. assets absent).
     pub skipped: Vec<(String, String)>,
+    /// Per scene, the garment positions (m) of its reference rollout at frames `0..len`, once
+    /// [`attach_reference_states`](Self::attach_reference_states) has run (else empty).
+    pub reference: Vec<Vec<Positions>>,
 }
 
 /// One training sample.
@@ -59,7 +62,7 @@ impl Dataset {
     /// Errors of the procedural generators; [`Error::Empty`] when no scene could be built.
     pub fn build(cfg: &TrainConfig, assets: &Path, mut progress: impl FnMut(&str)) -> Result<Dataset> {
         let mut mannequin: Option<Mannequin> = None;
-        let mut d = Dataset { scenes: Vec::new(), names: Vec::new(), skipped: Vec::new() };
+        let mut d = Dataset { scenes: Vec::new(), names: Vec::new(), skipped: Vec::new(), reference: Vec::new() };
         for src in &cfg.scenes {
             let name = src.name();
             progress(&name);
@@ -95,6 +98,63 @@ impl Dataset {
         Ok(d)
     }
 
+    /// Plays every scene's reference rollout: from the skinned garment at rest at frame 0, every
+    /// frame one implicit step of the training objective at the final collision weight (f64
+    /// L-BFGS, [`REFERENCE_ITERATIONS`] iterations at most), default material, pinned vertices at
+    /// their targets; a rollout that turns non-finite keeps its frames up to there. With
+    /// `cache`, each scene's states are read from `cache/<scene>.bin` when there (and of the
+    /// scene's size), else computed and written there. `progress(scene, done, of)` is told
+    /// about every frame computed.
+    ///
+    /// # Errors
+    /// Errors of the scoring rollout; [`Error::Io`] when the cache cannot be written.
+    pub fn attach_reference_states(
+        &mut self,
+        cache: Option<&Path>,
+        collision_weight: f64,
+        mut progress: impl FnMut(&str, usize, usize),
+    ) -> Result<()> {
+        use crate::eval::{converged_solver, implicit_rollout, RolloutOptions};
+        use crate::physics::Objective;
+        use crate::solve::LbfgsParams;
+        self.reference.clear();
+        for (scene, name) in self.scenes.iter().zip(&self.names) {
+            let n = scene.garment.n_vertices();
+            let file = cache.map(|dir| dir.join(std::format!("{}.bin", name.replace(['/', ' '], "_"))));
+            if let Some(states) = file.as_deref().and_then(|f| read_states(f, n)) {
+                self.reference.push(states);
+                continue;
+            }
+            let frames = scene.n_frames() - 1;
+            let opts = RolloutOptions { objective: Objective::training(collision_weight), ..RolloutOptions::default() };
+            let solver = LbfgsParams { max_iterations: REFERENCE_ITERATIONS, ..converged_solver() };
+            let mut states = std::vec![scene.initial_garment(0)?];
+            let r = implicit_rollout(scene, frames, &solver, &opts, &mut |rec, pos| {
+                states.push(pos.to_vec());
+                progress(name, rec.frame, frames);
+                Ok(())
+            })?;
+            if r.failure.is_some() {
+                // The failing frame's positions were not recorded: the states end before it.
+                states.truncate(r.frames.len() + 1);
+            }
+            if let Some(f) = &file {
+                write_states(f, &states)?;
+            }
+            self.reference.push(states);
+        }
+        Ok(())
+    }
+
+    /// The reference state of `scene` at `frame`: positions and velocity (the displacement since
+    /// the frame before, m per frame), if the reference reaches `frame` and `frame >= 1`.
+    pub fn reference_state(&self, scene: usize, frame: usize) -> Option<(Positions, Positions)> {
+        let states = self.reference.get(scene)?;
+        let (prev, pos) = (states.get(frame.checked_sub(1)?)?, states.get(frame)?);
+        let vel = pos.iter().zip(prev).map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]]).collect();
+        Some((pos.clone(), vel))
+    }
+
     /// Draws a sample whose rollout of `steps` optimiser steps stays within its scene.
     ///
     /// # Errors
@@ -109,4 +169,47 @@ impl Dataset {
         let garment = s.garment_with_material(material)?;
         Ok(Sample { scene, start, garment, material, centre_seed })
     }
+}
+
+/// Garment positions (m), one per vertex.
+pub type Positions = Vec<[f32; 3]>;
+
+/// L-BFGS iterations per frame of the reference rollouts (the accuracy/time report puts 100
+/// iterations within about 0.002 of the converged step's gap).
+pub const REFERENCE_ITERATIONS: usize = 100;
+
+/// Magic bytes of a reference-state file.
+const STATES_MAGIC: &[u8; 8] = b"HOODREF1";
+
+/// Reads a reference-state file (magic, frames and vertices as little-endian `u32`, then the
+/// positions as little-endian `f32`), `None` when absent, damaged or not of `n` vertices.
+fn read_states(path: &Path, n: usize) -> Option<Vec<Vec<[f32; 3]>>> {
+    let bytes = std::fs::read(path).ok()?;
+    let (head, body) = bytes.split_at_checked(16)?;
+    let word = |i: usize| u32::from_le_bytes([head[i], head[i + 1], head[i + 2], head[i + 3]]) as usize;
+    let (frames, verts) = (word(8), word(12));
+    if &head[..8] != STATES_MAGIC || verts != n || frames == 0 || body.len() != frames * verts * 12 {
+        return None;
+    }
+    let values: Vec<f32> = body.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    Some(values.chunks_exact(verts * 3).map(|f| f.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect()).collect())
+}
+
+/// Writes `states` in [`read_states`]' format (through a temporary file, then renamed).
+fn write_states(path: &Path, states: &[Vec<[f32; 3]>]) -> Result<()> {
+    let io = |e: std::io::Error| Error::Io { path: path.display().to_string(), message: e.to_string() };
+    let verts = states.first().map_or(0, Vec::len);
+    let mut bytes = Vec::with_capacity(16 + states.len() * verts * 12);
+    bytes.extend_from_slice(STATES_MAGIC);
+    bytes.extend_from_slice(&(states.len() as u32).to_le_bytes());
+    bytes.extend_from_slice(&(verts as u32).to_le_bytes());
+    for p in states.iter().flatten().flatten() {
+        bytes.extend_from_slice(&p.to_le_bytes());
+    }
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(io)?;
+    }
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, &bytes).map_err(io)?;
+    std::fs::rename(&tmp, path).map_err(io)
 }

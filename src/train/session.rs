@@ -66,9 +66,12 @@ pub struct IterationReport {
     pub collision_weight: f64,
     /// The body frame the rollout starts at.
     pub start_frame: usize,
-    /// The frame a carried rollout continued from (`None`: a fresh sample from the skinned
-    /// garment, start-up step first).
+    /// The frame a carried rollout continued from (`None`: a fresh sample, from the skinned
+    /// garment with a start-up step first or from a reference state).
     pub carried_from: Option<usize>,
+    /// Whether the rollout started from a state of the scene's reference rollout (config
+    /// `reference_states`).
+    pub from_reference: bool,
     /// One entry per optimiser step.
     pub steps: Vec<StepReport>,
 }
@@ -305,10 +308,23 @@ impl Trainer {
         let warmup = it < self.cfg.warmup_iterations;
         let steps = if warmup { self.cfg.rollout_max.min(3) } else { self.cfg.rollout_length(it) };
         let (slot, carried) = if warmup { (None, None) } else { self.draw_track(steps) };
-        let (sample, carried) = match carried {
+        let (sample, mut carried) = match carried {
             Some(t) => (t.sample, Some((t.frame, t.pos, t.velocity))),
             None => (self.data.sample(&mut self.rng, steps, &self.cfg)?, None),
         };
+        // A fresh sample may start from the reference state one frame after its start frame
+        // (a state with a velocity; the rollout still ends within the scene). Draws nothing
+        // when the option is off, so that such runs keep their sample stream.
+        let mut from_reference = false;
+        if carried.is_none() && !warmup && self.cfg.reference_states > 0.0 {
+            let draw = self.rng.uniform(0.0, 1.0) < self.cfg.reference_states;
+            let frame = sample.start + 1;
+            if let Some((pos, velocity)) = self.data.reference_state(sample.scene, frame).filter(|_| draw) {
+                let pos = noisy(&mut self.rng, &pos, sample.garment.pinned(), self.cfg.noise);
+                carried = Some((frame, pos, velocity));
+                from_reference = true;
+            }
+        }
         let graph = graph_of(&sample, self.cfg.levels)?;
         let scene = &self.data.scenes[sample.scene];
         let garment = &sample.garment;
@@ -324,7 +340,8 @@ impl Trainer {
             learning_rate: self.cfg.learning_rate_at(self.optimiser_steps),
             collision_weight: cw,
             start_frame: carried.as_ref().map_or(sample.start, |c| c.0),
-            carried_from: carried.as_ref().map(|c| c.0),
+            carried_from: carried.as_ref().filter(|_| !from_reference).map(|c| c.0),
+            from_reference,
             steps: Vec::new(),
         };
         let startup = carried.is_none();

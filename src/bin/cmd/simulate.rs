@@ -3,7 +3,8 @@
 
 use crate::objective::ObjectiveArg;
 use clap::Args;
-use hood::eval::{rollout_observed, strip_images, Animation, FrameRecord, Playback, RolloutOptions};
+use hood::eval::{common_state_gaps, rollout_observed, strip_images, Animation, FrameRecord, Method, Playback};
+use hood::eval::{Reference, RolloutOptions, Summary};
 use hood::io::obj::Obj;
 use hood::mesh::{Garment, GarmentDesc};
 use hood::model::ModelBytes;
@@ -68,6 +69,11 @@ pub struct SimulateArgs {
     /// frames (slow; 0: never).
     #[arg(long, default_value_t = 0)]
     gap_every: usize,
+    /// With --gap-every: also score the model one step at a time from common states, those of a
+    /// converged implicit rollout of the training objective (the same states for any model),
+    /// on the same frames.
+    #[arg(long, requires = "gap_every")]
+    common_states: bool,
     /// Also count the garment vertices inside the body (winding number) every this many frames
     /// (0: never). "penetrating" counts vertices within 1 mm of, or behind, the plane of their
     /// nearest body face; "inside" counts what a viewer would call interpenetration.
@@ -233,6 +239,21 @@ fn print_frame(r: &FrameRecord, frames: usize) {
 }
 
 /// Runs `hood simulate`.
+/// The mean relative gap split by term, if there is one.
+fn print_gap_by_term(label: &str, s: &Summary) {
+    if let Some(t) = s.gap_by_term {
+        say!(
+            "{label}: stretching {:+.3}, bending {:+.3}, inertia {:+.3}, gravity {:+.3}, collision {:+.3}, friction {:+.3}",
+            t.stretching,
+            t.bending,
+            t.inertia,
+            t.gravity,
+            t.collision,
+            t.friction
+        );
+    }
+}
+
 pub fn simulate(a: SimulateArgs) -> Result<()> {
     let bytes = match (&a.model, a.random_model) {
         (Some(p), _) => ModelBytes::read(p)?,
@@ -317,16 +338,23 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
             _ => String::new(),
         }
     );
-    if let Some(t) = s.gap_by_term {
-        say!(
-            "relative gap by term: stretching {:+.3}, bending {:+.3}, inertia {:+.3}, gravity {:+.3}, collision {:+.3}, friction {:+.3}",
-            t.stretching,
-            t.bending,
-            t.inertia,
-            t.gravity,
-            t.collision,
-            t.friction
-        );
+    print_gap_by_term("relative gap by term", s);
+    if a.common_states && a.gap_every > 0 {
+        let reference = Reference::Converged(ObjectiveArg::Training.objective());
+        let out = common_state_gaps(&*anim, frames, &[Method::Network { model: &model, cfg }], reference, &opts)?;
+        let c = &out[0].summary;
+        if let (Some(m), Some(p)) = (c.gap_mean, c.gap_p95) {
+            say!(
+                "from common states (a converged implicit rollout, training objective): relative gap mean {m:.3}, p95 {p:.3} ({} frames; absolute {:.2e} J); step median {:.2} ms",
+                c.gap_frames,
+                c.gap_abs_mean.unwrap_or(f64::NAN),
+                c.median_step_ms
+            );
+        }
+        if let Some((f, e)) = &out[0].failure {
+            eprintln!("from common states: refused at frame {f}: {e}");
+        }
+        print_gap_by_term("from common states, by term", c);
     }
     say!(
         "wrote {}{}",

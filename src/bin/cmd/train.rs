@@ -30,6 +30,12 @@ pub struct TrainArgs {
     /// skinned garment with probability RESET when drawn (`0,0` turns carrying off).
     #[arg(long, value_parser = parse_carry)]
     carry: Option<(usize, f64)>,
+    /// Probability that a fresh sample starts from a state of its scene's reference rollout
+    /// (config key `reference_states`), overriding the config's, also when resuming. The
+    /// reference rollouts (implicit steps of the training objective) are computed once and kept
+    /// in `DIR/reference/`.
+    #[arg(long, value_parser = parse_probability)]
+    reference_states: Option<f64>,
     /// The supervised pull toward the implicit step's optimum `WEIGHT,UNTIL,ITERATIONS` (config
     /// key `supervised`), overriding the config's, also when resuming: weight, the iteration at
     /// which the pull ends (the objective alone after it), L-BFGS iterations per optimum. For
@@ -69,6 +75,11 @@ pub struct TrainArgs {
     /// Start afresh even when the folder holds a checkpoint.
     #[arg(long)]
     fresh: bool,
+}
+
+fn parse_probability(text: &str) -> Result<f64, String> {
+    let p: f64 = text.parse().map_err(|e| format!("{e}"))?;
+    hood::train::config::probability(p, "reference_states").map_err(|e| e.to_string())
 }
 
 fn parse_carry(text: &str) -> Result<(usize, f64), String> {
@@ -115,7 +126,7 @@ fn iteration_json(r: &IterationReport, seconds: f64) -> String {
         .collect();
     format!(
         "{{\"iteration\":{},\"scene\":{},\"vertices\":{},\"warmup\":{},\"lr\":{:e},\"collision_weight\":{:e},\
-         \"carried_from\":{},\"seconds\":{:.1},\"steps\":[{}]}}",
+         \"carried_from\":{},\"reference\":{},\"seconds\":{:.1},\"steps\":[{}]}}",
         r.iteration,
         r.scene,
         r.vertices,
@@ -123,6 +134,7 @@ fn iteration_json(r: &IterationReport, seconds: f64) -> String {
         r.learning_rate,
         r.collision_weight,
         r.carried_from.map_or("null".to_string(), |f| f.to_string()),
+        r.from_reference,
         seconds,
         steps.join(",")
     )
@@ -269,6 +281,26 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     }
     if let Some(d) = a.ema {
         t.set_ema(d)?;
+    }
+    if let Some(p) = a.reference_states {
+        t.cfg.reference_states = p;
+    }
+    if t.cfg.reference_states > 0.0 {
+        let clock = Instant::now();
+        let weight = t.cfg.collision_weight.1;
+        t.data.attach_reference_states(Some(&dir.join("reference")), weight, |name, done, of| {
+            if done % 10 == 0 || done == of {
+                eprint!("\rreference rollout of {name:<32} frame {done}/{of}   ");
+            }
+        })?;
+        let frames: usize = t.data.reference.iter().map(|r| r.len()).sum();
+        eprintln!(
+            "\rreference states: {frames} frames over {} scenes ({:.0} s); {} of fresh samples start from one{:20}",
+            t.data.reference.len(),
+            clock.elapsed().as_secs_f64(),
+            t.cfg.reference_states,
+            ""
+        );
     }
     if let Some(lr) = a.learning_rate {
         if !(lr.is_finite() && lr > 0.0) {
