@@ -128,6 +128,15 @@ fn eval_cloth_without_body_and_bad_requests() {
     assert!(r.frames.iter().all(|f| f.terms.unwrap().collision == 0.0 && f.terms.unwrap().friction == 0.0));
     assert!(matches!(rollout(&model, &anim, 0, SimConfig::default(), &opts), Err(hood::Error::Empty { .. })));
     assert!(matches!(rollout(&model, &anim, 10, SimConfig::default(), &opts), Err(hood::Error::OutOfRange { .. })));
+    // From common states without a body: the reference's contact terms are dropped too, so the
+    // converged step of the training objective is the evaluation objective's optimum.
+    use hood::eval::{common_state_gaps, converged_solver, Method, Reference};
+    let methods = [Method::Network { model: &model, cfg: SimConfig::default() }, Method::Implicit(converged_solver())];
+    let out = common_state_gaps(&anim, 5, &methods, Reference::Converged(Objective::training(5e5)), &opts).unwrap();
+    assert!(out[0].frames.iter().all(|f| f.terms.unwrap().collision == 0.0 && f.penetrating_percent == 0.0));
+    assert!(out[1].summary.gap_mean.unwrap().abs() < 1e-9, "{:?}", out[1].summary);
+    let past = common_state_gaps(&anim, 10, &methods, Reference::Converged(Objective::training(5e5)), &opts);
+    assert!(matches!(past, Err(hood::Error::OutOfRange { .. })));
 }
 
 #[test]
