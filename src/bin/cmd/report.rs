@@ -306,7 +306,10 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
              each of them. Every variant thus has the same descent available, and a model is not scored on the \
              states its own errors led to. The network starts each step from the state alone (past its start-up \
              step, no history); ms/step is the median of these single steps. The plot is \
-             [report-common.svg](report-common.svg).\n",
+             [report-common.svg](report-common.svg). Where the garment rests on the body the reference states \
+             touch it at the collision margin, and coasting from them runs into the moving body: the descent \
+             available there is mostly collision and large, which makes relative gaps small; the absolute gap \
+             compares variants on a workload.\n",
             a.objective.name()
         );
         table(&mut s, rows.iter().filter(|r| r.common));
