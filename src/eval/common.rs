@@ -101,11 +101,12 @@ pub fn common_state_gaps(
         }
         Reference::Network { model, cfg } => runtime = Some(new_sim(anim, model, cfg)?),
     }
-    let mut sims = Vec::with_capacity(methods.len());
+    // Every method with what it runs on: a network method's Sim, made once.
+    let mut runners = Vec::with_capacity(methods.len());
     for m in methods {
-        sims.push(match m {
-            Method::Network { model, cfg } => Some(new_sim(anim, model, *cfg)?),
-            Method::Implicit(_) => None,
+        runners.push(match m {
+            Method::Network { model, cfg } => Runner::Network(new_sim(anim, model, *cfg)?),
+            Method::Implicit(params) => Runner::Implicit(*params),
         });
     }
     let mut inside = InsideCounter::new(anim, options.inside_every)?;
@@ -141,14 +142,15 @@ pub fn common_state_gaps(
             None
         };
         if let (true, Some(optimum)) = (picked, optimum) {
-            let body_state =
-                |f: usize| if sims.iter().any(Option::is_some) { anim.body_frame(f).to_vec() } else { vec![] };
-            let (body_prev, body_pos) = (body_state(t.saturating_sub(2)), body_state(t - 1));
-            for ((m, sim), out) in methods.iter().zip(sims.iter_mut()).zip(outs.iter_mut()) {
+            let (body_prev, body_pos) = match anim.body_mesh() {
+                Some(_) => (anim.body_frame(t.saturating_sub(2)).to_vec(), anim.body_frame(t - 1).to_vec()),
+                None => (vec![], vec![]),
+            };
+            for (runner, out) in runners.iter_mut().zip(outs.iter_mut()) {
                 #[cfg(feature = "std")]
                 let clock = std::time::Instant::now();
-                let kind = match (m, sim) {
-                    (Method::Network { .. }, Some(sim)) => {
+                let kind = match runner {
+                    Runner::Network(sim) => {
                         let sim_body = !sim.state().body_pos.is_empty();
                         let before = SimState {
                             pos: pos.clone(),
@@ -174,7 +176,7 @@ pub fn common_state_gaps(
                         x32.copy_from_slice(&after.pos);
                         kind
                     }
-                    (Method::Implicit(params), _) => {
+                    Runner::Implicit(params) => {
                         scorer.load_parts(StepKind::Stepped, &pos, &vel, &targets, &pos, &vel);
                         scorer.implicit(anim, body_frames, params)?;
                         if let Err(e) = store(&scorer.x, &mut x32) {
@@ -183,7 +185,6 @@ pub fn common_state_gaps(
                         }
                         StepKind::Stepped
                     }
-                    (Method::Network { .. }, None) => unreachable!("every network method has its Sim"),
                 };
                 #[cfg(feature = "std")]
                 let step_ms = clock.elapsed().as_secs_f64() * 1e3;
@@ -225,6 +226,12 @@ pub fn common_state_gaps(
         out.summary = summarise(&out.frames, out.failure.is_none());
     }
     Ok(outs)
+}
+
+/// A method ready to step: a network method's Sim, or the implicit step's rules.
+enum Runner<'m> {
+    Network(Sim<'m>),
+    Implicit(LbfgsParams),
 }
 
 /// `x` (f64, m) into `out` (f32), refusing a non-finite position.
