@@ -17,6 +17,7 @@ use crate::model::file::Model;
 use crate::physics::Objective;
 use crate::sim::{BodyDesc, Sim, SimConfig, SimState};
 use crate::solve::LbfgsParams;
+use alloc::boxed::Box;
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -105,7 +106,7 @@ pub fn common_state_gaps(
     let mut runners = Vec::with_capacity(methods.len());
     for m in methods {
         runners.push(match m {
-            Method::Network { model, cfg } => Runner::Network(new_sim(anim, model, *cfg)?),
+            Method::Network { model, cfg } => Runner::Network(Box::new(new_sim(anim, model, *cfg)?)),
             Method::Implicit(params) => Runner::Implicit(*params),
         });
     }
@@ -230,7 +231,7 @@ pub fn common_state_gaps(
 
 /// A method ready to step: a network method's Sim, or the implicit step's rules.
 enum Runner<'m> {
-    Network(Sim<'m>),
+    Network(Box<Sim<'m>>),
     Implicit(LbfgsParams),
 }
 
