@@ -319,7 +319,7 @@ impl Trainer {
         if carried.is_none() && !warmup && self.cfg.reference_states > 0.0 {
             let draw = self.rng.uniform(0.0, 1.0) < self.cfg.reference_states;
             let frame = sample.start + 1;
-            if let Some((pos, velocity)) = self.data.reference_state(sample.scene, frame).filter(|_| draw) {
+            if let Some((pos, velocity)) = draw.then(|| self.data.reference_state(sample.scene, frame)).flatten() {
                 let pos = noisy(&mut self.rng, &pos, sample.garment.pinned(), self.cfg.noise);
                 carried = Some((frame, pos, velocity));
                 from_reference = true;

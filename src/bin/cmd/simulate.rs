@@ -238,7 +238,6 @@ fn print_frame(r: &FrameRecord, frames: usize) {
     );
 }
 
-/// Runs `hood simulate`.
 /// The mean relative gap split by term, if there is one.
 fn print_gap_by_term(label: &str, s: &Summary) {
     if let Some(t) = s.gap_by_term {
@@ -254,6 +253,7 @@ fn print_gap_by_term(label: &str, s: &Summary) {
     }
 }
 
+/// Runs `hood simulate`.
 pub fn simulate(a: SimulateArgs) -> Result<()> {
     let bytes = match (&a.model, a.random_model) {
         (Some(p), _) => ModelBytes::read(p)?,
