@@ -9,8 +9,8 @@
 //! [`rollout`]: super::rollout
 
 use super::{
-    check_frames, step_kind, summarise, Animation, Gap, InsideCounter, Rollout, RolloutOptions, Scorer, StepKind,
-    Summary,
+    advance, check_frames, step_kind, store, summarise, Animation, Gap, InsideCounter, Rollout, RolloutOptions, Scorer,
+    StepKind, Summary,
 };
 use crate::error::{Error, Result};
 use crate::model::file::Model;
@@ -217,10 +217,7 @@ pub fn common_state_gaps(
                 solved?;
                 store(&scorer.x, &mut next)?;
             }
-            for i in 0..n {
-                vel[i] = if pinned[i] { [0.0; 3] } else { [0, 1, 2].map(|a| next[i][a] - pos[i][a]) };
-                pos[i] = next[i];
-            }
+            advance(&pinned, &next, &mut pos, &mut vel);
         }
     }
     for out in &mut outs {
@@ -233,15 +230,4 @@ pub fn common_state_gaps(
 enum Runner<'m> {
     Network(Box<Sim<'m>>),
     Implicit(LbfgsParams),
-}
-
-/// `x` (f64, m) into `out` (f32), refusing a non-finite position.
-fn store(x: &[[f64; 3]], out: &mut [[f32; 3]]) -> Result<()> {
-    for (i, (o, p)) in out.iter_mut().zip(x).enumerate() {
-        *o = p.map(|c| c as f32);
-        if !o.iter().all(|c| c.is_finite()) {
-            return Err(Error::NonFinite { what: "implicit step output for garment vertex", index: i });
-        }
-    }
-    Ok(())
 }

@@ -674,6 +674,26 @@ fn step_kind(sim_body: bool, before: &SimState, after: &SimState, body_next: &[[
     }
 }
 
+/// An implicit step's output `x` (f64, m) into `out` (f32), refusing a non-finite position.
+fn store(x: &[[f64; 3]], out: &mut [[f32; 3]]) -> Result<()> {
+    for (i, (o, p)) in out.iter_mut().zip(x).enumerate() {
+        *o = p.map(|c| c as f32);
+        if !o.iter().all(|c| c.is_finite()) {
+            return Err(Error::NonFinite { what: "implicit step output for garment vertex", index: i });
+        }
+    }
+    Ok(())
+}
+
+/// Moves a solver-driven garment to its new positions `next` (m): velocities become the
+/// displacement over the frame, zero for pinned vertices.
+fn advance(pinned: &[bool], next: &[[f32; 3]], pos: &mut [[f32; 3]], vel: &mut [[f32; 3]]) {
+    for (i, (p, v)) in pos.iter_mut().zip(vel.iter_mut()).enumerate() {
+        *v = if pinned[i] { [0.0; 3] } else { sub3(next[i], *p) };
+        *p = next[i];
+    }
+}
+
 /// Refuses a rollout of no frames or past the animation's last frame.
 fn check_frames(anim: &dyn Animation, frames: usize) -> Result<()> {
     if frames == 0 {
@@ -804,6 +824,7 @@ pub fn implicit_rollout(
     let mut pos = anim.initial_garment()?;
     let mut vel = vec![[0.0f32; 3]; n];
     let mut targets = vec![[0.0f32; 3]; n];
+    let mut next = vec![[0.0f32; 3]; n];
     let mut out =
         Rollout { frames: Vec::with_capacity(frames), kept: Vec::new(), failure: None, summary: Summary::default() };
     if options.keep.contains(&0) {
@@ -820,19 +841,15 @@ pub fn implicit_rollout(
         let step_ms = clock.elapsed().as_secs_f64() * 1e3;
         #[cfg(not(feature = "std"))]
         let step_ms = 0.0;
-        if let Some(i) = scorer.x.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-            out.failure = Some((t, Error::NonFinite { what: "implicit step output for garment vertex", index: i }));
+        if let Err(e) = store(&scorer.x, &mut next) {
+            out.failure = Some((t, e));
             break;
         }
         let want_gap = options.gap_every > 0 && t % options.gap_every == 0;
         let (terms, penetrating_percent, gap) =
             scorer.score(anim, body_frames, true, want_gap.then_some(&options.gap_solver))?;
         let mut rec = scorer.record(t, StepKind::Stepped, terms, penetrating_percent, step_ms, gap);
-        for i in 0..n {
-            let x = scorer.x[i].map(|c| c as f32);
-            vel[i] = if pinned[i] { [0.0; 3] } else { [x[0] - pos[i][0], x[1] - pos[i][1], x[2] - pos[i][2]] };
-            pos[i] = x;
-        }
+        advance(&pinned, &next, &mut pos, &mut vel);
         rec.inside_percent = InsideCounter::count(&mut inside, anim, t, &pos)?;
         if options.keep.contains(&t) {
             out.kept.push((t, pos.clone()));

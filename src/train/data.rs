@@ -151,7 +151,7 @@ impl Dataset {
     pub fn reference_state(&self, scene: usize, frame: usize) -> Option<(Positions, Positions)> {
         let states = self.reference.get(scene)?;
         let (prev, pos) = (states.get(frame.checked_sub(1)?)?, states.get(frame)?);
-        let vel = pos.iter().zip(prev).map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]]).collect();
+        let vel = pos.iter().zip(prev).map(|(a, b)| crate::math::sub3(*a, *b)).collect();
         Some((pos.clone(), vel))
     }
 
@@ -195,7 +195,7 @@ fn read_states(path: &Path, n: usize) -> Option<Vec<Vec<[f32; 3]>>> {
     Some(values.chunks_exact(verts * 3).map(|f| f.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect()).collect())
 }
 
-/// Writes `states` in [`read_states`]' format (through a temporary file, then renamed).
+/// Writes `states` in [`read_states`]' format (atomically).
 fn write_states(path: &Path, states: &[Vec<[f32; 3]>]) -> Result<()> {
     let io = |e: std::io::Error| Error::Io { path: path.display().to_string(), message: e.to_string() };
     let verts = states.first().map_or(0, Vec::len);
@@ -209,7 +209,5 @@ fn write_states(path: &Path, states: &[Vec<[f32; 3]>]) -> Result<()> {
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(io)?;
     }
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, &bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)
+    crate::io::write_atomic(path, &bytes)
 }

@@ -623,10 +623,7 @@ impl Trainer {
             meta.into_iter().chain(track_meta.iter().map(|(k, v)| (k.as_str(), v.clone()))).collect();
         let meta_ref: Vec<(&str, &str)> = meta.iter().map(|(k, v)| (*k, v.as_str())).collect();
         let bytes = safetensors::to_bytes(&tensors, &meta_ref)?;
-        let tmp = path.with_extension("tmp");
-        let io = |e: std::io::Error| Error::Io { path: path.display().to_string(), message: e.to_string() };
-        std::fs::write(&tmp, &bytes).map_err(io)?;
-        std::fs::rename(&tmp, path).map_err(io)
+        crate::io::write_atomic(path, &bytes)
     }
 
     /// Restores a run from [`save_checkpoint`](Self::save_checkpoint)'s file; the dataset is

@@ -191,11 +191,7 @@ fn append(path: &Path, line: &str) -> hood::Result<()> {
     writeln!(f, "{line}").map_err(|e| io_err(path, e))
 }
 
-fn write_atomic(path: &Path, bytes: &[u8]) -> hood::Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).map_err(|e| io_err(&tmp, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| io_err(path, e))
-}
+use hood::io::write_atomic;
 
 fn build_data(cfg: &TrainConfig, shared: &Path) -> hood::Result<Dataset> {
     let t = Instant::now();
