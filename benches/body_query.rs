@@ -1,5 +1,6 @@
 //! Body queries of one frame: grid rebuild, body edges (nearest body vertex within 0.03 m) and
-//! nearest face centroid, for ~4.4k garment points near the body. Uses the real MakeHuman body
+//! nearest face centroid, for ~4.4k garment points near the body (in a spatially coherent
+//! order, as a garment's vertices are; one variant in random order). Uses the real MakeHuman body
 //! from `../shared/assets` when present, else a procedural ellipsoid of ~13k vertices.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
@@ -32,18 +33,34 @@ fn next(state: &mut u64) -> f32 {
     ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
 }
 
-/// Garment-like points: random body vertices pushed along their normal by -1 cm .. +5 cm.
+/// Garment-like points: random body vertices pushed along their normal by -1 cm .. +5 cm, in
+/// a spatially coherent order (Morton order of 1 cm cells), as a garment's vertices come in mesh
+/// order, neighbours close together.
 fn garment_points(mesh: &BodyMesh, body: &[[f32; 3]]) -> Vec<[f32; 3]> {
     let mut normals = vec![[0.0; 3]; body.len()];
     mesh.vertex_normals(body, &mut normals).unwrap();
     let mut s = 7u64;
-    (0..N_GARMENT)
+    let mut points: Vec<[f32; 3]> = (0..N_GARMENT)
         .map(|_| {
             let i = ((next(&mut s) * body.len() as f32) as usize).min(body.len() - 1);
             let off = -0.01 + 0.06 * next(&mut s);
             [0, 1, 2].map(|a| body[i][a] + off * normals[i][a])
         })
-        .collect()
+        .collect();
+    points.sort_by_key(|p| morton(*p));
+    points
+}
+
+/// Morton code of the 1 cm cell of `p` (within 10.24 m of (-2, -2, -2) m).
+fn morton(p: [f32; 3]) -> u64 {
+    let c = p.map(|x| ((x + 2.0) * 100.0).clamp(0.0, 1023.0) as u64);
+    let mut m = 0u64;
+    for bit in 0..10 {
+        for (a, c) in c.iter().enumerate() {
+            m |= ((c >> bit) & 1) << (3 * bit + a);
+        }
+    }
+    m
 }
 
 fn bench(c: &mut Criterion) {
@@ -131,6 +148,23 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
+    // The same queries in random order: neighbouring queries far apart, so that tiles of eight
+    // are not worth searching together and every query is searched on its own.
+    let mut shuffled: Vec<usize> = (0..garment.len()).collect();
+    let mut state = 11u64;
+    for k in (1..shuffled.len()).rev() {
+        shuffled.swap(k, ((next(&mut state) * (k + 1) as f32) as usize).min(k));
+    }
+    let scattered: Vec<[f32; 3]> = shuffled.iter().map(|&i| garment[i]).collect();
+    let scattered_hints: Vec<u32> = shuffled.iter().map(|&i| vertex_hints[i]).collect();
+    g.bench_function("runtime body edges hinted 1 thread scattered", |b| {
+        b.iter(|| {
+            grid.rebuild(black_box(&body)).unwrap();
+            grid.nearest_within_on(&hood::sim::Serial, &scattered, RADIUS, &scattered_hints, &mut edges).unwrap();
+            mesh.keep_not_omitted(&mut edges)
+        })
+    });
+    g.bench_function("rebuild vertex grid", |b| b.iter(|| grid.rebuild(black_box(&body)).unwrap()));
     g.bench_function("update (centroids, normals, 2 grids)", |b| {
         b.iter(|| frame.update(&mesh, black_box(&body)).unwrap())
     });

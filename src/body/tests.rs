@@ -608,3 +608,98 @@ fn winding_refit_refuses_bad_positions_and_another_mesh() {
     assert!(matches!(w.refit(&other, &rest), Err(Error::SizeMismatch { .. })));
     assert!(matches!(Winding::new(&mesh, &bad), Err(Error::NonFinite { .. })));
 }
+
+/// Queries along random walks near the points (neighbouring queries close together, as a
+/// garment's vertices are), with occasional jumps and a few far away.
+fn coherent_queries(rng: &mut Rng, points: &[[f32; 3]], n: usize, step: f32) -> Vec<[f32; 3]> {
+    let mut q = points[0];
+    (0..n)
+        .map(|k| {
+            if k % 37 == 0 {
+                q = points[rng.below(points.len())];
+            }
+            if k % 97 == 50 {
+                return [q[0] + 20.0, q[1], q[2]];
+            }
+            let d = rng.dir();
+            q = [0, 1, 2].map(|a| q[a] + step * rng.unit() * d[a]);
+            q
+        })
+        .collect()
+}
+
+#[test]
+fn body_query_tiles_match_single_searches() {
+    // Eight neighbouring queries searched as one box (AVX2 and portable) against the same
+    // queries searched one by one, and against brute force: radius queries with and without
+    // hints, hinted nearest queries, tiles of every length (the last one partial).
+    let mut rng = Rng(8);
+    for round in 0..24 {
+        let kind = round % 5;
+        let n = [5, 60, 3000][round % 3];
+        let pts = random_cloud(&mut rng, kind, n);
+        let cpp = [0.1, 2.0, 8.0][(round / 3) % 3];
+        let step = [0.005, 0.02, 0.1][round % 3];
+        let n_queries = [203, 8, 1, 17][round % 4];
+        let qs = coherent_queries(&mut rng, &pts, n_queries, step);
+        // Hints: a nearby point's answer (close), none, an arbitrary point, an invalid index.
+        let hints: Vec<u32> = (0..qs.len())
+            .map(|k| match k % 5 {
+                0..=2 => brute(&pts, [qs[k][0] + 0.003, qs[k][1], qs[k][2]], f32::INFINITY).unwrap().index,
+                3 => rng.below(n) as u32,
+                _ => u32::MAX,
+            })
+            .collect();
+        let all_hinted: Vec<u32> = hints.iter().map(|&h| if h == u32::MAX { 0 } else { h }).collect();
+        let mut grids = Vec::new();
+        for (portable, tiles) in
+            [(false, None), (false, Some(true)), (false, Some(false)), (true, Some(true)), (true, Some(false))]
+        {
+            let mut g = PointGrid::new(3000, 40_000).unwrap();
+            g.set_cells_per_point(cpp).unwrap();
+            if portable {
+                g.force_portable();
+            }
+            if let Some(always) = tiles {
+                g.force_tiles(always);
+            }
+            g.rebuild(&pts).unwrap();
+            grids.push(g);
+        }
+        for r in [0.0, 0.02, 0.1, 1.0] {
+            let want: Vec<_> = qs.iter().map(|q| brute(&pts, *q, r * r)).collect();
+            for (v, g) in grids.iter().enumerate() {
+                for h in [&hints[..], &[]] {
+                    let mut got = vec![None; qs.len()];
+                    g.nearest_within_hinted(&qs, r, h, &mut got).unwrap();
+                    assert_eq!(got, want, "round {round} grid {v} r {r} hinted {}", !h.is_empty());
+                }
+            }
+        }
+        let want: Vec<_> = qs.iter().map(|q| brute(&pts, *q, f32::INFINITY).unwrap()).collect();
+        for (v, g) in grids.iter().enumerate() {
+            for h in [&hints, &all_hinted] {
+                let mut got = vec![Nearest { index: 0, distance: 0.0 }; qs.len()];
+                g.nearest_hinted(&qs, h, &mut got).unwrap();
+                assert_eq!(got, want, "round {round} grid {v}: nearest");
+            }
+        }
+    }
+}
+
+#[test]
+fn body_query_tiles_refuse_a_non_finite_query_by_its_index() {
+    let mut rng = Rng(9);
+    let pts = random_cloud(&mut rng, 1, 500);
+    let mut grid = PointGrid::new(500, 5000).unwrap();
+    grid.rebuild(&pts).unwrap();
+    let mut qs = coherent_queries(&mut rng, &pts, 40, 0.01);
+    qs[19][1] = f32::NAN;
+    let mut within = vec![None; qs.len()];
+    let err = grid.nearest_within(&qs, 0.05, &mut within).unwrap_err();
+    assert_eq!(err, crate::Error::NonFinite { what: "query point", index: 19 });
+    let mut nearest = vec![Nearest { index: 0, distance: 0.0 }; qs.len()];
+    let hints = vec![0u32; qs.len()];
+    let err = grid.nearest_hinted(&qs, &hints, &mut nearest).unwrap_err();
+    assert_eq!(err, crate::Error::NonFinite { what: "query point", index: 19 });
+}

@@ -16,6 +16,11 @@
 //! the best found (see [`PointGrid::nearest_one`]), so results are exact, also for queries far
 //! outside the grid.
 //!
+//! The batch queries take eight consecutive queries at a time and, where their balls overlap
+//! enough (a garment's neighbouring vertices), scan the box around all eight once, each point
+//! against the eight queries in one register (see [`tile`]); the answers are the single
+//! searches', bit for bit.
+//!
 //! Ties: among points at the same squared distance (computed in `f32` as `dx² + dy² + dz²`) the
 //! lowest point index wins. Results do not depend on the grid resolution.
 
@@ -27,6 +32,11 @@ use alloc::vec;
 use alloc::vec::Vec;
 use core::ops::Range;
 use core::sync::atomic::{AtomicUsize, Ordering};
+#[cfg(test)]
+use tile::TileMode;
+use tile::{PortableTile, TileBest, TILE};
+
+mod tile;
 
 /// Cells per block edge.
 pub const BLOCK: usize = 4;
@@ -101,6 +111,9 @@ pub struct PointGrid {
     /// One point (input index) of every block of `BLOCK`³ cells, `NONE` for an empty block:
     /// empty blocks are skipped, and these points seed queries far outside.
     block_any: Vec<u32>,
+    /// Tests force the batch queries to search every tile as one box, or none.
+    #[cfg(test)]
+    tile_mode: Option<TileMode>,
 }
 
 impl PointGrid {
@@ -139,6 +152,8 @@ impl PointGrid {
             sorted_index: vec![NONE; padded],
             input: vec![[0.0; 3]; capacity],
             block_any: vec![NONE; max_blocks],
+            #[cfg(test)]
+            tile_mode: None,
         })
     }
 
@@ -156,6 +171,13 @@ impl PointGrid {
     #[cfg(test)]
     pub(super) fn force_portable(&mut self) {
         self.avx2 = false;
+    }
+
+    /// Makes the batch queries search every tile as one box, or none (to test the two paths
+    /// against each other).
+    #[cfg(test)]
+    pub(super) fn force_tiles(&mut self, always: bool) {
+        self.tile_mode = Some(if always { TileMode::Always } else { TileMode::Never });
     }
 
     /// Maximum number of points.
@@ -495,7 +517,7 @@ impl PointGrid {
             // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
             return unsafe { self.within_batch_avx2(queries, radius, hints, out) };
         }
-        self.within_batch::<Lanes>(queries, radius, hints, out)
+        self.within_batch::<Lanes, PortableTile>(queries, radius, hints, out)
     }
 
     /// The batch loop compiled with AVX2, so that the whole search inlines around the scans.
@@ -508,22 +530,43 @@ impl PointGrid {
         hints: &[u32],
         out: &mut [Option<Nearest>],
     ) -> Result<()> {
-        self.within_batch::<x86::Avx2Best>(queries, radius, hints, out)
+        self.within_batch::<x86::Avx2Best, tile::x86::Avx2Tile>(queries, radius, hints, out)
     }
 
+    /// The radius queries tile by tile: each query's start is the single search's (the limit,
+    /// or the hint where it is within it); a tile not worth searching as one box is searched
+    /// query by query.
     #[inline(always)]
-    fn within_batch<B: Best>(
+    fn within_batch<B: Best, T: TileBest>(
         &self,
         queries: &[[f32; 3]],
         radius: f32,
         hints: &[u32],
         out: &mut [Option<Nearest>],
     ) -> Result<()> {
-        for (i, (q, o)) in queries.iter().zip(out.iter_mut()).enumerate() {
-            if !finite3(*q) {
-                return Err(Error::NonFinite { what: "query point", index: i });
+        let r2 = radius * radius;
+        for (t, (qs, os)) in queries.chunks(TILE).zip(out.chunks_mut(TILE)).enumerate() {
+            let first = t * TILE;
+            if let Some(k) = qs.iter().position(|q| !finite3(*q)) {
+                return Err(Error::NonFinite { what: "query point", index: first + k });
             }
-            *o = self.within_one::<B>(*q, radius, hints.get(i).copied().unwrap_or(NONE));
+            let hint = |k: usize| hints.get(first + k).copied().unwrap_or(NONE);
+            let mut start = [(NONE, r2); TILE];
+            for (k, (q, s)) in qs.iter().zip(start.iter_mut()).enumerate() {
+                if let Some(p) = self.point(hint(k)) {
+                    consider(s, dist2(p, *q), hint(k));
+                }
+            }
+            let mut found_ = [(NONE, 0.0); TILE];
+            if self.search_tile::<T>(qs, &start[..qs.len()], &mut found_[..qs.len()]) {
+                for (o, f) in os.iter_mut().zip(found_) {
+                    *o = found(f);
+                }
+            } else {
+                for (k, (q, o)) in qs.iter().zip(os.iter_mut()).enumerate() {
+                    *o = self.within_one::<B>(*q, radius, hint(k));
+                }
+            }
         }
         Ok(())
     }
@@ -556,25 +599,52 @@ impl PointGrid {
             // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
             return unsafe { self.nearest_batch_avx2(queries, hints, out) };
         }
-        self.nearest_batch::<Lanes>(queries, hints, out)
+        self.nearest_batch::<Lanes, PortableTile>(queries, hints, out)
     }
 
     /// The batch loop compiled with AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn nearest_batch_avx2(&self, queries: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
-        self.nearest_batch::<x86::Avx2Best>(queries, hints, out)
+        self.nearest_batch::<x86::Avx2Best, tile::x86::Avx2Tile>(queries, hints, out)
     }
 
+    /// The unbounded queries tile by tile where every query of the tile has a hint (its
+    /// distance bounds the search); otherwise, or when the tile is not worth searching as one
+    /// box, query by query.
     #[inline(always)]
-    fn nearest_batch<B: Best>(&self, queries: &[[f32; 3]], hints: &[u32], out: &mut [Nearest]) -> Result<()> {
-        for (i, (q, o)) in queries.iter().zip(out.iter_mut()).enumerate() {
-            if !finite3(*q) {
-                return Err(Error::NonFinite { what: "query point", index: i });
+    fn nearest_batch<B: Best, T: TileBest>(
+        &self,
+        queries: &[[f32; 3]],
+        hints: &[u32],
+        out: &mut [Nearest],
+    ) -> Result<()> {
+        // Non-empty grid and finite query: a search always returns a point.
+        let missing = Nearest { index: 0, distance: f32::INFINITY };
+        for (t, (qs, os)) in queries.chunks(TILE).zip(out.chunks_mut(TILE)).enumerate() {
+            let first = t * TILE;
+            if let Some(k) = qs.iter().position(|q| !finite3(*q)) {
+                return Err(Error::NonFinite { what: "query point", index: first + k });
             }
-            // Non-empty grid and finite query: the search always returns a point.
-            let hint = hints.get(i).copied().unwrap_or(NONE);
-            *o = self.nearest_one_with::<B>(*q, hint).unwrap_or(Nearest { index: 0, distance: f32::INFINITY });
+            let hint = |k: usize| hints.get(first + k).copied().unwrap_or(NONE);
+            let mut start = [(NONE, f32::INFINITY); TILE];
+            let mut bounded = true;
+            for (k, (q, s)) in qs.iter().zip(start.iter_mut()).enumerate() {
+                match self.point(hint(k)) {
+                    Some(p) if dist2(p, *q).is_finite() => *s = (hint(k), dist2(p, *q)),
+                    _ => bounded = false,
+                }
+            }
+            let mut found_ = [(NONE, 0.0); TILE];
+            if bounded && self.search_tile::<T>(qs, &start[..qs.len()], &mut found_[..qs.len()]) {
+                for (o, f) in os.iter_mut().zip(found_) {
+                    *o = found(f).unwrap_or(missing);
+                }
+            } else {
+                for (k, (q, o)) in qs.iter().zip(os.iter_mut()).enumerate() {
+                    *o = self.nearest_one_with::<B>(*q, hint(k)).unwrap_or(missing);
+                }
+            }
         }
         Ok(())
     }
@@ -1323,7 +1393,7 @@ mod x86 {
 
     /// Lane-wise lexicographic minimum of `(bd, bi)` and `(d, i)`.
     #[inline(always)]
-    unsafe fn merge(bd: __m256, bi: __m256i, d: __m256, i: __m256i) -> (__m256, __m256i) {
+    pub(super) unsafe fn merge(bd: __m256, bi: __m256i, d: __m256, i: __m256i) -> (__m256, __m256i) {
         // SAFETY: AVX2 instructions, only reached on a CPU that has them.
         unsafe {
             let sign = _mm256_set1_epi32(i32::MIN);
