@@ -91,7 +91,8 @@ pub struct PointGrid {
     /// Slack added to every pruning bound, so that rounding in cell assignment never prunes a
     /// point that could win.
     pad: f32,
-    /// Whether the scans use AVX2 (checked once at creation).
+    /// Whether the scans use AVX2 (checked once at creation; never on other architectures).
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     avx2: bool,
     /// `cell_start[s]..cell_start[s + 1]` are the sorted points of cell `s` (x fastest, then y,
     /// then z), so that a row of cells is one contiguous range.
