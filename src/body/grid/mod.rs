@@ -558,9 +558,9 @@ impl PointGrid {
                     consider(s, dist2(p, *q), hint(k));
                 }
             }
-            let mut found_ = [(NONE, 0.0); TILE];
-            if self.search_tile::<T>(qs, &start[..qs.len()], &mut found_[..qs.len()]) {
-                for (o, f) in os.iter_mut().zip(found_) {
+            let mut answers = [(NONE, 0.0); TILE];
+            if self.search_tile::<T>(qs, &start[..qs.len()], &mut answers[..qs.len()]) {
+                for (o, f) in os.iter_mut().zip(answers) {
                     *o = found(f);
                 }
             } else {
@@ -636,9 +636,9 @@ impl PointGrid {
                     _ => bounded = false,
                 }
             }
-            let mut found_ = [(NONE, 0.0); TILE];
-            if bounded && self.search_tile::<T>(qs, &start[..qs.len()], &mut found_[..qs.len()]) {
-                for (o, f) in os.iter_mut().zip(found_) {
+            let mut answers = [(NONE, 0.0); TILE];
+            if bounded && self.search_tile::<T>(qs, &start[..qs.len()], &mut answers[..qs.len()]) {
+                for (o, f) in os.iter_mut().zip(answers) {
                     *o = found(f).unwrap_or(missing);
                 }
             } else {
