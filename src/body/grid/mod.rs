@@ -631,8 +631,8 @@ impl PointGrid {
             let mut start = [(NONE, f32::INFINITY); TILE];
             let mut bounded = true;
             for (k, (q, s)) in qs.iter().zip(start.iter_mut()).enumerate() {
-                match self.point(hint(k)) {
-                    Some(p) if dist2(p, *q).is_finite() => *s = (hint(k), dist2(p, *q)),
+                match self.point(hint(k)).map(|p| dist2(p, *q)) {
+                    Some(d2) if d2.is_finite() => *s = (hint(k), d2),
                     _ => bounded = false,
                 }
             }
