@@ -4,7 +4,7 @@
 //! from `../shared/assets` when present, else a procedural ellipsoid of ~13k vertices.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use hood::body::{shapes::ellipsoid, BodyFrame, BodyMesh, Nearest, PointGrid};
+use hood::body::{shapes::ellipsoid, BodyFrame, BodyMesh, GarmentQuery, Nearest, PointGrid};
 use hood::io::obj::Obj;
 use hood::sim::{Executor, ThreadPool};
 
@@ -116,17 +116,29 @@ fn bench(c: &mut Criterion) {
             frame.nearest_faces_hinted(&garment, &face_hints, &mut nearest).unwrap();
         })
     });
-    // The same on both threads of a pool: the grids rebuilt as two tasks, the queries in chunks.
+    // The same in one job of a 2-thread pool: both rebuilds side by side, each query chunk as soon
+    // as its grid is ready.
     let pool = ThreadPool::new(2);
     let exec: &dyn Executor = &pool;
-    g.bench_function("whole body query 2 threads", |b| {
-        b.iter(|| {
-            frame.update_grids_on(exec, &mesh, black_box(&body)).unwrap();
-            frame.body_edges_on(exec, &mesh, &garment, RADIUS, &[], &mut edges).unwrap();
-            frame.nearest_faces_on(exec, &garment, &[], &mut nearest).unwrap();
-        })
-    });
-    g.bench_function("whole body query hinted 2 threads", |b| {
+    for (name, exec, vh, fh) in [
+        ("whole body query 2 threads", exec, &[][..], &[][..]),
+        ("whole body query hinted 2 threads", exec, &vertex_hints[..], &face_hints[..]),
+        (
+            "whole body query hinted 1 thread, one job",
+            &hood::sim::Serial as &dyn Executor,
+            &vertex_hints[..],
+            &face_hints[..],
+        ),
+    ] {
+        let query = GarmentQuery { points: &garment, radius: RADIUS, vertex_hints: vh, face_hints: fh };
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                frame.update_and_query_on(exec, &mesh, black_box(&body), query, &mut edges, &mut nearest).unwrap()
+            })
+        });
+    }
+    // The separate calls on the same pool (three jobs: the rebuilds as two tasks, then each query).
+    g.bench_function("whole body query hinted 2 threads, three jobs", |b| {
         b.iter(|| {
             frame.update_grids_on(exec, &mesh, black_box(&body)).unwrap();
             frame.body_edges_on(exec, &mesh, &garment, RADIUS, &vertex_hints, &mut edges).unwrap();

@@ -1,11 +1,13 @@
 //! One frame of the body: centroids, normals and both grids, in buffers sized once.
 
+use super::grid::{check_batch, check_queries, check_within, chunks_for, hint_range};
 use super::{BodyMesh, Nearest, PointGrid};
 use crate::error::{Error, Result};
-use crate::sim::par::Disjoint;
+use crate::sim::par::{split, BuildOnce, Disjoint};
 use crate::sim::{Executor, Serial};
 use alloc::vec;
 use alloc::vec::Vec;
+use core::sync::atomic::{AtomicUsize, Ordering};
 
 /// The body's geometry at one frame and the two nearest-point grids (body vertices, face
 /// centroids). [`new`](Self::new) sizes everything for one [`BodyMesh`]; [`update`](Self::update)
@@ -18,6 +20,20 @@ pub struct BodyFrame {
     vertex_normals: Vec<[f32; 3]>,
     vertex_grid: PointGrid,
     centroid_grid: PointGrid,
+}
+
+/// The garment side of a whole body query, [`BodyFrame::update_and_query_on`].
+#[derive(Clone, Copy, Debug)]
+pub struct GarmentQuery<'a> {
+    /// Garment vertex positions, metres.
+    pub points: &'a [[f32; 3]],
+    /// Body-edge radius, metres (inclusive).
+    pub radius: f32,
+    /// A guessed nearest body vertex per garment vertex (e.g. last frame's; `u32::MAX` for
+    /// none), or empty.
+    pub vertex_hints: &'a [u32],
+    /// A guessed nearest face per garment vertex (e.g. last frame's), or empty.
+    pub face_hints: &'a [u32],
 }
 
 /// Cells allowed per point: the grids aim for [`super::DEFAULT_CELLS_PER_POINT`], this leaves
@@ -62,13 +78,7 @@ impl BodyFrame {
     /// `positions` has the wrong length; [`Error::NonFinite`] naming the first NaN/Inf body vertex
     /// (the frame is then not updated).
     pub fn update(&mut self, mesh: &BodyMesh, positions: &[[f32; 3]]) -> Result<()> {
-        if mesh.n_vertices() != self.n_vertices || mesh.n_faces() != self.centroids.len() {
-            return Err(Error::SizeMismatch {
-                what: "body frame mesh",
-                expected: self.n_vertices,
-                got: mesh.n_vertices(),
-            });
-        }
+        self.check_mesh(mesh)?;
         mesh.check_positions(positions)?;
         mesh.face_normals(positions, &mut self.face_normals)?;
         mesh.vertex_normals(positions, &mut self.vertex_normals)?;
@@ -90,13 +100,7 @@ impl BodyFrame {
     /// # Errors
     /// As [`update`](Self::update).
     pub fn update_grids_on(&mut self, exec: &dyn Executor, mesh: &BodyMesh, positions: &[[f32; 3]]) -> Result<()> {
-        if mesh.n_vertices() != self.n_vertices || mesh.n_faces() != self.centroids.len() {
-            return Err(Error::SizeMismatch {
-                what: "body frame mesh",
-                expected: self.n_vertices,
-                got: mesh.n_vertices(),
-            });
-        }
+        self.check_mesh(mesh)?;
         mesh.check_positions(positions)?;
         let mut errors: [Option<Error>; 2] = [None, None];
         {
@@ -123,6 +127,107 @@ impl BodyFrame {
             });
         }
         crate::sim::par::first_error(&mut errors)
+    }
+
+    /// [`Error::SizeMismatch`] unless `mesh` is the mesh of [`new`](Self::new) (by size).
+    fn check_mesh(&self, mesh: &BodyMesh) -> Result<()> {
+        if mesh.n_vertices() != self.n_vertices || mesh.n_faces() != self.centroids.len() {
+            return Err(Error::SizeMismatch {
+                what: "body frame mesh",
+                expected: self.n_vertices,
+                got: mesh.n_vertices(),
+            });
+        }
+        Ok(())
+    }
+
+    /// The whole body query of one frame in one job of `exec`: rebuilds both grids at
+    /// `positions` (as [`update_grids`](Self::update_grids)), then writes the body edges of
+    /// `query` into `edges` (as [`body_edges_on`](Self::body_edges_on)) and the nearest faces into
+    /// `faces` (as [`nearest_faces_on`](Self::nearest_faces_on)). Returns the number of edges.
+    ///
+    /// The two rebuilds are the job's first two tasks, so they run side by side; each query chunk
+    /// starts as soon as its own grid is built, so the queries over the vertex grid fill the
+    /// time the centroid grid takes. Same results as the separate serial calls for any executor.
+    /// Allocates nothing.
+    ///
+    /// # Errors
+    /// As [`update_grids`](Self::update_grids), [`body_edges_on`](Self::body_edges_on) and
+    /// [`nearest_faces_on`](Self::nearest_faces_on). All input is checked before anything is
+    /// rebuilt, so on error the frame and the outputs are unchanged.
+    pub fn update_and_query_on(
+        &mut self,
+        exec: &dyn Executor,
+        mesh: &BodyMesh,
+        positions: &[[f32; 3]],
+        query: GarmentQuery<'_>,
+        edges: &mut [Option<Nearest>],
+        faces: &mut [Nearest],
+    ) -> Result<usize> {
+        self.check_mesh(mesh)?;
+        mesh.check_positions(positions)?;
+        let points = query.points;
+        let n = points.len();
+        check_within(n, query.vertex_hints.len(), edges.len(), query.radius)?;
+        check_batch(n, query.face_hints.len(), faces.len())?;
+        check_queries(points)?;
+
+        let chunks = chunks_for(exec.parallelism(), n);
+        let vertex_grid = BuildOnce::new(&mut self.vertex_grid);
+        let centroid_grid = BuildOnce::new(&mut self.centroid_grid);
+        let centroids = &mut self.centroids;
+        let build_vertex_grid = |g: &mut PointGrid| g.rebuild(positions);
+        // Only the task that builds the centroid grid touches the centroids.
+        let centroids = Disjoint::new(centroids);
+        let build_centroid_grid = |g: &mut PointGrid| {
+            // SAFETY: `BuildOnce` runs this closure at most once, so this is the only reference.
+            let c = unsafe { centroids.range(0..mesh.n_faces()) };
+            super::geometry::face_centroids(mesh.faces(), positions, c);
+            g.rebuild(c)
+        };
+        let kept = AtomicUsize::new(0);
+        let (edges, faces) = (Disjoint::new(edges), Disjoint::new(faces));
+        // Tasks: the centroid grid (the longer rebuild, first), the vertex grid, the chunks of body
+        // edges, the chunks of nearest faces.
+        let task = |t: usize| -> Result<()> {
+            match t {
+                0 => centroid_grid.get(build_centroid_grid).map(drop),
+                1 => vertex_grid.get(build_vertex_grid).map(drop),
+                _ if t < 2 + chunks => {
+                    let r = split(n, chunks, t - 2);
+                    let grid = vertex_grid.get(build_vertex_grid)?;
+                    // SAFETY: the chunks of `split` are disjoint.
+                    let out = unsafe { edges.range(r.clone()) };
+                    grid.nearest_within_hinted(
+                        &points[r.clone()],
+                        query.radius,
+                        hint_range(query.vertex_hints, r),
+                        out,
+                    )?;
+                    kept.fetch_add(mesh.keep_not_omitted(out), Ordering::Relaxed);
+                    Ok(())
+                }
+                _ => {
+                    let r = split(n, chunks, t - 2 - chunks);
+                    let grid = centroid_grid.get(build_centroid_grid)?;
+                    // SAFETY: the chunks of `split` are disjoint.
+                    let out = unsafe { faces.range(r.clone()) };
+                    grid.nearest_hinted(&points[r.clone()], hint_range(query.face_hints, r), out)
+                }
+            }
+        };
+        // The lowest failing task (the input was checked, so this only guards broken invariants).
+        let failed = AtomicUsize::new(usize::MAX);
+        exec.run(2 + 2 * chunks, &|t| {
+            if task(t).is_err() {
+                failed.fetch_min(t, Ordering::Relaxed);
+            }
+        });
+        match failed.load(Ordering::Relaxed) {
+            usize::MAX => Ok(kept.into_inner()),
+            // Rerun on its own to return its error: a build's error is kept, a chunk repeats.
+            t => task(t).map(|()| kept.into_inner()),
+        }
     }
 
     /// Face centroids of the last update, metres.

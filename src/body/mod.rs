@@ -18,7 +18,7 @@ pub mod rigid;
 pub mod shapes;
 mod winding;
 
-pub use frame::BodyFrame;
+pub use frame::{BodyFrame, GarmentQuery};
 pub use grid::{Nearest, PointGrid, BLOCK, DEFAULT_CELLS_PER_POINT, X_SPLIT};
 pub use winding::{winding_number_exact, Winding, CLUSTER, FAR};
 

@@ -239,6 +239,34 @@ fn body_query_empty_and_errors() {
     );
     assert!(grid.is_empty(), "a failed rebuild leaves the grid empty");
     assert_eq!(grid.rebuild(&[[0.0; 3], [f32::NAN, 0.0, 0.0]]), Err(Error::NonFinite { what: "grid point", index: 1 }));
+    // The bounds are taken eight points at a time: a bad coordinate in a full group, in the
+    // remainder, on every axis, is found and named; the good points' bounds are exact.
+    let mut big = PointGrid::new(100, 6400).unwrap();
+    let mut rng = Rng(5);
+    for n in [1, 8, 9, 24, 61] {
+        let pts = random_cloud(&mut rng, 0, n);
+        big.rebuild(&pts).unwrap();
+        for a in 0..3 {
+            let want = (
+                pts.iter().map(|p| p[a]).fold(f32::INFINITY, f32::min),
+                pts.iter().map(|p| p[a]).fold(f32::NEG_INFINITY, f32::max),
+            );
+            assert_eq!((big.bounds().0[a], big.bounds().1[a]), want, "n {n} axis {a}");
+        }
+        for k in [0, n / 2, n - 1] {
+            for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+                for a in 0..3 {
+                    let mut p = pts.clone();
+                    p[k][a] = bad;
+                    assert_eq!(
+                        big.rebuild(&p),
+                        Err(Error::NonFinite { what: "grid point", index: k }),
+                        "n {n} at {k} axis {a} {bad}"
+                    );
+                }
+            }
+        }
+    }
     grid.rebuild(&[[0.0; 3]]).unwrap();
     let qs = [[0.0; 3], [0.0, f32::INFINITY, 0.0]];
     let mut out2 = [None; 2];
@@ -543,6 +571,110 @@ fn body_query_on_a_thread_pool_matches_serial() {
     let mut bad = v.clone();
     bad[5][0] = f32::NAN;
     assert_eq!(pooled.update_grids_on(&pool, &mesh, &bad), Err(Error::NonFinite { what: "body vertex", index: 5 }));
+}
+
+/// Runs the tasks in reverse order, on the calling thread or split between two threads: a query
+/// task then comes before the rebuild of its grid and must build it itself (or wait for it).
+#[cfg(feature = "std")]
+struct Reversed(usize);
+
+#[cfg(feature = "std")]
+impl crate::sim::Executor for Reversed {
+    fn parallelism(&self) -> usize {
+        self.0
+    }
+    fn run(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
+        if self.0 == 1 {
+            (0..n).rev().for_each(task);
+        } else {
+            // Odd tasks on a second thread, each side from the end.
+            std::thread::scope(|s| {
+                s.spawn(|| (0..n).rev().filter(|t| t % 2 == 1).for_each(task));
+                (0..n).rev().filter(|t| t % 2 == 0).for_each(task);
+            });
+        }
+    }
+}
+
+/// The whole query in one job (both rebuilds, then body edges and nearest faces as their grids
+/// become ready) gives the separate serial calls' answers exactly on any executor, including ones
+/// that run a query before the rebuild it needs; bad input changes nothing.
+#[cfg(feature = "std")]
+#[test]
+fn body_query_whole_in_one_job_matches_separate_calls() {
+    use crate::sim::{Executor, Serial, ThreadPool};
+    let mut rng = Rng(12);
+    let (v, f) = two_ellipsoids();
+    let mut omitted = vec![false; v.len()];
+    for k in (0..v.len()).step_by(7) {
+        omitted[k] = true;
+    }
+    let mesh = BodyMesh::new(v.len(), &f).unwrap().with_omitted(&omitted).unwrap();
+    let (pool2, pool3) = (ThreadPool::new(2), ThreadPool::new(3));
+    let executors: [&dyn Executor; 6] = [&Serial, &pool2, &pool3, &Reversed(1), &Reversed(2), &Reversed(8)];
+    let mut serial = BodyFrame::new(&mesh).unwrap();
+    let mut fused: Vec<BodyFrame> = executors.iter().map(|_| BodyFrame::new(&mesh).unwrap()).collect();
+    let zero = Nearest { index: 0, distance: 0.0 };
+    for step in 0..3 {
+        let positions: Vec<[f32; 3]> = v
+            .iter()
+            .map(|p| [p[0] + 0.05 * step as f32, p[1], p[2] + 0.02 * (p[1] * 7.0 + step as f32).sin()])
+            .collect();
+        serial.update_grids(&mesh, &positions).unwrap();
+        let garment = random_queries(&mut rng, &positions, 2500 + 300 * step);
+        let n = garment.len();
+        let vertex_hints: Vec<u32> = (0..n).map(|_| rng.below(v.len() + 5) as u32).collect();
+        let face_hints: Vec<u32> = (0..n).map(|_| rng.below(f.len()) as u32).collect();
+        let mut want_edges = vec![None; n];
+        let want_kept = serial.body_edges(&mesh, &garment, 0.03, &mut want_edges).unwrap();
+        let mut want_faces = vec![zero; n];
+        serial.nearest_faces(&garment, &mut want_faces).unwrap();
+        assert!(want_kept > 100 && want_kept < n, "the queries must see both edges and misses ({want_kept})");
+        for (k, (exec, frame)) in executors.iter().zip(fused.iter_mut()).enumerate() {
+            for hinted in [false, true] {
+                let query = GarmentQuery {
+                    points: &garment,
+                    radius: 0.03,
+                    vertex_hints: if hinted { &vertex_hints } else { &[] },
+                    face_hints: if hinted { &face_hints } else { &[] },
+                };
+                let (mut edges, mut faces) = (vec![None; n], vec![zero; n]);
+                let kept = frame.update_and_query_on(*exec, &mesh, &positions, query, &mut edges, &mut faces).unwrap();
+                assert_eq!(
+                    (kept, &edges, &faces),
+                    (want_kept, &want_edges, &want_faces),
+                    "step {step} executor {k} hinted {hinted}"
+                );
+                assert_eq!(frame.centroids(), serial.centroids());
+
+                // Bad input anywhere: refused, naming it, with the frame and outputs unchanged.
+                let mut bad_body = positions.clone();
+                bad_body[9][1] = f32::NAN;
+                let mut bad_garment = garment.clone();
+                bad_garment[n - 2][0] = f32::NEG_INFINITY;
+                let before = (edges.clone(), faces.clone());
+                let moved: Vec<[f32; 3]> = positions.iter().map(|p| [p[0] + 1.0, p[1], p[2]]).collect();
+                assert_eq!(
+                    frame.update_and_query_on(*exec, &mesh, &bad_body, query, &mut edges, &mut faces),
+                    Err(Error::NonFinite { what: "body vertex", index: 9 })
+                );
+                let bad_query = GarmentQuery { points: &bad_garment, ..query };
+                assert_eq!(
+                    frame.update_and_query_on(*exec, &mesh, &moved, bad_query, &mut edges, &mut faces),
+                    Err(Error::NonFinite { what: "query point", index: n - 2 })
+                );
+                assert_eq!(
+                    frame.update_and_query_on(*exec, &mesh, &moved, query, &mut edges[1..], &mut faces),
+                    Err(Error::SizeMismatch { what: "query output", expected: n, got: n - 1 })
+                );
+                assert_eq!((&edges, &faces), (&before.0, &before.1));
+                assert_eq!(frame.centroids(), serial.centroids(), "a refused call must not rebuild");
+                let mut again = vec![zero; n];
+                frame.nearest_faces(&garment, &mut again).unwrap();
+                assert_eq!(again, want_faces);
+            }
+        }
+    }
 }
 
 /// A body-like closed mesh: an ellipsoid with a smaller one (an "arm") beside it, close enough
