@@ -1,16 +1,20 @@
 //! `Sim::step` never allocates: a counting global allocator over every combination of effects,
-//! precisions and thread settings. (Its own test binary, so no other test allocates meanwhile.)
+//! precisions and thread settings; nor do the body queries. (Their own test binary, and one test
+//! at a time, so no other test allocates meanwhile.)
 
 mod common;
 use common::*;
 use hood::sim::{BodyDesc, Precision, Sim, SimConfig, Sleeping};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::Mutex;
 
 struct Counting;
 static COUNTING: AtomicBool = AtomicBool::new(false);
 static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
 static TRACE: AtomicBool = AtomicBool::new(false);
+/// Held by every test while it counts.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 // SAFETY: forwards to the system allocator unchanged; only counts calls.
 unsafe impl GlobalAlloc for Counting {
@@ -43,6 +47,7 @@ static GLOBAL: Counting = Counting;
 
 #[test]
 fn alloc_free_step_every_effect_precision_and_thread_count() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     TRACE.store(std::env::var_os("HOOD_ALLOC_TRACE").is_some(), Ordering::SeqCst);
     let scene = Scene::new(12, 10);
     let bytes = random_model(16, 1, true);
@@ -90,4 +95,44 @@ fn alloc_free_step_every_effect_precision_and_thread_count() {
         }
     }
     println!("{combos} configurations stepped without allocating");
+}
+
+/// The body queries after set-up: the frame's update, the whole query in one job, the separate
+/// batch queries, serial and on a thread pool.
+#[test]
+fn alloc_free_body_queries() {
+    use hood::body::{BodyFrame, GarmentQuery, Nearest};
+    use hood::sim::{Executor, Serial, ThreadPool};
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = Scene::new(40, 40);
+    let garment = scene.garment.rest();
+    let n = garment.len();
+    let pool = ThreadPool::new(2);
+    let frames: Vec<Vec<[f32; 3]>> = (0..4).map(|t| scene.body_at(t)).collect();
+    for (name, exec) in [("serial", &Serial as &dyn Executor), ("a 2-thread pool", &pool)] {
+        let mut frame = BodyFrame::new(&scene.body).unwrap();
+        let (mut edges, mut faces) = (vec![None; n], vec![Nearest { index: 0, distance: 0.0 }; n]);
+        let (mut vertex_hints, mut face_hints) = (vec![u32::MAX; n], vec![0u32; n]);
+        let mut kept = 0;
+        COUNTING.store(true, Ordering::SeqCst);
+        ALLOCATIONS.store(0, Ordering::SeqCst);
+        for f in &frames {
+            frame.update(&scene.body, f).unwrap();
+            frame.body_edges_on(exec, &scene.body, garment, 0.05, &vertex_hints, &mut edges).unwrap();
+            frame.nearest_faces_on(exec, garment, &face_hints, &mut faces).unwrap();
+            let query =
+                GarmentQuery { points: garment, radius: 0.05, vertex_hints: &vertex_hints, face_hints: &face_hints };
+            kept += frame.update_and_query_on(exec, &scene.body, f, query, &mut edges, &mut faces).unwrap();
+            for (h, e) in vertex_hints.iter_mut().zip(&edges) {
+                *h = e.map_or(u32::MAX, |e| e.index);
+            }
+            for (h, f) in face_hints.iter_mut().zip(&faces) {
+                *h = f.index;
+            }
+        }
+        COUNTING.store(false, Ordering::SeqCst);
+        let allocations = ALLOCATIONS.load(Ordering::SeqCst);
+        assert_eq!(allocations, 0, "{allocations} allocations in the body queries on {name}");
+        assert!(kept > 0, "the garment must come near the body");
+    }
 }
