@@ -100,33 +100,9 @@ impl BodyFrame {
     /// # Errors
     /// As [`update`](Self::update).
     pub fn update_grids_on(&mut self, exec: &dyn Executor, mesh: &BodyMesh, positions: &[[f32; 3]]) -> Result<()> {
-        self.check_mesh(mesh)?;
-        mesh.check_positions(positions)?;
-        let mut errors: [Option<Error>; 2] = [None, None];
-        {
-            let errors = Disjoint::new(&mut errors);
-            let vertex_grid = Disjoint::new(core::slice::from_mut(&mut self.vertex_grid));
-            let centroid_grid = Disjoint::new(core::slice::from_mut(&mut self.centroid_grid));
-            let centroids = Disjoint::new(&mut self.centroids);
-            exec.run(2, &|t| {
-                // SAFETY: task 0 alone uses the vertex grid and error slot 0, task 1 alone the
-                // centroids, the centroid grid and slot 1.
-                let result = unsafe {
-                    if t == 0 {
-                        vertex_grid.range(0..1)[0].rebuild(positions)
-                    } else {
-                        let c = centroids.range(0..mesh.n_faces());
-                        super::geometry::face_centroids(mesh.faces(), positions, c);
-                        centroid_grid.range(0..1)[0].rebuild(c)
-                    }
-                };
-                if let Err(e) = result {
-                    // SAFETY: as above.
-                    unsafe { errors.range(t..t + 1)[0] = Some(e) };
-                }
-            });
-        }
-        crate::sim::par::first_error(&mut errors)
+        // The whole query with no garment: the same two rebuild tasks, and empty query chunks.
+        let none = GarmentQuery { points: &[], radius: 0.0, vertex_hints: &[], face_hints: &[] };
+        self.update_and_query_on(exec, mesh, positions, none, &mut [], &mut []).map(drop)
     }
 
     /// [`Error::SizeMismatch`] unless `mesh` is the mesh of [`new`](Self::new) (by size).
