@@ -478,6 +478,51 @@ fn body_query_avx2_scan_matches_portable_twin() {
 }
 
 #[test]
+fn body_query_vectorized_cell_slots_match_cell_of() {
+    // The rebuild's slot pass (eight points per step; AVX2 where the CPU has it) against the
+    // scalar cell assignment, point by point: random grids, points inside, outside on every side
+    // (clamped), non-finite coordinates, and counts that leave every tail length.
+    use grid::{cell_of, has_avx2, SlotsOf};
+    let mut rng = Rng(11);
+    for round in 0..300 {
+        let blocks = [1 + rng.below(40), 1 + rng.below(40), 1 + rng.below(12)];
+        let lo = [rng.range(-3.0, 3.0), rng.range(-3.0, 3.0), rng.range(-3.0, 3.0)];
+        let inv_edge = [rng.range(0.5, 60.0), rng.range(0.5, 60.0), rng.range(0.5, 60.0)];
+        let ext: [f32; 3] = core::array::from_fn(|a| (blocks[a] * BLOCK) as f32 / inv_edge[a]);
+        let n = [0, 1, 7, 8, 9, 15, 23, 24, 25, 1000][round % 10];
+        let pts: Vec<[f32; 3]> = (0..n)
+            .map(|_| {
+                core::array::from_fn(|a| match rng.below(40) {
+                    0 => f32::NAN,
+                    1 => f32::INFINITY,
+                    2 => f32::NEG_INFINITY,
+                    _ => lo[a] + ext[a] * rng.range(-0.3, 1.3),
+                })
+            })
+            .collect();
+        let dims = blocks.map(|b| b * BLOCK);
+        let want: Vec<u32> = pts
+            .iter()
+            .map(|p| {
+                let c = cell_of(*p, lo, inv_edge, blocks);
+                (c[0] + dims[0] * (c[1] + dims[1] * c[2])) as u32
+            })
+            .collect();
+        let slots = SlotsOf { lo, inv_edge, blocks };
+        let mut got = vec![u32::MAX; n];
+        slots.write(&pts, &mut got);
+        assert_eq!(got, want, "round {round}: portable slots");
+        #[cfg(target_arch = "x86_64")]
+        if has_avx2() {
+            got.fill(u32::MAX);
+            // SAFETY: the CPU has AVX2.
+            unsafe { slots.write_avx2(&pts, &mut got) };
+            assert_eq!(got, want, "round {round}: AVX2 slots");
+        }
+    }
+}
+
+#[test]
 fn body_query_scans_past_a_range_read_only_real_points() {
     // A scan reads whole groups of eight, past the end of its cells: after a large rebuild and a
     // small one, the stale points of the large one (indices beyond the small set) must never be

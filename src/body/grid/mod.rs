@@ -122,10 +122,10 @@ impl PointGrid {
     /// `4·max_cells + 48·capacity` bytes).
     ///
     /// # Errors
-    /// [`Error::OutOfRange`] when `max_cells` is below one block (`BLOCK³ = 64` cells) or when
-    /// `capacity` does not fit in `u32`.
+    /// [`Error::OutOfRange`] when `max_cells` is below one block (`BLOCK³ = 64` cells) or above
+    /// `i32::MAX`, or when `capacity` does not fit in `u32`.
     pub fn new(capacity: usize, max_cells: usize) -> Result<PointGrid> {
-        if max_cells < BLOCK_CELLS || max_cells > u32::MAX as usize {
+        if max_cells < BLOCK_CELLS || max_cells > i32::MAX as usize {
             return Err(Error::OutOfRange { what: "grid max_cells", index: max_cells });
         }
         if capacity >= u32::MAX as usize - LANES {
@@ -245,21 +245,29 @@ impl PointGrid {
 
         let n_blocks = self.n_blocks();
         let slots = n_blocks * BLOCK_CELLS;
-        let dims = self.cells();
         let start = &mut self.cell_start[..slots + 1];
         start.fill(0);
         // Counts into start[s], inclusive prefix sums (start[s] = end of slot s), then a reverse
         // scatter that decrements start[s] down to the beginning of s: stable, no extra pass.
-        for (p, slot) in points.iter().zip(self.point_slot.iter_mut()) {
-            let c = cell_of(*p, lo, self.inv_edge, self.blocks);
-            *slot = (c[0] + dims[0] * (c[1] + dims[1] * c[2])) as u32;
-            start[*slot as usize] += 1;
+        let slots_of = SlotsOf { lo, inv_edge: self.inv_edge, blocks: self.blocks };
+        let point_slot = &mut self.point_slot[..n];
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
+            unsafe { slots_of.write_avx2(points, point_slot) };
+        } else {
+            slots_of.write(points, point_slot);
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        slots_of.write(points, point_slot);
+        for &slot in point_slot.iter() {
+            start[slot as usize] += 1;
         }
         for s in 1..slots {
             start[s] += start[s - 1];
         }
         start[slots] = n as u32;
-        for (i, (p, &slot)) in points.iter().zip(self.point_slot.iter()).enumerate().rev() {
+        for (i, (p, &slot)) in points.iter().zip(point_slot.iter()).enumerate().rev() {
             start[slot as usize] -= 1;
             self.records[start[slot as usize] as usize] = [p[0], p[1], p[2], f32::from_bits(i as u32)];
         }
@@ -1162,14 +1170,14 @@ fn box_dist2(q: [f32; 3], lo: [f32; 3], hi: [f32; 3]) -> f32 {
 
 /// Cell of a point inside the bounds (its coordinates are at least `lo`).
 #[inline(always)]
-fn cell_of(p: [f32; 3], lo: [f32; 3], inv_edge: [f32; 3], blocks: [usize; 3]) -> [usize; 3] {
+pub(super) fn cell_of(p: [f32; 3], lo: [f32; 3], inv_edge: [f32; 3], blocks: [usize; 3]) -> [usize; 3] {
     // One truncating instruction per axis rather than a saturating conversion (the rebuild's
     // hot loop; in the queries the saturating form measured faster).
     #[inline(always)]
     fn axis(p: f32, lo: f32, inv_edge: f32, blocks: usize) -> usize {
         let c = fmax(fmin((p - lo) * inv_edge, (blocks * BLOCK - 1) as f32), 0.0);
         // SAFETY: `c` is finite (NaN and infinities are clamped) and within `[0, cells - 1]`,
-        // which fits in `u32` (the cell count is bounded by `max_cells <= u32::MAX`).
+        // which fits in `u32` (the cell count is bounded by `max_cells <= i32::MAX`).
         unsafe { c.to_int_unchecked::<u32>() as usize }
     }
     [
@@ -1177,6 +1185,60 @@ fn cell_of(p: [f32; 3], lo: [f32; 3], inv_edge: [f32; 3], blocks: [usize; 3]) ->
         axis(p[1], lo[1], inv_edge[1], blocks[1]),
         axis(p[2], lo[2], inv_edge[2], blocks[2]),
     ]
+}
+
+/// The rebuild's cell numbering: the slot `cx + nx·(cy + ny·cz)` of every point, as
+/// [`cell_of`] assigns cells.
+pub(super) struct SlotsOf {
+    pub(super) lo: [f32; 3],
+    pub(super) inv_edge: [f32; 3],
+    pub(super) blocks: [usize; 3],
+}
+
+impl SlotsOf {
+    /// Writes the slot of every point into `out` (as long as `points`).
+    ///
+    /// Eight points (24 coordinates) at a time in independent lanes, each lane with its axis's
+    /// constants, so that the loop vectorizes; the same clamp and truncation as [`cell_of`], so
+    /// the same slots.
+    #[inline(always)]
+    pub(super) fn write(&self, points: &[[f32; 3]], out: &mut [u32]) {
+        const W: usize = 24;
+        let dims = self.blocks.map(|b| b * BLOCK);
+        let stride = [1, dims[0], dims[0] * dims[1]].map(|s| s as u32);
+        let lane = |v: [f32; 3]| -> [f32; W] { core::array::from_fn(|k| v[k % 3]) };
+        let (lo, inv) = (lane(self.lo), lane(self.inv_edge));
+        let last = lane(dims.map(|d| (d - 1) as f32));
+        let stride: [u32; W] = core::array::from_fn(|k| stride[k % 3]);
+        let flat: &[f32] = bytemuck::cast_slice(points);
+        let mut chunks = flat.chunks_exact(W);
+        let mut outs = out.chunks_exact_mut(W / 3);
+        for (c, o) in (&mut chunks).zip(&mut outs) {
+            let mut part = [0u32; W];
+            for k in 0..W {
+                let t = fmax(fmin((c[k] - lo[k]) * inv[k], last[k]), 0.0);
+                // SAFETY: `t` is finite (NaN and infinities are clamped) and within
+                // `[0, cells - 1]`, which fits in `i32` (`max_cells <= i32::MAX`); so does the
+                // slot, the sum of the three products.
+                part[k] = unsafe { t.to_int_unchecked::<i32>() } as u32 * stride[k];
+            }
+            for (j, o) in o.iter_mut().enumerate() {
+                *o = part[3 * j] + part[3 * j + 1] + part[3 * j + 2];
+            }
+        }
+        let tail = points.len() - points.len() % (W / 3);
+        for (p, o) in points[tail..].iter().zip(outs.into_remainder()) {
+            let c = cell_of(*p, self.lo, self.inv_edge, self.blocks);
+            *o = (c[0] + dims[0] * (c[1] + dims[1] * c[2])) as u32;
+        }
+    }
+
+    /// [`write`](Self::write) compiled with AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn write_avx2(&self, points: &[[f32; 3]], out: &mut [u32]) {
+        self.write(points, out)
+    }
 }
 
 /// Cell of any point, clamped into the grid. Monotonic in every coordinate.
@@ -1286,7 +1348,7 @@ fn scan_portable((xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3], lanes: &mut Lan
 
 /// Whether the scans may use AVX2: checked at run time under `std`, else by the compile-time
 /// target features.
-fn has_avx2() -> bool {
+pub(super) fn has_avx2() -> bool {
     #[cfg(all(target_arch = "x86_64", feature = "std"))]
     {
         std::arch::is_x86_feature_detected!("avx2")
