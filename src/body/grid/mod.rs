@@ -1204,6 +1204,8 @@ impl SlotsOf {
     #[inline(always)]
     pub(super) fn write(&self, points: &[[f32; 3]], out: &mut [u32]) {
         const W: usize = 24;
+        // The tail below pairs `out`'s remainder with the points past the last group of eight.
+        debug_assert_eq!(points.len(), out.len());
         let dims = self.blocks.map(|b| b * BLOCK);
         let stride = [1, dims[0], dims[0] * dims[1]].map(|s| s as u32);
         let lane = |v: [f32; 3]| -> [f32; W] { core::array::from_fn(|k| v[k % 3]) };
