@@ -877,7 +877,7 @@ impl PointGrid {
                 let row = dims[0] * (y + dims[1] * z);
                 let (p0, p1) = (self.cell_start[row + x0] as usize, self.cell_start[row + x1 + 1] as usize);
                 if p1 > p0 {
-                    let b = self.scan_with(q, p0, p1, lanes, tight);
+                    let b = self.scan_with(q, p0, p1, lanes, tight.then_some(bound));
                     // After the query's own row the bound is close to the answer.
                     tight = true;
                     if b < bound {
@@ -901,22 +901,22 @@ impl PointGrid {
     /// point offered is a real candidate, or NaN padding) to `lanes`; returns the new bound.
     #[inline(always)]
     fn scan<B: Best>(&self, q: [f32; 3], p0: usize, p1: usize, best: &mut B) -> f32 {
-        self.scan_with(q, p0, p1, best, false)
+        self.scan_with(q, p0, p1, best, None)
     }
 
-    /// As [`scan`](Self::scan); `tight` when the bound is already close to the answer.
+    /// As [`scan`](Self::scan); `tight` is `best`'s current bound when it is already close to the
+    /// answer.
     #[inline(always)]
-    fn scan_with<B: Best>(&self, q: [f32; 3], p0: usize, p1: usize, best: &mut B, tight: bool) -> f32 {
+    fn scan_with<B: Best>(&self, q: [f32; 3], p0: usize, p1: usize, best: &mut B, tight: Option<f32>) -> f32 {
         if p1 <= p0 {
             return best.bound();
         }
         let end = p0 + (p1 - p0).next_multiple_of(LANES);
         let [xs, ys, zs] = &self.sorted;
         let pts = (&xs[p0..end], &ys[p0..end], &zs[p0..end], &self.sorted_index[p0..end]);
-        if tight {
-            best.scan_tight(pts, q)
-        } else {
-            best.scan(pts, q)
+        match tight {
+            Some(bound) => best.scan_tight(pts, q, bound),
+            None => best.scan(pts, q),
         }
     }
 
@@ -1276,8 +1276,9 @@ trait Best {
     fn offer(&mut self, d2: f32, i: u32);
     /// Offers every point of `pts` (a multiple of `LANES` long); returns the new bound.
     fn scan(&mut self, pts: ScanPoints<'_>, q: [f32; 3]) -> f32;
-    /// As [`scan`](Self::scan), faster when few points beat the bound (a tight bound).
-    fn scan_tight(&mut self, pts: ScanPoints<'_>, q: [f32; 3]) -> f32 {
+    /// As [`scan`](Self::scan), faster when few points beat the bound (a tight bound); `bound` is
+    /// the current [`bound`](Self::bound), which the caller already holds.
+    fn scan_tight(&mut self, pts: ScanPoints<'_>, q: [f32; 3], _bound: f32) -> f32 {
         self.scan(pts, q)
     }
     /// The smallest squared distance held: no farther point can win.
@@ -1436,12 +1437,13 @@ mod x86 {
         /// Groups with no point within the bound cost one compare; only the others are merged
         /// into the lanes (a point beyond the lowest lane can never be the answer).
         #[inline(always)]
-        fn scan_tight(&mut self, (xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3]) -> f32 {
+        fn scan_tight(&mut self, (xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3], bound: f32) -> f32 {
             let n = xs.len().min(ys.len()).min(zs.len()).min(idx.len()) / LANES * LANES;
             // Loads read `k..k + 8` with `k + 8 <= n`, inside all four slices.
             unsafe {
                 let (qx, qy, qz) = (_mm256_set1_ps(q[0]), _mm256_set1_ps(q[1]), _mm256_set1_ps(q[2]));
-                let mut bound = _mm256_set1_ps(self.bound());
+                // The caller's copy of the bound: no horizontal minimum before the first group.
+                let mut bound = _mm256_set1_ps(bound);
                 let mut k = 0;
                 while k < n {
                     let dx = _mm256_sub_ps(_mm256_loadu_ps(xs.as_ptr().add(k)), qx);
