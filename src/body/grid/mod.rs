@@ -251,15 +251,7 @@ impl PointGrid {
         // scatter that decrements start[s] down to the beginning of s: stable, no extra pass.
         let slots_of = SlotsOf { lo, inv_edge: self.inv_edge, blocks: self.blocks };
         let point_slot = &mut self.point_slot[..n];
-        #[cfg(target_arch = "x86_64")]
-        if self.avx2 {
-            // SAFETY: `avx2` is only set when the CPU has AVX2 (checked in `new`).
-            unsafe { slots_of.write_avx2(points, point_slot) };
-        } else {
-            slots_of.write(points, point_slot);
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        slots_of.write(points, point_slot);
+        slots_of.write_dispatched(self.avx2, points, point_slot);
         for &slot in point_slot.iter() {
             start[slot as usize] += 1;
         }
@@ -1168,11 +1160,12 @@ fn box_dist2(q: [f32; 3], lo: [f32; 3], hi: [f32; 3]) -> f32 {
     d2
 }
 
-/// Cell of a point inside the bounds (its coordinates are at least `lo`).
+/// Cell of a point, clamped into the grid, one point at a time: the scalar reference that tests
+/// compare the rebuild's slot pass ([`SlotsOf::write`]) with.
+#[cfg(test)]
 #[inline(always)]
 pub(super) fn cell_of(p: [f32; 3], lo: [f32; 3], inv_edge: [f32; 3], blocks: [usize; 3]) -> [usize; 3] {
-    // One truncating instruction per axis rather than a saturating conversion (the rebuild's
-    // hot loop; in the queries the saturating form measured faster).
+    // The slot pass's conversion: a truncation of a clamped value.
     #[inline(always)]
     fn axis(p: f32, lo: f32, inv_edge: f32, blocks: usize) -> usize {
         let c = fmax(fmin((p - lo) * inv_edge, (blocks * BLOCK - 1) as f32), 0.0);
@@ -1188,7 +1181,7 @@ pub(super) fn cell_of(p: [f32; 3], lo: [f32; 3], inv_edge: [f32; 3], blocks: [us
 }
 
 /// The rebuild's cell numbering: the slot `cx + nx·(cy + ny·cz)` of every point, as
-/// [`cell_of`] assigns cells.
+/// the scalar `cell_of` of the tests assigns cells.
 pub(super) struct SlotsOf {
     pub(super) lo: [f32; 3],
     pub(super) inv_edge: [f32; 3],
@@ -1199,12 +1192,11 @@ impl SlotsOf {
     /// Writes the slot of every point into `out` (as long as `points`).
     ///
     /// Eight points (24 coordinates) at a time in independent lanes, each lane with its axis's
-    /// constants, so that the loop vectorizes; the same clamp and truncation as [`cell_of`], so
-    /// the same slots.
+    /// constants, so that the loop vectorizes; the same clamp and truncation as the tests' scalar `cell_of`, so
+    /// the same slots. The last partial group goes through the same lanes, padded.
     #[inline(always)]
     pub(super) fn write(&self, points: &[[f32; 3]], out: &mut [u32]) {
         const W: usize = 24;
-        // The tail below pairs `out`'s remainder with the points past the last group of eight.
         debug_assert_eq!(points.len(), out.len());
         let dims = self.blocks.map(|b| b * BLOCK);
         let stride = [1, dims[0], dims[0] * dims[1]].map(|s| s as u32);
@@ -1212,10 +1204,7 @@ impl SlotsOf {
         let (lo, inv) = (lane(self.lo), lane(self.inv_edge));
         let last = lane(dims.map(|d| (d - 1) as f32));
         let stride: [u32; W] = core::array::from_fn(|k| stride[k % 3]);
-        let flat: &[f32] = bytemuck::cast_slice(points);
-        let mut chunks = flat.chunks_exact(W);
-        let mut outs = out.chunks_exact_mut(W / 3);
-        for (c, o) in (&mut chunks).zip(&mut outs) {
+        let group = |c: &[f32], o: &mut [u32]| {
             let mut part = [0u32; W];
             for k in 0..W {
                 let t = fmax(fmin((c[k] - lo[k]) * inv[k], last[k]), 0.0);
@@ -1227,12 +1216,32 @@ impl SlotsOf {
             for (j, o) in o.iter_mut().enumerate() {
                 *o = part[3 * j] + part[3 * j + 1] + part[3 * j + 2];
             }
+        };
+        let flat: &[f32] = bytemuck::cast_slice(points);
+        let mut chunks = flat.chunks_exact(W);
+        let mut outs = out.chunks_exact_mut(W / 3);
+        for (c, o) in (&mut chunks).zip(&mut outs) {
+            group(c, o);
         }
-        let tail = points.len() - points.len() % (W / 3);
-        for (p, o) in points[tail..].iter().zip(outs.into_remainder()) {
-            let c = cell_of(*p, self.lo, self.inv_edge, self.blocks);
-            *o = (c[0] + dims[0] * (c[1] + dims[1] * c[2])) as u32;
+        let rest = chunks.remainder();
+        if !rest.is_empty() {
+            let mut padded = lo;
+            padded[..rest.len()].copy_from_slice(rest);
+            group(&padded, outs.into_remainder());
         }
+    }
+
+    /// [`write`](Self::write) with AVX2 where `avx2` says the CPU has it.
+    #[inline(always)]
+    fn write_dispatched(&self, avx2: bool, points: &[[f32; 3]], out: &mut [u32]) {
+        #[cfg(target_arch = "x86_64")]
+        if avx2 {
+            // SAFETY: callers pass `avx2` only when the CPU has AVX2 (the grid checks in `new`).
+            return unsafe { self.write_avx2(points, out) };
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = avx2;
+        self.write(points, out)
     }
 
     /// [`write`](Self::write) compiled with AVX2.
