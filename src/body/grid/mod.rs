@@ -17,9 +17,9 @@
 //! outside the grid.
 //!
 //! The batch queries take eight consecutive queries at a time and, where their balls overlap
-//! enough (a garment's neighbouring vertices), scan the box around all eight once, each point
-//! against the eight queries in one register (see [`tile`]); the answers are the single
-//! searches', bit for bit.
+//! enough (a garment's neighbouring vertices), scan the rows around all eight once, each row
+//! trimmed to the union of their chords, each point against the eight queries in one register
+//! (see [`tile`]); the answers are the single searches', bit for bit.
 //!
 //! Ties: among points at the same squared distance (computed in `f32` as `dx² + dy² + dz²`) the
 //! lowest point index wins. Results do not depend on the grid resolution.
@@ -688,8 +688,7 @@ impl PointGrid {
     /// A squared distance widened by the rounding slack, for pruning comparisons.
     #[inline(always)]
     fn padded(&self, d2: f32) -> f32 {
-        let d = sqrt(d2) * (1.0 + 1e-5) + self.pad;
-        d * d
+        padded(d2, self.pad)
     }
 
     /// The best `(index, squared distance)` among `best` (a guess, or `NONE` with the limit) and
@@ -884,9 +883,14 @@ impl PointGrid {
     /// Distance along axis `a` from `q` to the slab of cells with coordinate `c` (0 inside).
     #[inline(always)]
     fn gap(&self, q: [f32; 3], a: usize, c: usize) -> f32 {
+        slab_gap(q[a], self.slab(a, c))
+    }
+
+    /// The extent `[lo, hi]` along axis `a` of the slab of cells with coordinate `c` (metres).
+    #[inline(always)]
+    fn slab(&self, a: usize, c: usize) -> [f32; 2] {
         let lo = self.lo[a] + c as f32 * self.edge[a];
-        let hi = lo + self.edge[a];
-        fmax(fmax(lo - q[a], q[a] - hi), 0.0)
+        [lo, lo + self.edge[a]]
     }
 
     /// Offers the sorted points `p0..p1` (and up to `LANES - 1` after them, harmless: every
@@ -989,6 +993,19 @@ fn fmax(a: f32, b: f32) -> f32 {
     } else {
         b
     }
+}
+
+/// A squared distance widened by the rounding slack `pad` (metres), for pruning comparisons.
+#[inline(always)]
+fn padded(d2: f32, pad: f32) -> f32 {
+    let d = sqrt(d2) * (1.0 + 1e-5) + pad;
+    d * d
+}
+
+/// Distance from the coordinate `t` to the slab `[lo, hi]` (0 inside).
+#[inline(always)]
+fn slab_gap(t: f32, [lo, hi]: [f32; 2]) -> f32 {
+    fmax(fmax(lo - t, t - hi), 0.0)
 }
 
 /// The cell coordinate `t` clamped to `[0, last]` (NaN gives `last`), truncated.
