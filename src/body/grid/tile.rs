@@ -5,7 +5,7 @@
 //! overlap: a tile scans the rows of cells around all eight balls once, each row trimmed to the
 //! union of the eight chords, each point against the eight queries in the lanes of one register.
 //! The chords are sized once, from the start bounds: re-trimming each row with the shrinking
-//! bounds puts a chain of square roots between every two rows and measured 7 % slower. That is
+//! bounds puts a chain of square roots between every two rows and measured 6–10 % slower. That is
 //! worth it while the rows hold few points per query; a tile whose queries are spread out (the
 //! box around the balls spans more than [`TILE_MAX_ROWS`] rows, or the chords hold more than
 //! [`TILE_POINTS_PER_QUERY`] points per query) is searched one query at a time.
@@ -32,7 +32,10 @@ const TILE_POINTS_PER_QUERY: usize = 192;
 /// The same when some query starts from the radius alone: the chords are sized from the start
 /// bounds, and a single search's ball shrinks from the radius after its first rows, so tiles
 /// pay off less (unhinted body edges: 0.96 ms at 192, 0.91 at 128, 0.89 at 96; the hinted
-/// body-edge query, whose far queries have no hint, 1 % slower at 96 and 7 % at 64).
+/// body-edge query, whose far queries have no hint, 1 % slower at 96 and 7 % at 64). Unhinted
+/// body edges took 0.86 ms when tiles were chosen and scanned by their whole box: the chords
+/// cost more per row than they save on balls that have not shrunk yet (6 % on this first-frame
+/// path, against 2–3 % saved on every hinted frame).
 const TILE_POINTS_PER_QUERY_UNHINTED: usize = 128;
 
 /// A path forced by tests, to compare the two.
