@@ -688,7 +688,8 @@ impl PointGrid {
     /// A squared distance widened by the rounding slack, for pruning comparisons.
     #[inline(always)]
     fn padded(&self, d2: f32) -> f32 {
-        padded(d2, self.pad)
+        let d = sqrt(d2) * (1.0 + 1e-5) + self.pad;
+        d * d
     }
 
     /// The best `(index, squared distance)` among `best` (a guess, or `NONE` with the limit) and
@@ -995,13 +996,6 @@ fn fmax(a: f32, b: f32) -> f32 {
     }
 }
 
-/// A squared distance widened by the rounding slack `pad` (metres), for pruning comparisons.
-#[inline(always)]
-fn padded(d2: f32, pad: f32) -> f32 {
-    let d = sqrt(d2) * (1.0 + 1e-5) + pad;
-    d * d
-}
-
 /// Distance from the coordinate `t` to the slab `[lo, hi]` (0 inside).
 #[inline(always)]
 fn slab_gap(t: f32, [lo, hi]: [f32; 2]) -> f32 {
@@ -1209,8 +1203,8 @@ impl SlotsOf {
     /// Writes the slot of every point into `out` (as long as `points`).
     ///
     /// Eight points (24 coordinates) at a time in independent lanes, each lane with its axis's
-    /// constants, so that the loop vectorizes; the same clamp and truncation as the tests' scalar `cell_of`, so
-    /// the same slots. The last partial group goes through the same lanes, padded.
+    /// constants, so that the loop vectorizes; the same clamp and truncation as the tests' scalar
+    /// `cell_of`, so the same slots. The last partial group goes through the same lanes, padded.
     #[inline(always)]
     pub(super) fn write(&self, points: &[[f32; 3]], out: &mut [u32]) {
         const W: usize = 24;

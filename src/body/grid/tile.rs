@@ -11,12 +11,12 @@
 //! [`TILE_POINTS_PER_QUERY`] points per query) is searched one query at a time.
 //!
 //! Exactness: each lane starts from its query's own `(index, squared distance)` bound, as the
-//! single search does, and is offered every point of its row's chord of the query's (padded)
-//! ball, with the same arithmetic for the chord, the bound and the distance, each point through
-//! the same lexicographic minimum. The answer is therefore the single search's, bit for bit,
+//! single search does, and is offered every point of its row's chord of the query's padded
+//! start ball (which holds every ball the single search prunes with), with the same arithmetic
+//! for the chord and the distance, each point through the same lexicographic minimum. The answer is therefore the single search's, bit for bit,
 //! whether a tile is taken or not.
 
-use super::{cell_index, cell_of_clamped, fmax, fmin, padded, slab_gap, sqrt, PointGrid, LANES, NONE};
+use super::{cell_index, cell_of_clamped, fmax, fmin, slab_gap, sqrt, PointGrid, LANES, NONE};
 use crate::math::finite3;
 
 /// Queries per tile: one per lane.
@@ -53,14 +53,15 @@ pub(super) enum TileMode {
 /// [`PortableTile`] and `x86::Avx2Tile`, give identical answers.
 pub(super) trait TileBest {
     /// Lanes for `queries` (at most [`TILE`]) starting from `start[l] = (index, squared
-    /// distance)`; unused lanes never take a point. `pad` is the grid's rounding slack (see
-    /// [`padded`]).
-    fn new(queries: &[[f32; 3]], start: &[(u32, f32)], pad: f32) -> Self;
+    /// distance)`; unused lanes never take a point. `reach2[l]` is the squared radius of lane
+    /// `l`'s chords: its start bound, padded for rounding (`PointGrid::padded`).
+    fn new(queries: &[[f32; 3]], start: &[(u32, f32)], reach2: &[f32]) -> Self;
     /// Offers the points `k0..k1` of the sorted arrays to every lane.
     fn scan(&mut self, sorted: (&[f32], &[f32], &[f32], &[u32]), k0: usize, k1: usize);
-    /// The x interval (metres) that the lanes' padded balls cover, together, within the slabs
-    /// `y` and `z` (`[lo, hi]`, metres); `None` when no ball reaches them. Per lane the same
-    /// arithmetic as a single search's chord, so the interval holds every lane's chord.
+    /// The x interval (metres) that the lanes' balls of radius `sqrt(reach2)` cover, together,
+    /// within the slabs `y` and `z` (`[lo, hi]`, metres); `None` when no ball reaches them. Per
+    /// lane the same arithmetic as a single search's chord, from a bound at least as large, so
+    /// the interval holds every chord the single search scans.
     fn reach(&self, y: [f32; 2], z: [f32; 2]) -> Option<(f32, f32)>;
     /// The answers `(index, squared distance)` of the first `out.len()` lanes.
     fn answers(&self, out: &mut [(u32, f32)]);
@@ -71,16 +72,18 @@ pub(super) struct PortableTile {
     q: [[f32; 3]; TILE],
     d2: [f32; TILE],
     index: [u32; TILE],
-    pad: f32,
+    reach2: [f32; TILE],
 }
 
 impl TileBest for PortableTile {
     #[inline(always)]
-    fn new(queries: &[[f32; 3]], start: &[(u32, f32)], pad: f32) -> PortableTile {
-        let mut t = PortableTile { q: [[f32::NAN; 3]; TILE], d2: [f32::NAN; TILE], index: [NONE; TILE], pad };
-        for (l, (q, s)) in queries.iter().zip(start).enumerate().take(TILE) {
+    fn new(queries: &[[f32; 3]], start: &[(u32, f32)], reach2: &[f32]) -> PortableTile {
+        let nan = [f32::NAN; TILE];
+        let mut t = PortableTile { q: [[f32::NAN; 3]; TILE], d2: nan, index: [NONE; TILE], reach2: nan };
+        for (l, ((q, s), r2)) in queries.iter().zip(start).zip(reach2).enumerate().take(TILE) {
             t.q[l] = *q;
             (t.index[l], t.d2[l]) = *s;
+            t.reach2[l] = *r2;
         }
         t
     }
@@ -105,10 +108,10 @@ impl TileBest for PortableTile {
     #[inline(always)]
     fn reach(&self, y: [f32; 2], z: [f32; 2]) -> Option<(f32, f32)> {
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-        for (q, d2) in self.q.iter().zip(self.d2) {
+        for (q, r2) in self.q.iter().zip(self.reach2) {
             // As `PointGrid::scan_ball`; unused lanes are NaN and fail the test.
             let (dz, dy) = (slab_gap(q[2], z), slab_gap(q[1], y));
-            let rest = padded(d2, self.pad) - dz * dz - dy * dy;
+            let rest = r2 - dz * dz - dy * dy;
             if rest >= 0.0 {
                 let r = sqrt(rest);
                 lo = fmin(lo, q[0] - r);
@@ -146,8 +149,10 @@ impl PointGrid {
         }
         // The box around every query's padded ball.
         let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for (q, s) in queries.iter().zip(start) {
-            let r = sqrt(self.padded(s.1));
+        let mut reach2 = [f32::NAN; TILE];
+        for ((q, s), r2) in queries.iter().zip(start).zip(reach2.iter_mut()) {
+            *r2 = self.padded(s.1);
+            let r = sqrt(*r2);
             for a in 0..3 {
                 lo[a] = fmin(lo[a], q[a] - r);
                 hi[a] = fmax(hi[a], q[a] + r);
@@ -159,7 +164,7 @@ impl PointGrid {
         let clo = cell_of_clamped(lo, self.lo, self.inv_edge, self.blocks);
         let chi = cell_of_clamped(hi, self.lo, self.inv_edge, self.blocks);
         let rows = (chi[1] - clo[1] + 1) * (chi[2] - clo[2] + 1);
-        let mut tile = T::new(queries, start, self.pad);
+        let mut tile = T::new(queries, start, &reach2);
         #[cfg(test)]
         let forced = self.tile_mode == Some(TileMode::Always);
         #[cfg(not(test))]
@@ -227,7 +232,7 @@ pub(super) mod x86 {
         q: [__m256; 3],
         d2: __m256,
         index: __m256i,
-        pad: f32,
+        reach2: __m256,
     }
 
     /// Per lane, `super::slab_gap`. (A function, not a closure: closures are not inlined into
@@ -244,13 +249,15 @@ pub(super) mod x86 {
 
     impl TileBest for Avx2Tile {
         #[inline(always)]
-        fn new(queries: &[[f32; 3]], start: &[(u32, f32)], pad: f32) -> Avx2Tile {
+        fn new(queries: &[[f32; 3]], start: &[(u32, f32)], reach2: &[f32]) -> Avx2Tile {
             let (mut q, mut d2, mut index) = ([[f32::NAN; TILE]; 3], [f32::NAN; TILE], [NONE; TILE]);
-            for (l, (p, s)) in queries.iter().zip(start).enumerate().take(TILE) {
+            let mut r2 = [f32::NAN; TILE];
+            for (l, ((p, s), r)) in queries.iter().zip(start).zip(reach2).enumerate().take(TILE) {
                 for a in 0..3 {
                     q[a][l] = p[a];
                 }
                 (index[l], d2[l]) = *s;
+                r2[l] = *r;
             }
             // SAFETY: AVX2 loads of local arrays of eight, on a CPU that has AVX2.
             unsafe {
@@ -259,7 +266,7 @@ pub(super) mod x86 {
                 // Loads spelled out: a closure (as in `map`) is not inlined into the AVX2 caller.
                 let q =
                     [_mm256_loadu_ps(q[0].as_ptr()), _mm256_loadu_ps(q[1].as_ptr()), _mm256_loadu_ps(q[2].as_ptr())];
-                Avx2Tile { q, d2: d, index: i, pad }
+                Avx2Tile { q, d2: d, index: i, reach2: _mm256_loadu_ps(r2.as_ptr()) }
             }
         }
 
@@ -298,12 +305,7 @@ pub(super) mod x86 {
             let (lo, hi) = unsafe {
                 let zero = _mm256_setzero_ps();
                 let (dz, dy) = (slab_gap(qz, z), slab_gap(qy, y));
-                let d = _mm256_add_ps(
-                    _mm256_mul_ps(_mm256_sqrt_ps(self.d2), _mm256_set1_ps(1.0 + 1e-5)),
-                    _mm256_set1_ps(self.pad),
-                );
-                let rest =
-                    _mm256_sub_ps(_mm256_sub_ps(_mm256_mul_ps(d, d), _mm256_mul_ps(dz, dz)), _mm256_mul_ps(dy, dy));
+                let rest = _mm256_sub_ps(_mm256_sub_ps(self.reach2, _mm256_mul_ps(dz, dz)), _mm256_mul_ps(dy, dy));
                 // Unused lanes are NaN and fail the test.
                 let reached = _mm256_cmp_ps::<_CMP_GE_OQ>(rest, zero);
                 let r = _mm256_sqrt_ps(rest);
