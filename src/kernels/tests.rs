@@ -201,6 +201,80 @@ fn kernels_round_bf16_matches_half() {
     }
 }
 
+/// The native pairing of bf16 activations (`vcvtneps2bf16`) writes the same slots as the
+/// portable one, for every length up to several blocks plus odd tails, on random bit patterns
+/// of every normal magnitude (subnormals are flushed by the instruction, as documented).
+#[test]
+fn kernels_bf16_pair_prep_matches_portable() {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use super::frame::Simd;
+        let Some(tok) = x86::Avx512Bf16::new() else {
+            println!("kernels_bf16_pair_prep_matches_portable: SKIPPED (no AVX-512-BF16 here)");
+            return;
+        };
+        let mut rng = Rng(17);
+        for len in 0..=70usize {
+            for _ in 0..50 {
+                let src: Vec<f32> = (0..len)
+                    .map(|_| loop {
+                        let x = f32::from_bits(rng.next_u64() as u32);
+                        if x.is_normal() {
+                            break x;
+                        }
+                    })
+                    .collect();
+                let slots = len.div_ceil(2);
+                let (mut native, mut portable) = (vec![f32::NAN; slots + 3], vec![f32::NAN; slots + 3]);
+                tok.prep_bf16(&src, &mut native);
+                frame::pack_bf16_pairs(&src, &mut portable);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&native), bits(&portable), "len {len}");
+            }
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    println!("kernels_bf16_pair_prep_matches_portable: SKIPPED (not x86-64)");
+}
+
+/// Row-batched LayerNorm statistics (portable, and each x86 tier's 256-bit form) are bitwise the
+/// one-row statistics, for widths with and without a tail and row counts around the batch of 4.
+#[test]
+fn kernels_layer_norm_stats_rows_match_one_row() {
+    use super::frame::{layer_norm_stats, layer_norm_stats_rows, Simd};
+    type Bits = Vec<(u32, u32)>;
+    fn bits(v: &[(f32, f32)]) -> Bits {
+        v.iter().map(|(m, s)| (m.to_bits(), s.to_bits())).collect()
+    }
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    fn tier<S: Simd>(name: &str, tok: Option<S>, y: &[f32], width: usize, want: &Bits) {
+        let Some(t) = tok else {
+            println!("kernels_layer_norm_stats_rows_match_one_row: {name} SKIPPED");
+            return;
+        };
+        let mut got = vec![(f32::NAN, f32::NAN); want.len()];
+        t.layer_norm_stats_rows(y, width, &mut got);
+        assert_eq!(&bits(&got), want, "{name}, width {width}, rows {}", want.len());
+    }
+    let mut rng = Rng(23);
+    for width in [1usize, 3, 7, 8, 9, 16, 31, 64, 128, 131] {
+        for rows in [0usize, 1, 3, 4, 5, 9, 96] {
+            let y: Vec<f32> = (0..rows * width).map(|i| rng.uniform(2.0) + (i % 5) as f32).collect();
+            let one: Vec<(f32, f32)> = y.chunks_exact(width).map(layer_norm_stats).collect();
+            let want = bits(&one);
+            let mut got = vec![(f32::NAN, f32::NAN); rows];
+            layer_norm_stats_rows(&y, width, &mut got);
+            assert_eq!(bits(&got), want, "portable, width {width}, rows {rows}");
+            #[cfg(target_arch = "x86_64")]
+            {
+                tier("avx2", x86::Avx2Fma::new(), &y, width, &want);
+                tier("avx512", x86::Avx512::new(), &y, width, &want);
+                tier("avx512bf16", x86::Avx512Bf16::new(), &y, width, &want);
+            }
+        }
+    }
+}
+
 #[test]
 fn kernels_linear_f32_tiers_match_scalar() {
     check_linear_tiers(false, "kernels_linear_f32_tiers_match_scalar");
