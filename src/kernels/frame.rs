@@ -75,50 +75,15 @@ pub(crate) fn layer_norm_stats(y: &[f32]) -> (f32, f32) {
     (mean, 1.0 / libm::sqrtf(var + LN_EPS))
 }
 
-/// Row sums of [`lane_sum`] for `R` rows of equal length at once, of `v` (`SQ = false`) or of
-/// `(v - mean)²`: per row the same additions in the same order, so the results are bitwise those
-/// of `lane_sum`, but the `R` rows' partial sums are independent chains the core overlaps.
-#[inline(always)]
-fn lane_sums_rows<const R: usize, const SQ: bool>(rows: &[&[f32]; R], mean: [f32; R]) -> [f32; R] {
-    let len = rows[0].len();
-    let f = |v: f32, m: f32| if SQ { (v - m) * (v - m) } else { v };
-    let mut acc = [[0.0f32; 8]; R];
-    for c in 0..len / 8 {
-        for r in 0..R {
-            let chunk = &rows[r][8 * c..8 * c + 8];
-            for (a, v) in acc[r].iter_mut().zip(chunk) {
-                *a += f(*v, mean[r]);
-            }
-        }
-    }
-    core::array::from_fn(|r| {
-        let a = &acc[r];
-        let rest = rows[r][len - len % 8..].iter().fold(0.0f32, |t, v| t + f(*v, mean[r]));
-        (((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]))) + rest
-    })
-}
-
-/// [`layer_norm_stats`] of consecutive rows of `width` values (`stats` gets one entry per row),
-/// bitwise equal to it row by row. Four rows go at a time: one row's two passes are each a
-/// chain of dependent additions, and a block of rows one at a time was bound by their latency.
+/// [`layer_norm_stats`] of consecutive rows of `width` values (`stats` gets one entry per row).
+/// The portable form, row by row; the x86 tiers batch rows with the same arithmetic
+/// ([`Simd::layer_norm_stats_rows`]).
 #[inline(always)]
 pub(crate) fn layer_norm_stats_rows(y: &[f32], width: usize, stats: &mut [(f32, f32)]) {
-    const R: usize = 4;
     if width == 0 {
         return;
     }
-    let n = width as f32;
-    let mut blocks = y.chunks_exact(R * width);
-    let mut outs = stats.chunks_exact_mut(R);
-    for (block, out) in (&mut blocks).zip(&mut outs) {
-        let rows: [&[f32]; R] = core::array::from_fn(|r| &block[r * width..(r + 1) * width]);
-        let mean = lane_sums_rows::<R, false>(&rows, [0.0; R]).map(|s| s / n);
-        let var = lane_sums_rows::<R, true>(&rows, mean).map(|s| s / n);
-        for ((o, m), v) in out.iter_mut().zip(mean).zip(var) {
-            *o = (m, 1.0 / libm::sqrtf(v + LN_EPS));
-        }
-    }
-    for (row, out) in blocks.remainder().chunks_exact(width).zip(outs.into_remainder()) {
+    for (row, out) in y.chunks_exact(width).zip(stats) {
         *out = layer_norm_stats(row);
     }
 }

@@ -237,8 +237,8 @@ fn kernels_bf16_pair_prep_matches_portable() {
     println!("kernels_bf16_pair_prep_matches_portable: SKIPPED (not x86-64)");
 }
 
-/// Row-batched LayerNorm statistics (portable, and each x86 tier's 256-bit form) are bitwise the
-/// one-row statistics, for widths with and without a tail and row counts around the batch of 4.
+/// Row-batched LayerNorm statistics (the portable entry, and each x86 tier's four-row 256-bit
+/// form) are bitwise the one-row statistics, for widths with and without a tail and row counts around the batch of 4.
 #[test]
 fn kernels_layer_norm_stats_rows_match_one_row() {
     use super::frame::{layer_norm_stats, layer_norm_stats_rows, Simd};

@@ -53,9 +53,9 @@ impl Avx512Bf16 {
 
 /// [`frame::layer_norm_stats_rows`] in 256-bit vectors, for every x86 tier: per row the eight
 /// partial sums of [`frame::lane_sum`] in one register, the same tail and the same reduction
-/// tree, so the results are bitwise the portable ones. Four rows go at a time, as there. (The
-/// compiler vectorised the portable loops across rows with 128-bit shuffles, at 8 % of the
-/// bf16 edge MLP's time.)
+/// tree, so the results are bitwise the portable ones. Four rows go at a time: one row's two
+/// passes are each a chain of dependent additions, and one row at a time (which the compiler
+/// vectorised with 128-bit shuffles) took 8 % of the bf16 edge MLP's time.
 ///
 /// # Safety
 /// The CPU has AVX (every x86 tier's token proves it).
