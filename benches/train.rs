@@ -3,6 +3,7 @@
 //! clipping, Adam) and its parts. Skipped with a message when `../shared` is absent.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use hood::bench::core_to_core_ns;
 use hood::body::{BodyFrame, Nearest};
 use hood::features::DT;
 use hood::mesh::Garment;
@@ -165,10 +166,18 @@ fn bench_train(c: &mut Criterion) {
         for threads in [1, 2] {
             let pool = ThreadPool::new(threads);
             let id = |what: &str| BenchmarkId::new(what, format!("h{h}/t{threads}"));
+            // Where the two threads ran (see `core_to_core_ns`): before and after their figures.
+            let placement = || {
+                if let Some(ns) = (threads > 1).then(core_to_core_ns).flatten() {
+                    eprintln!("train h{h}/t{threads}: core-to-core latency {ns:.0} ns one way");
+                }
+            };
+            placement();
             g.bench_function(id("step"), |b| b.iter(|| black_box(t.optimiser_step(&pool))));
             t.optimiser_step(&pool);
             g.bench_function(id("forward"), |b| b.iter(|| t.forward(&pool)));
             g.bench_function(id("backward"), |b| b.iter(|| t.backward(&pool)));
+            placement();
         }
         g.bench_function(BenchmarkId::new("losses", format!("h{h}")), |b| b.iter(|| black_box(t.losses())));
         g.bench_function(BenchmarkId::new("inputs", format!("h{h}")), |b| b.iter(|| t.inputs()));

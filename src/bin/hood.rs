@@ -1,7 +1,7 @@
 //! The `hood` command line (feature `cli`).
 
 use clap::{Args, Parser, Subcommand};
-use hood::bench::{bench_step, machine_peak, BenchRow};
+use hood::bench::{bench_step, core_to_core_ns, machine_peak, BenchRow};
 use hood::model::{write_model, ModelBytes, ModelSpec, Params};
 use hood::sim::Precision;
 use hood::workloads::{default_shared_dir, workload, NAMES};
@@ -256,6 +256,11 @@ fn bench(a: BenchArgs) -> hood::Result<()> {
         peak.f32_gflops,
         peak.bf16_gflops
     );
+    if a.threads.iter().any(|&t| t > 1) {
+        if let Some(ns) = core_to_core_ns() {
+            eprintln!("core-to-core latency: {ns:.0} ns one way (about 35: threads share an L3; 150-200: across chiplets, slower 2-thread steps; more: a busy machine)");
+        }
+    }
     let mut rows: Vec<BenchRow> = Vec::new();
     for w in &workloads {
         for mb in &models {
