@@ -74,7 +74,7 @@ pub fn core_to_core_ns() -> Option<f64> {
         .spawn(move || loop {
             match other.load(Ordering::Acquire) {
                 STOP => return,
-                v if v % 2 == 1 => other.store(v + 1, Ordering::Release),
+                v if !v.is_multiple_of(2) => other.store(v + 1, Ordering::Release),
                 _ => core::hint::spin_loop(),
             }
         })
@@ -84,7 +84,7 @@ pub fn core_to_core_ns() -> Option<f64> {
     for _ in 0..ROUNDS {
         let start = Instant::now();
         let mut trips = 0u64;
-        while trips < TRIPS && (trips % 256 != 0 || start.elapsed() < ROUND_TIME) {
+        while trips < TRIPS && (!trips.is_multiple_of(256) || start.elapsed() < ROUND_TIME) {
             flag.store(v, Ordering::Release);
             while flag.load(Ordering::Acquire) != v + 1 {
                 core::hint::spin_loop();
