@@ -258,7 +258,7 @@ fn bench(a: BenchArgs) -> hood::Result<()> {
     );
     if a.threads.iter().any(|&t| t > 1) {
         if let Some(ns) = core_to_core_ns() {
-            eprintln!("core-to-core latency: {ns:.0} ns one way (about 35: threads share an L3; 150-200: across chiplets, slower 2-thread steps; more: a busy machine)");
+            eprintln!("core-to-core latency: {ns:.0} ns one way (about 35: threads share an L3; 170-200: across chiplets, slower 2-thread steps; more: a busy machine)");
         }
     }
     let mut rows: Vec<BenchRow> = Vec::new();
