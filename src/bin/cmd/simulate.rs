@@ -15,12 +15,8 @@ use hood::{Error, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// The shipped default model, embedded in the binary. To embed it once `models/compact.hood` is
-/// committed, replace `None` with `Some(include_bytes!("../../../models/compact.hood"))`.
-const EMBEDDED_MODEL: Option<&[u8]> = Some(include_bytes!("../../../models/compact.hood"));
-
-/// Where the default model is looked for while it is not embedded.
-const DEFAULT_MODEL_PATH: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/compact.hood");
+/// The shipped default model (`models/compact.hood`), embedded in the binary.
+const EMBEDDED_MODEL: &[u8] = include_bytes!("../../../models/compact.hood");
 
 #[derive(Args)]
 pub struct SimulateArgs {
@@ -101,22 +97,6 @@ pub struct SimulateArgs {
 
 fn io_err(path: &Path, e: std::io::Error) -> Error {
     Error::Io { path: path.display().to_string(), message: e.to_string() }
-}
-
-/// The default model: embedded, else read from the source tree.
-fn default_model() -> Result<ModelBytes> {
-    if let Some(bytes) = EMBEDDED_MODEL {
-        return Ok(ModelBytes::new(bytes));
-    }
-    let path = Path::new(DEFAULT_MODEL_PATH);
-    if !path.exists() {
-        return Err(Error::Io {
-            path: path.display().to_string(),
-            message: "the default model is not there yet (no trained model shipped in models/); pass --model FILE"
-                .into(),
-        });
-    }
-    ModelBytes::read(path)
 }
 
 fn random_model(h: usize) -> Result<ModelBytes> {
@@ -258,7 +238,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     let bytes = match (&a.model, a.random_model) {
         (Some(p), _) => ModelBytes::read(p)?,
         (None, Some(h)) => random_model(h)?,
-        (None, None) => default_model()?,
+        (None, None) => ModelBytes::new(EMBEDDED_MODEL),
     };
     let model = bytes.model()?;
     let precision = parse_precision(&a.precision)?;
