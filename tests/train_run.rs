@@ -43,6 +43,32 @@ fn train_config_json_round_trip() {
     assert!(TrainConfig::from_json("{\"latent\": -3}").is_err());
 }
 
+/// The configs committed beside the shipped models (the record of how each was trained, and
+/// what `--config` / `--scenes-from` read to continue) parse, and a `NAME.*.json` that sets the
+/// model's shape describes the shape of `models/NAME.hood`.
+#[test]
+fn train_committed_configs_parse_and_match_their_models() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+    let mut checked = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        if !name.ends_with(".json") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let cfg = TrainConfig::from_json(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(!cfg.scenes.is_empty(), "{name}: no scenes");
+        let model = dir.join(format!("{}.hood", name.split('.').next().unwrap()));
+        if text.contains("\"latent\"") && model.exists() {
+            let bytes = hood::model::ModelBytes::read(&model).unwrap();
+            assert_eq!(&cfg.spec().unwrap(), bytes.model().unwrap().spec(), "{name}");
+            checked += 1;
+        }
+    }
+    assert!(checked >= 2, "only {checked} configs compared with a shipped model");
+}
+
 #[test]
 fn train_schedules_follow_the_recipe() {
     let c = TrainConfig::default();
