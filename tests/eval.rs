@@ -223,6 +223,88 @@ fn eval_cli_simulate_writes_obj_sequence_and_strip() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+/// `hood validate` measures what the model cards' `hood simulate` command measures (the same
+/// figures to the printed digit), runs its rollouts in parallel without changing them (two
+/// copies of one file give identical rows), writes the table and one strip per rollout, and
+/// refuses an unknown scene.
+#[cfg(feature = "cli")]
+#[test]
+fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/models/compact.hood");
+    let out = std::env::temp_dir().join(format!("hood-validate-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    std::fs::create_dir_all(&out).unwrap();
+    let copy = out.join("copy.hood");
+    std::fs::copy(model, &copy).unwrap();
+    let hood = |args: &[&str]| std::process::Command::new(env!("CARGO_BIN_EXE_hood")).args(args).output().unwrap();
+    let text = |o: &std::process::Output| String::from_utf8_lossy(&o.stdout).into_owned();
+    let tables = out.join("tables");
+    let o = hood(&[
+        "validate",
+        model,
+        copy.to_str().unwrap(),
+        "--scenes",
+        "skirt",
+        "--frames",
+        "10",
+        "--gap-every",
+        "5",
+        "--jobs",
+        "2",
+        "--out",
+        tables.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table = text(&o);
+    let rows: Vec<Vec<&str>> = table
+        .lines()
+        .filter(|l| l.starts_with("| compact ") || l.starts_with("| copy "))
+        .map(|l| l.split('|').map(str::trim).collect())
+        .collect();
+    assert_eq!(rows.len(), 2, "{table}");
+    // Every figure but the name and the wall time (the last column) agrees.
+    let n = rows[0].len();
+    assert_eq!(rows[0][2..n - 2], rows[1][2..n - 2], "{table}");
+    assert_eq!(std::fs::read_to_string(tables.join("validation.md")).unwrap().lines().count(), 6);
+    for f in ["compact-skirt.png", "copy-skirt.png"] {
+        assert!(tables.join(f).exists(), "{f} missing");
+    }
+    // The own-rollout gap and the figures from common states, as `hood simulate` prints them.
+    let o = hood(&[
+        "simulate",
+        "--model",
+        model,
+        "--garment",
+        "skirt",
+        "--vertices",
+        "500",
+        "--frames",
+        "10",
+        "--gap-every",
+        "5",
+        "--inside-every",
+        "5",
+        "--objective",
+        "training",
+        "--common-states",
+        "--no-obj",
+        "--out",
+        out.join("sim").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let sim = text(&o);
+    let after = |s: &str, key: &str| s.split(key).nth(1).and_then(|t| t.split([',', ' ']).next()).map(str::to_owned);
+    let own = after(&sim, "; relative gap mean ").unwrap();
+    let common = after(&sim, "training objective): relative gap mean ").unwrap();
+    assert!(rows[0][5].starts_with(&format!("{own} (")), "simulate {own}, validate {}", rows[0][5]);
+    assert!(rows[0][8].starts_with(&format!("{common} (")), "simulate {common}, validate {}", rows[0][8]);
+    let strain = after(&sim, "largest strain ").unwrap();
+    assert_eq!(rows[0][11], strain);
+    let o = hood(&["validate", model, "--scenes", "poncho"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("unknown scene"));
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 /// `hood info m.hood | head` must not panic: output into a closed pipe ends the command quietly.
 #[cfg(feature = "cli")]
 #[test]

@@ -33,6 +33,8 @@ mod simulate;
 #[cfg(feature = "train")]
 #[path = "cmd/train.rs"]
 mod train_cmd;
+#[path = "cmd/validate.rs"]
+mod validate;
 
 #[derive(Parser)]
 #[command(name = "hood", version, about = "HOOD-style neural cloth: simulate, measure, train")]
@@ -54,6 +56,10 @@ enum Command {
     Convert(ConvertArgs),
     /// Print a model file's shape, provenance and normaliser statistics.
     Info(InfoArgs),
+    /// The model cards' validation: the four 300-frame scenes (skirt, dress, t-shirt, jeans),
+    /// gap on the own rollout and from common states, penetration, strain; a Markdown table and
+    /// PNG strips.
+    Validate(validate::ValidateArgs),
     /// Average the weights of several models of one shape (e.g. snapshots of one training run).
     Average(AverageArgs),
     /// Train a model from physics alone (feature `train`); resumes the run in `--dir`.
@@ -206,6 +212,7 @@ fn main() -> ExitCode {
         Command::Convert(a) => convert(a),
         Command::Info(a) => info(a),
         Command::Average(a) => average(a),
+        Command::Validate(a) => validate::validate(a),
         #[cfg(feature = "train")]
         Command::Train(a) => train_cmd::train(a),
     };

@@ -160,16 +160,30 @@ fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
         let p = files_scene(g, b)?;
         return Ok((Box::new(p), format!("{} on {}", g.display(), b.display())));
     }
-    let seconds = (a.frames + 1) as f32 / 30.0 + 0.1;
-    if let Some(kind) = GarmentKind::parse(&a.garment) {
-        let motion = MotionKind::parse(&a.motion)
-            .ok_or_else(|| Error::parse("motion", 0, format!("unknown motion '{}'", a.motion)))?;
-        let s = procedural(&Mannequin::new(), kind, a.vertices, motion, seconds)?;
+    named_scene(&a.garment, a.vertices, &a.motion, a.frames, a.assets.as_deref())
+}
+
+/// A built-in scene long enough for `frames` steps, as a boxed animation, and its description:
+/// a procedural garment (skirt, dress, cape; about `vertices` vertices) on the procedural
+/// mannequin doing `motion`, or the MakeHuman t-shirt or jeans (`tee`, `jeans`) on the CMU walk,
+/// from `assets` (default: `../shared/assets` beside the source).
+pub fn named_scene(
+    garment: &str,
+    vertices: usize,
+    motion: &str,
+    frames: usize,
+    assets: Option<&Path>,
+) -> Result<(Box<dyn Animation>, String)> {
+    let seconds = (frames + 1) as f32 / 30.0 + 0.1;
+    if let Some(kind) = GarmentKind::parse(garment) {
+        let motion = MotionKind::parse(motion)
+            .ok_or_else(|| Error::parse("motion", 0, format!("unknown motion '{motion}'")))?;
+        let s = procedural(&Mannequin::new(), kind, vertices, motion, seconds)?;
         let name = s.name.clone();
         return Ok((Box::new(s), name));
     }
     use hood::scene::{makehuman, MakeHumanGarment};
-    let which = match a.garment.as_str() {
+    let which = match garment {
         "tee" => MakeHumanGarment::Tee,
         "jeans" => MakeHumanGarment::Jeans,
         other => {
@@ -180,8 +194,8 @@ fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
             ))
         }
     };
-    let assets = a.assets.clone().unwrap_or_else(|| hood::workloads::default_shared_dir().join("assets"));
-    let s = makehuman(&assets, which, a.frames + 1)?;
+    let assets = assets.map_or_else(|| hood::workloads::default_shared_dir().join("assets"), Path::to_path_buf);
+    let s = makehuman(&assets, which, frames + 1)?;
     let name = s.name.clone();
     Ok((Box::new(s), name))
 }

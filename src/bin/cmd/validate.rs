@@ -1,0 +1,193 @@
+//! `hood validate`: the model cards' validation (issue 7) in one command. Every model runs the
+//! four 300-frame scenes the cards report (the procedural skirt at 500 vertices and dress at
+//! 2,000 on the procedural walk, the MakeHuman t-shirt and jeans on the CMU walk), each scored
+//! on its own rollout and one step at a time from common states, with the training objective;
+//! the figures come out as one Markdown table and every rollout as a PNG strip.
+
+use crate::objective::ObjectiveArg;
+use crate::simulate::{named_scene, parse_precision};
+use clap::Args;
+use hood::eval::{common_state_gaps, rollout, strip_images, Method, Reference, RolloutOptions, Summary};
+use hood::model::ModelBytes;
+use hood::sim::SimConfig;
+use hood::{Error, Result};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// The validation scenes: name, garment, vertices (procedural garments), motion.
+const SCENES: [(&str, &str, usize, &str); 4] =
+    [("skirt", "skirt", 500, "walk"), ("dress", "dress", 2000, "walk"), ("tee", "tee", 0, ""), ("jeans", "jeans", 0, "")];
+
+#[derive(Args)]
+pub struct ValidateArgs {
+    /// The `.hood` files to validate (one table row per file and scene).
+    #[arg(required = true)]
+    models: Vec<PathBuf>,
+    /// Scenes, comma-separated, from skirt, dress, tee, jeans.
+    #[arg(long, default_value = "skirt,dress,tee,jeans", value_delimiter = ',')]
+    scenes: Vec<String>,
+    /// Frames of every rollout (30 per second).
+    #[arg(long, default_value_t = 300)]
+    frames: usize,
+    /// The gap (to the converged implicit step) and the inside count every this many frames.
+    #[arg(long, default_value_t = 10)]
+    gap_every: usize,
+    /// Leave out the scoring from common states (about a third of the time).
+    #[arg(long)]
+    no_common_states: bool,
+    /// Rollouts run at once, each on one thread (the figures do not depend on it).
+    #[arg(long, default_value_t = 2)]
+    jobs: usize,
+    /// Network arithmetic: f32 or bf16.
+    #[arg(long, default_value = "f32")]
+    precision: String,
+    /// Output folder: `<model>-<scene>.png` strips and `validation.md` (the table).
+    #[arg(long, short, default_value = "hood-validate")]
+    out: PathBuf,
+    /// Folder of the MakeHuman assets (default: ../shared/assets beside the source).
+    #[arg(long)]
+    assets: Option<PathBuf>,
+}
+
+/// The figures of one model on one scene.
+struct Row {
+    vertices: usize,
+    own: Summary,
+    common: Option<Summary>,
+    seconds: f64,
+}
+
+/// `mean (absolute)` of a summary's gap, or `-`.
+fn gap_cell(s: &Summary) -> String {
+    match (s.gap_mean, s.gap_abs_mean) {
+        (Some(g), Some(a)) => format!("{g:.3} ({})", joules(a)),
+        _ => "-".into(),
+    }
+}
+
+/// An energy in the unit that keeps it readable.
+fn joules(e: f64) -> String {
+    if e.abs() >= 1.0 {
+        format!("{e:.2} J")
+    } else if e.abs() >= 0.1 {
+        format!("{e:.3} J")
+    } else {
+        format!("{:.2} mJ", e * 1e3)
+    }
+}
+
+/// Runs one model on one scene.
+fn validate_one(bytes: &ModelBytes, scene: usize, a: &ValidateArgs, strip: &Path) -> Result<Row> {
+    let clock = Instant::now();
+    let (_, garment, vertices, motion) = SCENES[scene];
+    let (anim, _) = named_scene(garment, vertices, motion, a.frames, a.assets.as_deref())?;
+    let model = bytes.model()?;
+    let frames = a.frames.min(anim.n_frames().saturating_sub(1));
+    let opts = RolloutOptions {
+        gap_every: a.gap_every,
+        inside_every: a.gap_every,
+        keep: (0..8).map(|i| i * frames / 7).collect(),
+        objective: ObjectiveArg::Training.objective(),
+        ..RolloutOptions::default()
+    };
+    let cfg = SimConfig { threads: 1, precision: parse_precision(&a.precision)?, ..SimConfig::default() };
+    let own = rollout(&model, &*anim, frames, cfg, &opts)?;
+    hood::io::png::write_strip(strip, &strip_images(&*anim, &own.kept, 240, 420))?;
+    let common = if a.no_common_states || a.gap_every == 0 {
+        None
+    } else {
+        let reference = Reference::Converged(ObjectiveArg::Training.objective());
+        let mut out = common_state_gaps(&*anim, frames, &[Method::Network { model: &model, cfg }], reference, &opts)?;
+        Some(out.swap_remove(0).summary)
+    };
+    Ok(Row { vertices: anim.garment().n_vertices(), own: own.summary, common, seconds: clock.elapsed().as_secs_f64() })
+}
+
+/// Runs `hood validate`.
+pub fn validate(a: ValidateArgs) -> Result<()> {
+    let scenes: Vec<usize> = a
+        .scenes
+        .iter()
+        .map(|s| {
+            SCENES.iter().position(|c| c.0 == s.as_str()).ok_or_else(|| {
+                Error::parse("scenes", 0, format!("unknown scene '{s}' (skirt, dress, tee, jeans)"))
+            })
+        })
+        .collect::<Result<_>>()?;
+    let io = |p: &Path, e: std::io::Error| Error::Io { path: p.display().to_string(), message: e.to_string() };
+    let models: Vec<ModelBytes> = a.models.iter().map(ModelBytes::read).collect::<Result<_>>()?;
+    for m in &models {
+        m.model()?; // refuse a bad file before any rollout
+    }
+    std::fs::create_dir_all(&a.out).map_err(|e| io(&a.out, e))?;
+    let stem = |m: usize| a.models[m].file_stem().map_or_else(|| format!("model{m}"), |s| s.to_string_lossy().into());
+    let jobs: Vec<(usize, usize)> = (0..models.len()).flat_map(|m| scenes.iter().map(move |&s| (m, s))).collect();
+    let results: Mutex<Vec<Option<Result<Row>>>> = Mutex::new((0..jobs.len()).map(|_| None).collect());
+    let next = AtomicUsize::new(0);
+    let clock = Instant::now();
+    std::thread::scope(|scope| {
+        for _ in 0..a.jobs.clamp(1, jobs.len().max(1)) {
+            scope.spawn(|| loop {
+                let j = next.fetch_add(1, Ordering::Relaxed);
+                let Some(&(m, s)) = jobs.get(j) else { break };
+                let strip = a.out.join(format!("{}-{}.png", stem(m), SCENES[s].0));
+                let r = validate_one(&models[m], s, &a, &strip);
+                let done = results.lock().map(|mut v| {
+                    v[j] = Some(r);
+                    v.iter().filter(|x| x.is_some()).count()
+                });
+                eprintln!(
+                    "[{}/{}] {} on {} ({:.0} s elapsed)",
+                    done.unwrap_or(0),
+                    jobs.len(),
+                    a.models[m].display(),
+                    SCENES[s].0,
+                    clock.elapsed().as_secs_f64()
+                );
+            });
+        }
+    });
+    let results = results.into_inner().map_err(|_| Error::parse("validate", 0, "a rollout thread panicked"))?;
+    let mut table = format!(
+        "Validation: {} frames, gap and inside count every {} frames, training objective, {}, one thread per rollout.\n\n\
+         | model | scene | vertices | finite | own rollout: relative gap (absolute) | of which stretching | p95 | from common states | penetrating % | inside % | largest strain | s |\n\
+         |---|---|---:|---|---|---:|---:|---|---:|---:|---:|---:|\n",
+        a.frames, a.gap_every, a.precision
+    );
+    let mut failed = None;
+    for (&(m, s), r) in jobs.iter().zip(results) {
+        let row = match r {
+            Some(Ok(row)) => row,
+            Some(Err(e)) => {
+                eprintln!("{} on {}: {e}", a.models[m].display(), SCENES[s].0);
+                failed.get_or_insert(e);
+                continue;
+            }
+            None => continue,
+        };
+        let o = &row.own;
+        let f2 = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.2}"));
+        let f3 = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.3}"));
+        table += &format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {} | {:.3} | {:.0} |\n",
+            stem(m),
+            SCENES[s].0,
+            row.vertices,
+            if o.finite { "yes" } else { "**no**" },
+            gap_cell(o),
+            f3(o.gap_by_term.map(|t| t.stretching)),
+            f3(o.gap_p95),
+            row.common.as_ref().map_or_else(|| "-".into(), gap_cell),
+            o.mean_penetrating_percent,
+            f2(o.inside_mean),
+            o.max_edge_strain,
+            row.seconds
+        );
+    }
+    let path = a.out.join("validation.md");
+    std::fs::write(&path, &table).map_err(|e| io(&path, e))?;
+    say!("{table}\nwrote {} and the strips beside it", path.display());
+    failed.map_or(Ok(()), Err)
+}
