@@ -176,8 +176,8 @@ pub fn named_scene(
 ) -> Result<(Box<dyn Animation>, String)> {
     let seconds = (frames + 1) as f32 / 30.0 + 0.1;
     if let Some(kind) = GarmentKind::parse(garment) {
-        let motion = MotionKind::parse(motion)
-            .ok_or_else(|| Error::parse("motion", 0, format!("unknown motion '{motion}'")))?;
+        let motion =
+            MotionKind::parse(motion).ok_or_else(|| Error::parse("motion", 0, format!("unknown motion '{motion}'")))?;
         let s = procedural(&Mannequin::new(), kind, vertices, motion, seconds)?;
         let name = s.name.clone();
         return Ok((Box::new(s), name));

@@ -17,8 +17,12 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 /// The validation scenes: name, garment, vertices (procedural garments), motion.
-const SCENES: [(&str, &str, usize, &str); 4] =
-    [("skirt", "skirt", 500, "walk"), ("dress", "dress", 2000, "walk"), ("tee", "tee", 0, ""), ("jeans", "jeans", 0, "")];
+const SCENES: [(&str, &str, usize, &str); 4] = [
+    ("skirt", "skirt", 500, "walk"),
+    ("dress", "dress", 2000, "walk"),
+    ("tee", "tee", 0, ""),
+    ("jeans", "jeans", 0, ""),
+];
 
 #[derive(Args)]
 pub struct ValidateArgs {
@@ -111,9 +115,10 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         .scenes
         .iter()
         .map(|s| {
-            SCENES.iter().position(|c| c.0 == s.as_str()).ok_or_else(|| {
-                Error::parse("scenes", 0, format!("unknown scene '{s}' (skirt, dress, tee, jeans)"))
-            })
+            SCENES
+                .iter()
+                .position(|c| c.0 == s.as_str())
+                .ok_or_else(|| Error::parse("scenes", 0, format!("unknown scene '{s}' (skirt, dress, tee, jeans)")))
         })
         .collect::<Result<_>>()?;
     let io = |p: &Path, e: std::io::Error| Error::Io { path: p.display().to_string(), message: e.to_string() };
