@@ -299,7 +299,17 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     assert!(rows[0][5].starts_with(&format!("{own} (")), "simulate {own}, validate {}", rows[0][5]);
     assert!(rows[0][8].starts_with(&format!("{common} (")), "simulate {common}, validate {}", rows[0][8]);
     let strain = after(&sim, "largest strain ").unwrap();
-    assert_eq!(rows[0][11], strain);
+    assert_eq!(rows[0][13], strain);
+    let objective = after(&sim, "objective mean ").unwrap();
+    assert_eq!(rows[0][9], objective.trim_end_matches(';'));
+    // The peak is the largest of the per-frame objectives simulate prints, past frame 1.
+    let peak = sim
+        .lines()
+        .filter(|l| l.starts_with("frame") && !l.contains("(with start-up step)"))
+        .filter_map(|l| Some((l.split("objective").nth(1)?.split_whitespace().next()?.parse::<f64>().ok()?, l)))
+        .fold(0.0f64, |m, (e, _)| m.max(e));
+    let shown: f64 = rows[0][10].split(' ').next().unwrap().parse().unwrap();
+    assert!((shown - peak).abs() <= 0.006 + 1e-4 * peak, "validate {shown}, simulate {peak}");
     let o = hood(&["validate", model, "--scenes", "poncho"]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("unknown scene"));
     let _ = std::fs::remove_dir_all(&out);
