@@ -47,6 +47,10 @@ pub struct ValidateArgs {
     /// Network arithmetic: f32 or bf16.
     #[arg(long, default_value = "f32")]
     precision: String,
+    /// Collision projection (the runtime effect `SimConfig::projection`, off by default): the
+    /// model with the effect rather than the model alone (without a value: 0.002 m).
+    #[arg(long, num_args = 0..=1, default_missing_value = "0.002")]
+    projection: Option<f32>,
     /// Output folder: `<model>-<scene>.png` strips and `validation.md` (the table).
     #[arg(long, short, default_value = "hood-validate")]
     out: PathBuf,
@@ -101,7 +105,12 @@ fn validate_one(bytes: &ModelBytes, scene: usize, a: &ValidateArgs, strip: &Path
         objective: ObjectiveArg::Training.objective(),
         ..RolloutOptions::default()
     };
-    let cfg = SimConfig { threads: 1, precision: parse_precision(&a.precision)?, ..SimConfig::default() };
+    let cfg = SimConfig {
+        threads: 1,
+        precision: parse_precision(&a.precision)?,
+        projection: a.projection,
+        ..SimConfig::default()
+    };
     let own = rollout(&model, &*anim, frames, cfg, &opts)?;
     hood::io::png::write_strip(strip, &strip_images(&*anim, &own.kept, 240, 420))?;
     let common = if a.no_common_states || a.gap_every == 0 {
@@ -173,10 +182,13 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
     });
     let results = results.into_inner().map_err(|_| Error::parse("validate", 0, "a rollout thread panicked"))?;
     let mut table = format!(
-        "Validation: {} frames, gap and inside count every {} frames, training objective, {}, one thread per rollout.\n\n\
+        "Validation: {} frames, gap and inside count every {} frames, training objective, {}{}, one thread per rollout.\n\n\
          | model | scene | vertices | finite | own rollout: relative gap (absolute) | of which stretching | p95 | from common states | objective mean (J) | largest after frame 1 (J, frame) | penetrating % | inside % | largest strain | s |\n\
          |---|---|---:|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
-        a.frames, a.gap_every, a.precision
+        a.frames,
+        a.gap_every,
+        a.precision,
+        a.projection.map_or_else(String::new, |m| format!(", collision projection (margin {m} m)"))
     );
     let mut failed = None;
     for (&(m, s), r) in jobs.iter().zip(results) {
