@@ -225,16 +225,16 @@ fn eval_cli_simulate_writes_obj_sequence_and_strip() {
 
 /// `hood validate` measures what the model cards' `hood simulate` command measures (the same
 /// figures to the printed digit), runs its rollouts in parallel without changing them (two
-/// copies of one file give identical rows), writes the table and one strip per rollout, and
-/// refuses an unknown scene.
+/// copies of one file give identical rows), writes the table and one strip per rollout (named by
+/// folder and stem when two files share a stem), and refuses an unknown scene.
 #[cfg(feature = "cli")]
 #[test]
 fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     let model = concat!(env!("CARGO_MANIFEST_DIR"), "/models/compact.hood");
     let out = std::env::temp_dir().join(format!("hood-validate-test-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    std::fs::create_dir_all(&out).unwrap();
-    let copy = out.join("copy.hood");
+    std::fs::create_dir_all(out.join("a")).unwrap();
+    let copy = out.join("a").join("compact.hood");
     std::fs::copy(model, &copy).unwrap();
     let hood = |args: &[&str]| std::process::Command::new(env!("CARGO_BIN_EXE_hood")).args(args).output().unwrap();
     let text = |o: &std::process::Output| String::from_utf8_lossy(&o.stdout).into_owned();
@@ -258,7 +258,7 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     let table = text(&o);
     let rows: Vec<Vec<&str>> = table
         .lines()
-        .filter(|l| l.starts_with("| compact ") || l.starts_with("| copy "))
+        .filter(|l| l.starts_with("| models-compact ") || l.starts_with("| a-compact "))
         .map(|l| l.split('|').map(str::trim).collect())
         .collect();
     assert_eq!(rows.len(), 2, "{table}");
@@ -266,7 +266,7 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     let n = rows[0].len();
     assert_eq!(rows[0][2..n - 2], rows[1][2..n - 2], "{table}");
     assert_eq!(std::fs::read_to_string(tables.join("validation.md")).unwrap().lines().count(), 6);
-    for f in ["compact-skirt.png", "copy-skirt.png"] {
+    for f in ["models-compact-skirt.png", "a-compact-skirt.png"] {
         assert!(tables.join(f).exists(), "{f} missing");
     }
     // The own-rollout gap and the figures from common states, as `hood simulate` prints them.

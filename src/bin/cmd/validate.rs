@@ -65,8 +65,8 @@ struct Row {
     own: Summary,
     /// The largest objective of one frame of the own rollout after the start-up step (J) and
     /// its frame. The gap, computed every few frames, misses a failure that lasts one frame
-    /// (cloth a fast hand passes through, scored against the face it was nearest to before);
-    /// this does not.
+    /// (a fast limb that meets the cloth from beyond the network's body-edge radius, such as a
+    /// foot kicking a long hem); this does not.
     peak: Option<(f64, usize)>,
     common: Option<Summary>,
     seconds: f64,
@@ -89,6 +89,31 @@ fn joules(e: f64) -> String {
     } else {
         format!("{:.2} mJ", e * 1e3)
     }
+}
+
+/// Names for the table and the strips: the files' stems, or `folder-stem` when two stems are
+/// equal (snapshots named by their iteration in several run folders).
+fn labels(models: &[PathBuf]) -> Vec<String> {
+    let name = |p: Option<&std::ffi::OsStr>| p.map(|s| s.to_string_lossy().into_owned());
+    let stems: Vec<String> =
+        models.iter().enumerate().map(|(m, p)| name(p.file_stem()).unwrap_or_else(|| format!("model{m}"))).collect();
+    let unique = stems.iter().all(|s| stems.iter().filter(|t| *t == s).count() == 1);
+    if unique {
+        return stems;
+    }
+    models
+        .iter()
+        .zip(&stems)
+        .enumerate()
+        .map(|(m, (p, s))| {
+            let folder = name(p.parent().and_then(Path::file_name)).unwrap_or_default();
+            if folder.is_empty() {
+                format!("{m}-{s}")
+            } else {
+                format!("{folder}-{s}")
+            }
+        })
+        .collect()
 }
 
 /// Runs one model on one scene.
@@ -153,7 +178,8 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         m.model()?; // refuse a bad file before any rollout
     }
     std::fs::create_dir_all(&a.out).map_err(|e| io(&a.out, e))?;
-    let stem = |m: usize| a.models[m].file_stem().map_or_else(|| format!("model{m}"), |s| s.to_string_lossy().into());
+    let labels = labels(&a.models);
+    let stem = |m: usize| labels[m].as_str();
     let jobs: Vec<(usize, usize)> = (0..models.len()).flat_map(|m| scenes.iter().map(move |&s| (m, s))).collect();
     let results: Mutex<Vec<Option<Result<Row>>>> = Mutex::new((0..jobs.len()).map(|_| None).collect());
     let next = AtomicUsize::new(0);
