@@ -38,7 +38,8 @@ pub struct ValidateArgs {
     /// The gap (to the converged implicit step) and the inside count every this many frames.
     #[arg(long, default_value_t = 10)]
     gap_every: usize,
-    /// Leave out the scoring from common states (about a third of the time).
+    /// Leave out the scoring from common states (saves a converged implicit rollout and one
+    /// network step per scored frame).
     #[arg(long)]
     no_common_states: bool,
     /// Rollouts run at once, each on one thread (the figures do not depend on it).
