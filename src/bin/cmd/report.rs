@@ -209,8 +209,7 @@ pub fn report(a: ReportArgs) -> Result<()> {
             }
         }
     }
-    std::fs::create_dir_all(&a.out)
-        .map_err(|e| Error::Io { path: a.out.display().to_string(), message: e.to_string() })?;
+    std::fs::create_dir_all(&a.out).map_err(|e| crate::io_err(&a.out, e))?;
     let trained = models.iter().all(|m| m.trained);
     let md = markdown(&a, &rows, &models, trained);
     let (own, common): (Vec<Row>, Vec<Row>) = rows.into_iter().partition(|r| !r.common);
@@ -220,7 +219,7 @@ pub fn report(a: ReportArgs) -> Result<()> {
     }
     for (file, text) in files {
         let p = a.out.join(file);
-        std::fs::write(&p, text).map_err(|e| Error::Io { path: p.display().to_string(), message: e.to_string() })?;
+        std::fs::write(&p, text).map_err(|e| crate::io_err(&p, e))?;
         say!("wrote {}", p.display());
     }
     Ok(())

@@ -95,9 +95,7 @@ pub struct SimulateArgs {
     no_obj: bool,
 }
 
-fn io_err(path: &Path, e: std::io::Error) -> Error {
-    Error::Io { path: path.display().to_string(), message: e.to_string() }
-}
+use crate::io_err;
 
 fn random_model(h: usize) -> Result<ModelBytes> {
     use hood::model::{write_model, ModelSpec, Normalisers, Params};

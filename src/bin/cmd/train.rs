@@ -3,7 +3,6 @@
 use clap::Args;
 use hood::model::ModelBytes;
 use hood::train::{Dataset, IterationReport, TrainConfig, Trainer, ValidationReport};
-use hood::Error;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -90,9 +89,7 @@ fn parse_supervised(text: &str) -> Result<(f64, u64, usize), String> {
     hood::train::config::parse_supervised(text).map_err(|e| e.to_string())
 }
 
-fn io_err(path: &Path, e: std::io::Error) -> Error {
-    Error::Io { path: path.display().to_string(), message: e.to_string() }
-}
+use crate::io_err;
 
 fn expand(dir: &str) -> PathBuf {
     match (dir.strip_prefix("~/"), std::env::var_os("HOME")) {

@@ -4,11 +4,12 @@
 //! on its own rollout and one step at a time from common states, with the training objective;
 //! the figures come out as one Markdown table and every rollout as a PNG strip.
 
+use crate::io_err;
 use crate::objective::ObjectiveArg;
 use crate::simulate::{named_scene, parse_precision};
 use clap::Args;
 use hood::eval::{common_state_gaps, rollout, strip_images, Method, Reference, RolloutOptions, Summary};
-use hood::model::ModelBytes;
+use hood::model::{Model, ModelBytes};
 use hood::sim::SimConfig;
 use hood::{Error, Result};
 use std::path::{Path, PathBuf};
@@ -118,11 +119,10 @@ fn labels(models: &[PathBuf]) -> Vec<String> {
 }
 
 /// Runs one model on one scene.
-fn validate_one(bytes: &ModelBytes, scene: usize, a: &ValidateArgs, strip: &Path) -> Result<Row> {
+fn validate_one(model: &Model<'_>, scene: usize, a: &ValidateArgs, strip: &Path) -> Result<Row> {
     let clock = Instant::now();
     let (_, garment, vertices, motion) = SCENES[scene];
     let (anim, _) = named_scene(garment, vertices, motion, a.frames, a.assets.as_deref())?;
-    let model = bytes.model()?;
     let frames = a.frames.min(anim.n_frames().saturating_sub(1));
     let opts = RolloutOptions {
         gap_every: a.gap_every,
@@ -137,13 +137,13 @@ fn validate_one(bytes: &ModelBytes, scene: usize, a: &ValidateArgs, strip: &Path
         projection: a.projection,
         ..SimConfig::default()
     };
-    let own = rollout(&model, &*anim, frames, cfg, &opts)?;
+    let own = rollout(model, &*anim, frames, cfg, &opts)?;
     hood::io::png::write_strip(strip, &strip_images(&*anim, &own.kept, 240, 420))?;
     let common = if a.no_common_states || a.gap_every == 0 {
         None
     } else {
         let reference = Reference::Converged(ObjectiveArg::Training.objective());
-        let mut out = common_state_gaps(&*anim, frames, &[Method::Network { model: &model, cfg }], reference, &opts)?;
+        let mut out = common_state_gaps(&*anim, frames, &[Method::Network { model, cfg }], reference, &opts)?;
         Some(out.swap_remove(0).summary)
     };
     let peak = own
@@ -173,12 +173,10 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
                 .ok_or_else(|| Error::parse("scenes", 0, format!("unknown scene '{s}' (skirt, dress, tee, jeans)")))
         })
         .collect::<Result<_>>()?;
-    let io = |p: &Path, e: std::io::Error| Error::Io { path: p.display().to_string(), message: e.to_string() };
-    let models: Vec<ModelBytes> = a.models.iter().map(ModelBytes::read).collect::<Result<_>>()?;
-    for m in &models {
-        m.model()?; // refuse a bad file before any rollout
-    }
-    std::fs::create_dir_all(&a.out).map_err(|e| io(&a.out, e))?;
+    let files: Vec<ModelBytes> = a.models.iter().map(ModelBytes::read).collect::<Result<_>>()?;
+    // Validated once, before any rollout; the rollouts share them.
+    let models: Vec<Model<'_>> = files.iter().map(ModelBytes::model).collect::<Result<_>>()?;
+    std::fs::create_dir_all(&a.out).map_err(|e| io_err(&a.out, e))?;
     let labels = labels(&a.models);
     let stem = |m: usize| labels[m].as_str();
     let jobs: Vec<(usize, usize)> = (0..models.len()).flat_map(|m| scenes.iter().map(move |&s| (m, s))).collect();
@@ -250,7 +248,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         );
     }
     let path = a.out.join("validation.md");
-    std::fs::write(&path, &table).map_err(|e| io(&path, e))?;
+    std::fs::write(&path, &table).map_err(|e| io_err(&path, e))?;
     say!("{table}\nwrote {} and the strips beside it", path.display());
     failed.map_or(Ok(()), Err)
 }
