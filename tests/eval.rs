@@ -310,6 +310,59 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
         .fold(0.0f64, |m, (e, _)| m.max(e));
     let shown: f64 = rows[0][10].split(' ').next().unwrap().parse().unwrap();
     assert!((shown - peak).abs() <= 0.006 + 1e-4 * peak, "validate {shown}, simulate {peak}");
+    // With the refinement effect, validate scores what `simulate --refine` scores, closer to
+    // the optimum than the model alone.
+    let o = hood(&[
+        "validate",
+        model,
+        "--scenes",
+        "skirt",
+        "--frames",
+        "10",
+        "--gap-every",
+        "5",
+        "--refine",
+        "5",
+        "--no-common-states",
+        "--out",
+        out.join("refined").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table = text(&o);
+    assert!(table.contains(", 5 refinement iterations per step"), "{table}");
+    let refined: Vec<&str> =
+        table.lines().find(|l| l.starts_with("| compact ")).unwrap().split('|').map(str::trim).collect();
+    let o = hood(&[
+        "simulate",
+        "--model",
+        model,
+        "--garment",
+        "skirt",
+        "--vertices",
+        "500",
+        "--frames",
+        "10",
+        "--gap-every",
+        "5",
+        "--objective",
+        "training",
+        "--refine",
+        "5",
+        "--no-obj",
+        "--out",
+        out.join("sim").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let gap = after(&text(&o), "; relative gap mean ").unwrap();
+    assert!(refined[5].starts_with(&format!("{gap} (")), "simulate --refine 5 {gap}, validate {}", refined[5]);
+    // The absolute gap (J, in parentheses) is what a few iterations from the prediction cut; the
+    // relative one also moves with the descent available at the (now different) states.
+    let absolute = |cell: &str| {
+        let inner = cell.split('(').nth(1).unwrap().trim_end_matches(')');
+        let (value, unit) = inner.split_once(' ').unwrap();
+        value.parse::<f64>().unwrap() * if unit == "mJ" { 1e-3 } else { 1.0 }
+    };
+    assert!(absolute(refined[5]) < absolute(rows[0][5]), "refined {}, model alone {}", refined[5], rows[0][5]);
     let o = hood(&["validate", model, "--scenes", "poncho"]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("unknown scene"));
     let _ = std::fs::remove_dir_all(&out);

@@ -53,6 +53,11 @@ pub struct ValidateArgs {
     /// model with the effect rather than the model alone (without a value: 0.002 m).
     #[arg(long, num_args = 0..=1, default_missing_value = "0.002")]
     projection: Option<f32>,
+    /// Solver refinement (the runtime effect `SimConfig::refine`, off by default): every
+    /// network step but the start-up refined by this many L-BFGS iterations of the
+    /// training-form objective, so the rows score the model with the effect.
+    #[arg(long, default_value_t = 0)]
+    refine: u32,
     /// Output folder: `<model>-<scene>.png` strips and `validation.md` (the table).
     #[arg(long, short, default_value = "hood-validate")]
     out: PathBuf,
@@ -135,6 +140,7 @@ fn validate_one(model: &Model<'_>, scene: usize, a: &ValidateArgs, strip: &Path)
         threads: 1,
         precision: parse_precision(&a.precision)?,
         projection: a.projection,
+        refine: (a.refine > 0).then_some(a.refine),
         ..SimConfig::default()
     };
     let own = rollout(model, &*anim, frames, cfg, &opts)?;
@@ -207,13 +213,14 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
     });
     let results = results.into_inner().map_err(|_| Error::parse("validate", 0, "a rollout thread panicked"))?;
     let mut table = format!(
-        "Validation: {} frames, gap and inside count every {} frames, training objective, {}{}, one thread per rollout.\n\n\
+        "Validation: {} frames, gap and inside count every {} frames, training objective, {}{}{}, one thread per rollout.\n\n\
          | model | scene | vertices | finite | own rollout: relative gap (absolute) | of which stretching | p95 | from common states | objective mean (J) | largest after frame 1 (J, frame) | penetrating % | inside % | largest strain | s |\n\
          |---|---|---:|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
         a.frames,
         a.gap_every,
         a.precision,
-        a.projection.map_or_else(String::new, |m| format!(", collision projection (margin {m} m)"))
+        a.projection.map_or_else(String::new, |m| format!(", collision projection (margin {m} m)")),
+        if a.refine > 0 { format!(", {} refinement iterations per step", a.refine) } else { String::new() }
     );
     let mut failed = None;
     for (&(m, s), r) in jobs.iter().zip(results) {
