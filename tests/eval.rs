@@ -239,21 +239,23 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     let hood = |args: &[&str]| std::process::Command::new(env!("CARGO_BIN_EXE_hood")).args(args).output().unwrap();
     let text = |o: &std::process::Output| String::from_utf8_lossy(&o.stdout).into_owned();
     let tables = out.join("tables");
-    let o = hood(&[
-        "validate",
-        model,
-        copy.to_str().unwrap(),
-        "--scenes",
-        "skirt",
-        "--frames",
-        "10",
-        "--gap-every",
-        "5",
-        "--jobs",
-        "2",
-        "--out",
-        tables.to_str().unwrap(),
-    ]);
+    // The skirt, 10 frames, gap every 5th: validate takes files and options, simulate options.
+    let validate = |files: &[&str], extra: &[&str]| {
+        let mut args = vec!["validate"];
+        args.extend(files);
+        args.extend(["--scenes", "skirt", "--frames", "10", "--gap-every", "5"]);
+        args.extend(extra);
+        hood(&args)
+    };
+    let sim_out = out.join("sim");
+    let simulate = |extra: &[&str]| {
+        let mut args = vec!["simulate", "--model", model, "--garment", "skirt", "--vertices", "500"];
+        args.extend(["--frames", "10", "--gap-every", "5", "--objective", "training", "--no-obj"]);
+        args.extend(["--out", sim_out.to_str().unwrap()]);
+        args.extend(extra);
+        hood(&args)
+    };
+    let o = validate(&[model, copy.to_str().unwrap()], &["--jobs", "2", "--out", tables.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let table = text(&o);
     let rows: Vec<Vec<&str>> = table
@@ -270,27 +272,7 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
         assert!(tables.join(f).exists(), "{f} missing");
     }
     // The own-rollout gap and the figures from common states, as `hood simulate` prints them.
-    let o = hood(&[
-        "simulate",
-        "--model",
-        model,
-        "--garment",
-        "skirt",
-        "--vertices",
-        "500",
-        "--frames",
-        "10",
-        "--gap-every",
-        "5",
-        "--inside-every",
-        "5",
-        "--objective",
-        "training",
-        "--common-states",
-        "--no-obj",
-        "--out",
-        out.join("sim").to_str().unwrap(),
-    ]);
+    let o = simulate(&["--inside-every", "5", "--common-states"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let sim = text(&o);
     let after = |s: &str, key: &str| s.split(key).nth(1).and_then(|t| t.split([',', ' ']).next()).map(str::to_owned);
@@ -312,46 +294,14 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     assert!((shown - peak).abs() <= 0.006 + 1e-4 * peak, "validate {shown}, simulate {peak}");
     // With the refinement effect, validate scores what `simulate --refine` scores, closer to
     // the optimum than the model alone.
-    let o = hood(&[
-        "validate",
-        model,
-        "--scenes",
-        "skirt",
-        "--frames",
-        "10",
-        "--gap-every",
-        "5",
-        "--refine",
-        "5",
-        "--no-common-states",
-        "--out",
-        out.join("refined").to_str().unwrap(),
-    ]);
+    let refined_out = out.join("refined");
+    let o = validate(&[model], &["--refine", "5", "--no-common-states", "--out", refined_out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let table = text(&o);
     assert!(table.contains(", 5 refinement iterations per step"), "{table}");
     let refined: Vec<&str> =
         table.lines().find(|l| l.starts_with("| compact ")).unwrap().split('|').map(str::trim).collect();
-    let o = hood(&[
-        "simulate",
-        "--model",
-        model,
-        "--garment",
-        "skirt",
-        "--vertices",
-        "500",
-        "--frames",
-        "10",
-        "--gap-every",
-        "5",
-        "--objective",
-        "training",
-        "--refine",
-        "5",
-        "--no-obj",
-        "--out",
-        out.join("sim").to_str().unwrap(),
-    ]);
+    let o = simulate(&["--refine", "5"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let gap = after(&text(&o), "; relative gap mean ").unwrap();
     assert!(refined[5].starts_with(&format!("{gap} (")), "simulate --refine 5 {gap}, validate {}", refined[5]);
