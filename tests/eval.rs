@@ -267,7 +267,7 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     // Every figure but the name and the wall time (the last column) agrees.
     let n = rows[0].len();
     assert_eq!(rows[0][2..n - 2], rows[1][2..n - 2], "{table}");
-    assert_eq!(std::fs::read_to_string(tables.join("validation.md")).unwrap().lines().count(), 6);
+    assert_eq!(std::fs::read_to_string(tables.join("validation.md")).unwrap().lines().count(), 8);
     for f in ["models-compact-skirt.png", "a-compact-skirt.png"] {
         assert!(tables.join(f).exists(), "{f} missing");
     }
@@ -280,6 +280,8 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     let common = after(&sim, "training objective): relative gap mean ").unwrap();
     assert!(rows[0][5].starts_with(&format!("{own} (")), "simulate {own}, validate {}", rows[0][5]);
     assert!(rows[0][8].starts_with(&format!("{common} (")), "simulate {common}, validate {}", rows[0][8]);
+    let means = format!("over the 1 scene(s): models-compact {own}, a-compact {own}.");
+    assert!(table.contains(&means), "{table}");
     let strain = after(&sim, "largest strain ").unwrap();
     assert_eq!(rows[0][13], strain);
     let objective = after(&sim, "objective mean ").unwrap();

@@ -223,6 +223,8 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         if a.refine > 0 { format!(", {} refinement iterations per step", a.refine) } else { String::new() }
     );
     let mut failed = None;
+    // Each model's own-rollout relative gaps, for the closing line (one figure to rank snapshots).
+    let mut gaps: Vec<Vec<f64>> = vec![Vec::new(); a.models.len()];
     for (&(m, s), r) in jobs.iter().zip(results) {
         let row = match r {
             Some(Ok(row)) => row,
@@ -234,6 +236,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
             None => continue,
         };
         let o = &row.own;
+        gaps[m].extend(o.gap_mean);
         let f2 = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.2}"));
         let f3 = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.3}"));
         table += &format!(
@@ -253,6 +256,16 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
             o.max_edge_strain,
             row.seconds
         );
+    }
+    let means: Vec<String> = gaps
+        .iter()
+        .enumerate()
+        .filter(|(_, g)| g.len() == scenes.len())
+        .map(|(m, g)| format!("{} {:.3}", stem(m), g.iter().sum::<f64>() / g.len() as f64))
+        .collect();
+    if !means.is_empty() {
+        table +=
+            &format!("\nMean own-rollout relative gap over the {} scene(s): {}.\n", scenes.len(), means.join(", "));
     }
     let path = a.out.join("validation.md");
     std::fs::write(&path, &table).map_err(|e| io_err(&path, e))?;
