@@ -1,6 +1,7 @@
 //! `hood simulate`: run a model on a scene, write an OBJ sequence and a PNG preview strip, print
 //! per-step timing and the objective.
 
+use crate::io_err;
 use crate::objective::ObjectiveArg;
 use clap::Args;
 use hood::eval::{common_state_gaps, rollout_observed, strip_images, Animation, FrameRecord, Method, Playback};
@@ -94,8 +95,6 @@ pub struct SimulateArgs {
     #[arg(long)]
     no_obj: bool,
 }
-
-use crate::io_err;
 
 fn random_model(h: usize) -> Result<ModelBytes> {
     use hood::model::{write_model, ModelSpec, Normalisers, Params};

@@ -1,6 +1,8 @@
 //! `hood train`: a training run in a folder (checkpoint, exported model, logs), resumable.
 
+use crate::io_err;
 use clap::Args;
+use hood::io::write_atomic;
 use hood::model::ModelBytes;
 use hood::train::{Dataset, IterationReport, TrainConfig, Trainer, ValidationReport};
 use std::io::Write;
@@ -88,8 +90,6 @@ fn parse_carry(text: &str) -> Result<(usize, f64), String> {
 fn parse_supervised(text: &str) -> Result<(f64, u64, usize), String> {
     hood::train::config::parse_supervised(text).map_err(|e| e.to_string())
 }
-
-use crate::io_err;
 
 fn expand(dir: &str) -> PathBuf {
     match (dir.strip_prefix("~/"), std::env::var_os("HOME")) {
@@ -187,8 +187,6 @@ fn append(path: &Path, line: &str) -> hood::Result<()> {
     let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path).map_err(|e| io_err(path, e))?;
     writeln!(f, "{line}").map_err(|e| io_err(path, e))
 }
-
-use hood::io::write_atomic;
 
 fn build_data(cfg: &TrainConfig, shared: &Path) -> hood::Result<Dataset> {
     let t = Instant::now();
