@@ -49,6 +49,100 @@ fn runtime_refuses_non_finite_body_and_keeps_state() {
     assert_ne!(sim.state(), &before);
 }
 
+/// The first step runs the start-up pass and then the regular one: when either is refused, the
+/// state (velocities, body frames, "started"), the normals, the last refinement and the steps
+/// after are as if the refused call had never happened.
+#[test]
+fn runtime_refused_first_step_restores_the_state() {
+    let scene = Scene::new(8, 8);
+    let bytes = random_model(16, 5, false);
+    let model = bytes.model().unwrap();
+    // A body that moves 3e38 m in a frame (no teleport): the start-up pass (static body)
+    // succeeds, and the regular pass's refinement, which the start-up pass skips, cannot place
+    // the body's faces in its grid.
+    let cfg = SimConfig { teleport: None, normals: true, refine: Some(3), ..SimConfig::default() };
+    let far = |t: usize| -> Vec<[f32; 3]> { scene.body_at(t).iter().map(|p| [p[0] + 3.0e38, p[1], p[2]]).collect() };
+    let mut sim = scene.sim(&model, cfg).unwrap();
+    let (state0, normals0) = (sim.state().clone(), sim.normals().to_vec());
+    for _ in 0..2 {
+        assert!(matches!(sim.step(&far(1)).unwrap_err(), Error::NonFinite { .. }));
+        assert_eq!(sim.state(), &state0);
+        assert_eq!(sim.normals(), &normals0[..]);
+        assert!(sim.last_refinement().is_none());
+    }
+    let mut fresh = scene.sim(&model, cfg).unwrap();
+    for t in 1..=2 {
+        let b = scene.body_at(t);
+        assert_eq!(sim.step(&b).unwrap(), fresh.step(&b).unwrap(), "step {t}");
+    }
+    assert_eq!(sim.state(), fresh.state());
+    assert_eq!(sim.normals(), fresh.normals());
+    // A refused later step keeps the last refinement's report.
+    let report = sim.last_refinement().copied();
+    assert!(report.is_some());
+    let before = sim.state().clone();
+    assert!(sim.step(&far(3)).is_err());
+    assert_eq!(sim.state(), &before);
+    assert_eq!(sim.last_refinement().copied(), report);
+
+    // A refusal in the start-up pass itself (a body frame whose extent overflows the body's
+    // grid) keeps the velocities the start-up would have zeroed.
+    let cfg = SimConfig { teleport: None, speed_limit: None, ..SimConfig::default() };
+    let mut sim = scene.sim(&model, cfg).unwrap();
+    let mut state = sim.state().clone();
+    state.velocity.iter_mut().enumerate().for_each(|(i, v)| *v = [0.001 * i as f32, 0.0, 0.0]);
+    let spread: Vec<[f32; 3]> = scene
+        .body_at(0)
+        .iter()
+        .enumerate()
+        .map(|(i, p)| [if i % 2 == 0 { 3.0e38 } else { -3.0e38 }, p[1], p[2]])
+        .collect();
+    state.body_pos.clone_from(&spread);
+    state.body_prev.clone_from(&spread);
+    sim.set_state(&state).unwrap();
+    let refused = sim.step(&spread);
+    assert!(matches!(refused, Err(Error::NonFinite { .. })), "{:?}", refused.map(|p| p[0]));
+    assert_eq!(sim.state(), &state);
+}
+
+/// Normals (when on) always belong to the current positions: at creation and after `set_state`
+/// as well as after steps.
+#[test]
+fn runtime_normals_follow_the_state_from_creation_and_reset() {
+    let scene = Scene::new(8, 8);
+    let bytes = random_model(16, 6, false);
+    let model = bytes.model().unwrap();
+    let mut sim = scene.sim(&model, SimConfig { normals: true, ..SimConfig::default() }).unwrap();
+    let expected = |pos: &[[f32; 3]]| {
+        let mut out = vec![[0.0f32; 3]; pos.len()];
+        hood::mesh::vertex_normals(scene.garment.faces(), pos, &mut out);
+        out
+    };
+    assert_eq!(sim.normals(), &expected(scene.garment.rest())[..]);
+    assert!(sim.normals().iter().all(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] - 1.0).abs() < 1e-4));
+    let mut state = sim.state().clone();
+    // Tilt the garment by a quarter turn about z: the normals turn with it.
+    for p in state.pos.iter_mut() {
+        *p = [-p[1], p[0], p[2]];
+    }
+    sim.set_state(&state).unwrap();
+    assert_eq!(sim.normals(), &expected(&state.pos)[..]);
+    sim.step(&scene.body_at(1)).unwrap();
+    assert_eq!(sim.normals(), &expected(sim.positions())[..]);
+}
+
+#[test]
+fn runtime_refuses_absurd_thread_counts() {
+    let scene = Scene::new(6, 6);
+    let bytes = random_model(16, 7, false);
+    let model = bytes.model().unwrap();
+    let cfg = SimConfig { threads: hood::sim::MAX_THREADS + 1, ..SimConfig::default() };
+    let refused = scene.sim(&model, cfg).err();
+    assert!(matches!(refused, Some(Error::OutOfRange { what, .. }) if what.starts_with("threads")), "{refused:?}");
+    let cfg = SimConfig { threads: 3, ..SimConfig::default() };
+    assert!(scene.sim(&model, cfg).is_ok());
+}
+
 #[test]
 fn runtime_pinned_vertices_follow_their_targets() {
     let scene = Scene::new(8, 8);

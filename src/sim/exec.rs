@@ -36,7 +36,10 @@ pub use pool::ThreadPool;
 #[cfg(feature = "std")]
 mod pool {
     use super::Executor;
+    use core::any::Any;
     use core::cell::UnsafeCell;
+    use std::boxed::Box;
+    use std::panic::{catch_unwind, resume_unwind, AssertUnwindSafe};
     use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
     use std::sync::{Arc, Condvar, Mutex, TryLockError};
     use std::thread::JoinHandle;
@@ -82,6 +85,13 @@ mod pool {
         shutdown: AtomicBool,
         lock: Mutex<()>,
         wake: Condvar,
+        /// The payload of the first task of the current job that panicked, if one did: the
+        /// caller re-raises it once every task of the job has finished.
+        panic: Mutex<Option<Box<dyn Any + Send>>>,
+        /// Workers that have started running [`worker`]: the standard library's own start-up of
+        /// a thread (its name copied for the stack-overflow handler) allocates, and must be over
+        /// before the pool is used, or it would land inside the first job.
+        started: AtomicUsize,
     }
 
     // SAFETY: `task` is written only by the thread running `Executor::run` (one at a time: `run`
@@ -117,13 +127,19 @@ mod pool {
             }
             // SAFETY: read under a valid claim (see `Shared::task`).
             if let Some(t) = unsafe { *s.task.get() } {
-                t(i as usize);
+                // A panicking task must still count as done: otherwise the caller would wait
+                // forever (or, unwinding, leave workers running a task whose captures are gone).
+                if let Err(payload) = catch_unwind(AssertUnwindSafe(|| t(i as usize))) {
+                    let mut first = s.panic.lock().unwrap_or_else(|e| e.into_inner());
+                    first.get_or_insert(payload);
+                }
             }
             s.done.fetch_add(1, Ordering::Release);
         }
     }
 
     fn worker(s: &Shared) {
+        s.started.fetch_add(1, Ordering::Release);
         let mut seen = job_of(s.claim.load(Ordering::Acquire));
         loop {
             // Spin, then sleep, until a new job is published.
@@ -154,7 +170,8 @@ mod pool {
 
     impl ThreadPool {
         /// A pool running jobs on `threads` threads in all: the caller plus `threads - 1`
-        /// workers.
+        /// workers. When the operating system refuses a thread, the pool keeps the workers it
+        /// has ([`threads`](Self::threads) says how many in all).
         pub fn new(threads: usize) -> ThreadPool {
             let shared = Arc::new(Shared {
                 claim: AtomicU64::new(0),
@@ -164,13 +181,20 @@ mod pool {
                 shutdown: AtomicBool::new(false),
                 lock: Mutex::new(()),
                 wake: Condvar::new(),
+                panic: Mutex::new(None),
+                started: AtomicUsize::new(0),
             });
-            let workers = (1..threads.max(1))
-                .map(|_| {
-                    let s = Arc::clone(&shared);
-                    std::thread::spawn(move || worker(&s))
-                })
-                .collect();
+            let mut workers = Vec::new();
+            for k in 1..threads.max(1) {
+                let s = Arc::clone(&shared);
+                match std::thread::Builder::new().name(std::format!("hood-worker-{k}")).spawn(move || worker(&s)) {
+                    Ok(handle) => workers.push(handle),
+                    Err(_) => break,
+                }
+            }
+            while shared.started.load(Ordering::Acquire) < workers.len() {
+                std::thread::yield_now();
+            }
             ThreadPool { shared, caller: Mutex::new(()), workers }
         }
 
@@ -235,6 +259,12 @@ mod pool {
                     std::thread::yield_now();
                 }
             }
+            // Every task has finished: a panic in one of them goes on in the caller, as it
+            // would have without the pool.
+            let payload = s.panic.lock().unwrap_or_else(|e| e.into_inner()).take();
+            if let Some(payload) = payload {
+                resume_unwind(payload);
+            }
         }
     }
 
@@ -256,6 +286,35 @@ mod pool {
 mod tests {
     use super::*;
     use core::sync::atomic::{AtomicUsize, Ordering};
+
+    /// A task that panics, on a worker or on the caller, ends the job as a panic in the caller
+    /// once every other task has run (no hang, no task left running), and the pool goes on.
+    #[cfg(feature = "std")]
+    #[test]
+    fn sim_thread_pool_passes_task_panics_to_the_caller() {
+        let pool = ThreadPool::new(3);
+        for round in 0..40usize {
+            let n = 2 + round % 7;
+            let bad = round % n;
+            let hits: alloc::vec::Vec<AtomicUsize> = (0..n).map(|_| AtomicUsize::new(0)).collect();
+            let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                pool.run(n, &|i| {
+                    hits[i].fetch_add(1, Ordering::Relaxed);
+                    if i == bad {
+                        std::panic::panic_any(round);
+                    }
+                })
+            }));
+            let payload = outcome.expect_err("the task's panic reaches the caller");
+            assert_eq!(payload.downcast_ref::<usize>(), Some(&round));
+            assert!(hits.iter().all(|h| h.load(Ordering::Relaxed) == 1), "round {round}");
+            let sum = AtomicUsize::new(0);
+            pool.run(n, &|i| {
+                sum.fetch_add(i, Ordering::Relaxed);
+            });
+            assert_eq!(sum.load(Ordering::Relaxed), n * (n - 1) / 2);
+        }
+    }
 
     #[cfg(feature = "std")]
     #[test]
@@ -309,6 +368,7 @@ mod tests {
         for t in threads {
             assert_eq!(t.join().unwrap(), 300 * 10);
         }
+        assert_eq!(ThreadPool::new(0).threads(), 1);
         let sum = AtomicUsize::new(0);
         Serial.run(5, &|i| {
             sum.fetch_add(i, Ordering::Relaxed);

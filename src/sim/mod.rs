@@ -52,6 +52,10 @@ pub const DEFAULT_SPEED_LIMIT: f32 = 0.12;
 /// Body-edge radius (MODEL.md section 1), metres.
 pub const BODY_EDGE_RADIUS: f32 = 0.03;
 
+/// Most threads [`SimConfig::threads`] may ask for: far beyond what a step's tasks can use, low
+/// enough that a garbage count is refused instead of exhausting the system's threads.
+pub const MAX_THREADS: usize = 256;
+
 /// Arithmetic of the network.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Precision {
@@ -123,7 +127,8 @@ pub struct SimConfig {
     /// cost grows with the garment's vertices. [`Sim::last_refinement`] reports each one.
     pub refine: Option<u32>,
     /// Threads for the step's parallel parts when no executor is plugged in with
-    /// [`Sim::set_executor`]: 1 runs serially; more starts a [`ThreadPool`] (feature `std`).
+    /// [`Sim::set_executor`]: 1 runs serially; more (up to [`MAX_THREADS`]) starts a
+    /// [`ThreadPool`] (feature `std`), with fewer workers if the system refuses some.
     pub threads: usize,
 }
 
@@ -200,6 +205,9 @@ pub struct Sim<'m> {
     new_pos: Vec<[f32; 3]>,
     new_vel: Vec<[f32; 3]>,
     output_normals: Vec<[f32; 3]>,
+    /// The state before the first step's start-up pass, restored when the regular pass of that
+    /// step is refused (sized at creation).
+    before_startup: SimState,
     rest_frames: u32,
     ws: Workspace,
     exec: Box<dyn Executor + 'm>,
@@ -269,6 +277,9 @@ impl<'m> Sim<'m> {
         if cfg.pinning && any_pinned && !spec.effects.pinning {
             return Err(Error::UnsupportedEffect { effect: "pinning (the model was trained without pinned vertices)" });
         }
+        if cfg.threads > MAX_THREADS {
+            return Err(Error::OutOfRange { what: "threads (at most MAX_THREADS)", index: 0 });
+        }
         if cfg.projection.is_some() && !use_body {
             return Err(Error::UnsupportedEffect { effect: "collision projection (needs a body and body collision)" });
         }
@@ -318,6 +329,18 @@ impl<'m> Sim<'m> {
             _ => (Vec::new(), Vec::new()),
         };
         let pinned = if cfg.pinning { garment.pinned().to_vec() } else { vec![false; n] };
+        let state = SimState {
+            pos: garment.rest().to_vec(),
+            velocity: vec![[0.0; 3]; n],
+            body_prev,
+            body_pos,
+            started: !cfg.startup,
+        };
+        let mut output_normals = Vec::new();
+        if cfg.normals {
+            output_normals = vec![[0.0; 3]; n];
+            vertex_normals(garment.faces(), &state.pos, &mut output_normals);
+        }
         Ok(Sim {
             net,
             cfg,
@@ -328,17 +351,12 @@ impl<'m> Sim<'m> {
             graph,
             body: body_state,
             refiner,
-            state: SimState {
-                pos: garment.rest().to_vec(),
-                velocity: vec![[0.0; 3]; n],
-                body_prev,
-                body_pos,
-                started: !cfg.startup,
-            },
+            before_startup: state.clone(),
+            state,
             garment_normals: vec![[0.0; 3]; n],
             new_pos: vec![[0.0; 3]; n],
             new_vel: vec![[0.0; 3]; n],
-            output_normals: if cfg.normals { vec![[0.0; 3]; n] } else { Vec::new() },
+            output_normals,
             rest_frames: 0,
             ws,
             exec: default_executor(cfg.threads),
@@ -438,10 +456,13 @@ impl<'m> Sim<'m> {
         check_finite("state velocity", &s.velocity)?;
         check_finite("state body previous position", &s.body_prev)?;
         check_finite("state body position", &s.body_pos)?;
-        self.state.clone_from(s);
+        copy_state(&mut self.state, s);
         self.rest_frames = 0;
         // The state is in world coordinates: the speed limit's frame of reference starts anew.
         self.last_carry = [0.0; 3];
+        if self.cfg.normals {
+            vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
+        }
         Ok(())
     }
 
@@ -524,24 +545,42 @@ impl<'m> Sim<'m> {
                 return Ok(&self.state.pos);
             }
         }
+        // Frames at rest so far, counted in only when this step succeeds.
+        let mut rest_frames = self.rest_frames;
         if let Some(sl) = self.cfg.sleeping {
             if self.at_rest(body_next, sl.threshold) {
-                self.rest_frames = self.rest_frames.saturating_add(1);
-                if self.rest_frames > sl.frames {
+                rest_frames = rest_frames.saturating_add(1);
+                if rest_frames > sl.frames {
+                    self.rest_frames = rest_frames;
                     return Ok(&self.state.pos);
                 }
             } else {
-                self.rest_frames = 0;
+                rest_frames = 0;
             }
         }
-        if !self.state.started {
-            // Start-up: static body (next = current), dt = 1/3 s, no velocity.
-            self.state.velocity.iter_mut().for_each(|v| *v = [0.0; 3]);
-            self.advance(None, [0.0; 3], DT_STARTUP, observer)?;
-            self.state.started = true;
-        }
         let next = if self.body.is_some() { Some(body_next) } else { None };
-        self.advance(next, carry, DT, observer)?;
+        if self.state.started {
+            self.advance(next, carry, DT, observer)?;
+        } else {
+            // Start-up: static body (next = current), dt = 1/3 s, no velocity; then the regular
+            // step. Both or neither: a refusal of either restores the state from before.
+            copy_state(&mut self.before_startup, &self.state);
+            let last_carry = self.last_carry;
+            self.state.velocity.iter_mut().for_each(|v| *v = [0.0; 3]);
+            let both = self.advance(None, [0.0; 3], DT_STARTUP, observer).and_then(|()| {
+                self.state.started = true;
+                self.advance(next, carry, DT, observer)
+            });
+            if let Err(e) = both {
+                core::mem::swap(&mut self.state, &mut self.before_startup);
+                self.last_carry = last_carry;
+                if self.cfg.normals {
+                    vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
+                }
+                return Err(e);
+            }
+        }
+        self.rest_frames = rest_frames;
         Ok(&self.state.pos)
     }
 
@@ -791,6 +830,9 @@ impl<'m> Sim<'m> {
             }
         }
         // Commit.
+        if let (Some(r), true) = (&mut self.refiner, refined) {
+            r.commit();
+        }
         core::mem::swap(&mut self.state.pos, &mut self.new_pos);
         core::mem::swap(&mut self.state.velocity, &mut self.new_vel);
         if let Some(next) = body_next {
@@ -806,6 +848,16 @@ impl<'m> Sim<'m> {
         self.last_carry = carry;
         Ok(())
     }
+}
+
+/// Copies `src` into `dst`, of the same lengths, without allocating (unlike `clone_from`, which
+/// a derived `Clone` implements as a fresh clone).
+fn copy_state(dst: &mut SimState, src: &SimState) {
+    dst.pos.copy_from_slice(&src.pos);
+    dst.velocity.copy_from_slice(&src.velocity);
+    dst.body_prev.copy_from_slice(&src.body_prev);
+    dst.body_pos.copy_from_slice(&src.body_pos);
+    dst.started = src.started;
 }
 
 /// The mean displacement of the body's vertices from `now` to `next` (m) and the largest squared

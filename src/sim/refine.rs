@@ -107,6 +107,8 @@ pub(super) struct Refiner {
     /// this one (the common case), its faces are reused instead of rebuilt.
     next_at: Vec<[f32; 3]>,
     last: Option<LbfgsReport>,
+    /// The report of a refinement whose step has not been committed yet.
+    pending: Option<LbfgsReport>,
 }
 
 impl Refiner {
@@ -140,6 +142,7 @@ impl Refiner {
             faces,
             next_at,
             last: None,
+            pending: None,
         })
     }
 
@@ -167,7 +170,7 @@ impl Refiner {
         new_pos: &mut [[f32; 3]],
         new_vel: &mut [[f32; 3]],
     ) -> Result<()> {
-        self.last = None;
+        self.pending = None;
         let c = input.carry;
         for (o, v) in self.coast.iter_mut().zip(input.velocity) {
             *o = [v[0] + c[0], v[1] + c[1], v[2] + c[2]];
@@ -214,7 +217,15 @@ impl Refiner {
                 v[k] += x[k] - p[k];
             }
         }
-        self.last = Some(report);
+        self.pending = Some(report);
         Ok(())
+    }
+
+    /// Makes the last [`apply`](Self::apply)'s report the one [`last`](Self::last) gives, once
+    /// its step is committed (a refused step leaves the previous report).
+    pub(super) fn commit(&mut self) {
+        if let Some(report) = self.pending.take() {
+            self.last = Some(report);
+        }
     }
 }
