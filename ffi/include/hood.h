@@ -27,7 +27,9 @@
  * - A model cannot be freed while sims made from it live: hood_model_free then returns
  *   HOOD_ERR_MODEL_IN_USE and frees nothing. A garment may be freed right after hood_sim_new
  *   (the sim keeps its own copy).
- * - Pointers into caller arrays are only read during the call.
+ * - Pointers into caller arrays are only read during the call. Arrays must be aligned for their
+ *   element type (float, uint32_t: 4 bytes), and an output array must not overlap an input of the
+ *   same call: both give HOOD_ERR_BAD_POINTER.
  *
  * Threads
  * -------
@@ -84,6 +86,7 @@ typedef uint32_t hood_status;
 #define HOOD_ERR_INVALID_HANDLE 101u   /* not a live handle of that kind (freed, or never made) */
 #define HOOD_ERR_MODEL_IN_USE 102u     /* hood_model_free on a model that live sims still use */
 #define HOOD_ERR_PANIC 103u            /* an internal error (a bug in hood); the handle may be unusable */
+#define HOOD_ERR_BAD_POINTER 104u      /* a pointer misaligned for its type, or an output overlapping an input */
 
 /* The message of the most recent failing call on this thread ("" if none): NUL-terminated, owned
  * by the library, valid until the next hood_* call on this thread. Successful calls leave it. */
@@ -148,7 +151,8 @@ hood_status hood_garment_face_count(const hood_garment *garment, size_t *out);
 typedef struct hood_sim_config {
     uint32_t effects;        /* HOOD_EFFECT_* flags */
     uint32_t precision;      /* HOOD_PRECISION_* */
-    uint32_t threads;        /* worker threads without an executor (0 or 1: the calling thread) */
+    uint32_t threads;        /* threads without an executor (0 or 1: the calling thread; at most 256,
+                                else HOOD_ERR_OUT_OF_RANGE; fewer if the system refuses some) */
     uint32_t sleep_frames;   /* frames at rest before sleeping (HOOD_EFFECT_SLEEPING) */
     float sleep_threshold;   /* "at rest": body motion and garment speed below this, m/frame */
     float teleport_threshold; /* HOOD_EFFECT_AUTO_TELEPORT: when the body's centroid, or some body

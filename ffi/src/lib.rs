@@ -67,6 +67,8 @@ pub const HOOD_ERR_INVALID_HANDLE: hood_status = 101;
 pub const HOOD_ERR_MODEL_IN_USE: hood_status = 102;
 /// A panic was caught at the boundary.
 pub const HOOD_ERR_PANIC: hood_status = 103;
+/// A pointer argument is misaligned for its element type, or an output array overlaps an input.
+pub const HOOD_ERR_BAD_POINTER: hood_status = 104;
 
 /// Required alignment of model bytes (`hood::model::file::ALIGN`).
 pub const HOOD_MODEL_ALIGN: usize = hood::model::file::ALIGN;
@@ -120,6 +122,8 @@ pub const HOOD_VERSION_PATCH: u32 = parse_u32(env!("CARGO_PKG_VERSION_PATCH"));
 enum Failure {
     Hood(Error),
     Null(&'static str),
+    /// A pointer argument that is misaligned or overlaps another: (which, why).
+    Pointer(&'static str, &'static str),
     Handle(&'static str),
     InUse(usize),
 }
@@ -135,6 +139,7 @@ impl Failure {
         match self {
             Failure::Hood(e) => e.code(),
             Failure::Null(_) => HOOD_ERR_NULL_POINTER,
+            Failure::Pointer(..) => HOOD_ERR_BAD_POINTER,
             Failure::Handle(_) => HOOD_ERR_INVALID_HANDLE,
             Failure::InUse(_) => HOOD_ERR_MODEL_IN_USE,
         }
@@ -144,6 +149,7 @@ impl Failure {
         match self {
             Failure::Hood(e) => e.to_string(),
             Failure::Null(what) => format!("{what} is NULL"),
+            Failure::Pointer(what, why) => format!("{what} {why}"),
             Failure::Handle(what) => format!("{what} is not a live handle (already freed, or never created)"),
             Failure::InUse(n) => format!("the model is still used by {n} sim(s); free them first"),
         }
@@ -261,8 +267,9 @@ unsafe fn slice<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a 
     if p.is_null() {
         return Err(Failure::Null(what));
     }
+    aligned(p, what)?;
     byte_len_ok::<T>(n)?;
-    // SAFETY: non-null, `n` elements readable (caller), total size checked above.
+    // SAFETY: non-null, aligned, `n` elements readable (caller), total size checked above.
     Ok(unsafe { std::slice::from_raw_parts(p, n) })
 }
 
@@ -277,9 +284,33 @@ unsafe fn slice_mut<'a, T>(p: *mut T, n: usize, what: &'static str) -> Result<&'
     if p.is_null() {
         return Err(Failure::Null(what));
     }
+    aligned(p, what)?;
     byte_len_ok::<T>(n)?;
     // SAFETY: as in `slice`, and not aliased (caller).
     Ok(unsafe { std::slice::from_raw_parts_mut(p, n) })
+}
+
+/// Refuses a pointer that is not aligned for `T` (a slice over it would be undefined behaviour).
+fn aligned<T>(p: *const T, what: &'static str) -> Result<()> {
+    if p.is_aligned() {
+        Ok(())
+    } else {
+        Err(Failure::Pointer(what, "is not aligned for its element type"))
+    }
+}
+
+/// Refuses an output array of `out_len` elements of `T` that overlaps an input of `in_len`
+/// (Rust may not hold a shared and a mutable view of the same memory at once).
+fn disjoint<T>(input: *const T, in_len: usize, out: *const T, out_len: usize, what: &'static str) -> Result<()> {
+    let size = size_of::<T>();
+    let (a, b) = (input as usize, out as usize);
+    let (a_end, b_end) =
+        (a.saturating_add(in_len.saturating_mul(size)), b.saturating_add(out_len.saturating_mul(size)));
+    if in_len == 0 || out_len == 0 || a_end <= b || b_end <= a {
+        Ok(())
+    } else {
+        Err(Failure::Pointer(what, "overlaps an input array"))
+    }
 }
 
 /// `n` points (3 floats each) at `p`.
@@ -685,6 +716,15 @@ fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
     })
 }
 
+/// One sim's share of a model's count of live sims, released on drop unless forgotten.
+struct SimCount<'a>(&'a AtomicUsize);
+
+impl Drop for SimCount<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
 /// Creates a sim (see the header).
 ///
 /// # Safety
@@ -742,23 +782,25 @@ pub unsafe extern "C" fn hood_sim_new(
             // SAFETY: a live model handle.
             unsafe { &*model }.sims.fetch_add(1, Ordering::SeqCst);
         }
+        // Released on every way out but success (an error, or a panic caught by `guard`), so
+        // that a failed creation never leaves the model "in use".
+        // SAFETY: the model is live (our count holds it).
+        let count = SimCount(unsafe { &(*model).sims });
         // SAFETY: the model is live and cannot be freed while its count includes this sim; the
-        // count is released when the sim is dropped (or just below on failure), so the
+        // count is released when the sim is dropped (or by `count` on failure), so the
         // `'static` borrow never outlives the model.
         let m: &'static Model<'static> = unsafe { &(*model).model };
         let bd = body_parts.as_ref().map(|(mesh, pos)| BodyDesc { mesh, positions: pos });
         match Sim::new(m, garment, bd, cfg) {
             Ok(sim) => {
+                // The sim holds the count from here on (released when it is dropped).
+                std::mem::forget(count);
                 let h = register(Box::new(hood_sim { sim: ManuallyDrop::new(sim), model }), Kind::Sim);
                 // SAFETY: `out` checked non-null.
                 unsafe { write_out(out, h) };
                 Ok(())
             }
-            Err(e) => {
-                // SAFETY: the model is live (our count holds it).
-                unsafe { &*model }.sims.fetch_sub(1, Ordering::SeqCst);
-                Err(e.into())
-            }
+            Err(e) => Err(e.into()),
         }
     })
 }
@@ -875,6 +917,8 @@ pub unsafe extern "C" fn hood_sim_step(
         expect_len("body vertices", s.sim.state().body_pos.len(), n_body_vertices)?;
         expect_len("garment output vertices", s.sim.garment().n_vertices(), n_garment_vertices)?;
         require(garment_out, "garment_out")?;
+        let (input, output) = (body_next as *const [f32; 3], garment_out as *const [f32; 3]);
+        disjoint(input, n_body_vertices, output, n_garment_vertices, "garment_out")?;
         // SAFETY: counts are the caller's promise.
         let body = unsafe { points(body_next, n_body_vertices, "body_next")? };
         // SAFETY: as above.

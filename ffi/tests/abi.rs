@@ -159,7 +159,14 @@ fn status_codes_mirror_error_codes() {
         assert_eq!(e.code(), code, "{e:?}");
         assert!(seen.insert(code));
     }
-    for c in [HOOD_OK, HOOD_ERR_NULL_POINTER, HOOD_ERR_INVALID_HANDLE, HOOD_ERR_MODEL_IN_USE, HOOD_ERR_PANIC] {
+    for c in [
+        HOOD_OK,
+        HOOD_ERR_NULL_POINTER,
+        HOOD_ERR_INVALID_HANDLE,
+        HOOD_ERR_MODEL_IN_USE,
+        HOOD_ERR_PANIC,
+        HOOD_ERR_BAD_POINTER,
+    ] {
         assert!(seen.insert(c), "code {c} reused");
     }
 }
@@ -241,6 +248,64 @@ fn null_arguments_give_status() {
         assert_eq!(step(sim, &body, &mut buf), HOOD_OK, "{}", last_error());
         assert_eq!(hood_sim_free(sim), HOOD_OK);
         assert_eq!(hood_garment_free(g), HOOD_OK);
+    }
+}
+
+#[test]
+fn bad_pointers_and_thread_counts_give_status_and_change_nothing() {
+    let l = load(8, 3);
+    let sc = scene(6);
+    let sim = sc.sim(l.model);
+    let n = sc.rest.len();
+    let nb = sc.body.len();
+    let body = sc.body_at(1, [0.0; 3]);
+    let before = positions(sim, n);
+    // One buffer of floats holding the body, then room for the garment: overlapping views.
+    let mut floats: Vec<f32> = body.iter().flatten().copied().collect();
+    floats.extend(std::iter::repeat_n(7.0f32, 3 * n));
+    let kept = floats.clone();
+    // A misaligned copy of the body: one byte into a u32 buffer.
+    let mut bytes = vec![0u32; 3 * nb + 1];
+    let raw = bytes.as_mut_ptr().cast::<u8>();
+    // SAFETY: `bytes` holds 4 (3 nb + 1) bytes; the copy fills 12 nb of them from offset 1.
+    let misaligned = unsafe {
+        std::ptr::copy_nonoverlapping(body.as_ptr().cast::<u8>(), raw.add(1), 12 * nb);
+        raw.add(1).cast::<f32>()
+    };
+    // One spare vertex, so that the misaligned view of n vertices stays inside the buffer.
+    let mut out = vec![[9.0f32; 3]; n + 1];
+    let out_misaligned = out.as_mut_ptr().cast::<u8>().wrapping_add(2).cast::<f32>();
+    // SAFETY: every pointer below spans the stated counts (read or written only on success).
+    unsafe {
+        let base = floats.as_mut_ptr();
+        // garment_out starts inside the body's array.
+        assert_eq!(hood_sim_step(sim, base, nb, base.add(3), n), HOOD_ERR_BAD_POINTER);
+        assert!(last_error().contains("overlaps"), "{}", last_error());
+        // body_next starts inside garment_out's array.
+        assert_eq!(hood_sim_step(sim, base.add(3), nb, base, n), HOOD_ERR_BAD_POINTER);
+        assert_eq!(hood_sim_step(sim, misaligned, nb, out.as_mut_ptr().cast(), n), HOOD_ERR_BAD_POINTER);
+        assert!(last_error().contains("aligned"), "{}", last_error());
+        assert_eq!(hood_sim_step(sim, body.as_ptr().cast(), nb, out_misaligned, n), HOOD_ERR_BAD_POINTER);
+        assert_eq!(floats, kept);
+        assert!(out.iter().all(|p| *p == [9.0; 3]));
+        assert_eq!(positions(sim, n), before);
+        // Adjacent, not overlapping: fine.
+        assert_eq!(hood_sim_step(sim, base, nb, base.add(3 * nb), n), HOOD_OK, "{}", last_error());
+        assert_ne!(positions(sim, n), before);
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+
+        // An absurd thread count is refused, and the model is not left "in use".
+        let g = sc.garment();
+        let bd = sc.body_desc();
+        let mut cfg = std::mem::zeroed();
+        hood_sim_config_default(&mut cfg);
+        cfg.threads = u32::MAX;
+        let mut s = null_mut();
+        assert_eq!(hood_sim_new(l.model, g, &bd, &cfg, &mut s), HOOD_ERR_OUT_OF_RANGE);
+        assert!(last_error().contains("threads"), "{}", last_error());
+        assert!(s.is_null());
+        assert_eq!(hood_garment_free(g), HOOD_OK);
+        assert_eq!(hood_model_free(l.model), HOOD_OK, "{}", last_error());
     }
 }
 

@@ -223,6 +223,7 @@ fn compiler_checks_types_constants_and_layouts() {
         HOOD_ERR_INVALID_HANDLE,
         HOOD_ERR_MODEL_IN_USE,
         HOOD_ERR_PANIC,
+        HOOD_ERR_BAD_POINTER,
         HOOD_MODEL_ALIGN,
         HOOD_EFFECT_BODY_COLLISION,
         HOOD_EFFECT_PINNING,
