@@ -274,6 +274,7 @@ fn train_export_runs_in_the_runtime() {
 fn train_supervised_pull_toward_the_optimum() {
     use hood::physics::Objective;
     use hood::solve::{ImplicitStep, LbfgsParams, StepState};
+    use hood::train::config::PullStart;
     use hood::train::{LossBody, StepLoss};
     let cfg = tiny_config();
     let d = data(&cfg);
@@ -294,9 +295,30 @@ fn train_supervised_pull_toward_the_optimum() {
     let state = StepState { pos: &pos, velocity: &velocity, dt, pinned: g.pinned(), targets: &targets };
     let mut x_star = vec![[0.0f32; 3]; n];
     let params = LbfgsParams { max_iterations: 30, ..LbfgsParams::default() };
-    loss.optimum(&mut ImplicitStep::new(n, 10), &objective, &state, &params, &mut x_star).unwrap();
+    loss.optimum(&mut ImplicitStep::new(n, 10), &objective, &state, &params, false, &mut x_star).unwrap();
     let e_star = loss.eval(&objective, &body, &pos, &velocity, dt, &x_star).unwrap().0.total();
     assert!(e_star < e_coast, "optimum {e_star} against coasting {e_coast}");
+    // Started from a prediction (`supervised_start: prediction`), a few iterations refine that
+    // prediction: from the optimum they stay by it, where three from coasting end far from it.
+    let few = LbfgsParams { max_iterations: 3, ..LbfgsParams::default() };
+    let farthest = |x: &[[f32; 3]]| {
+        x.iter()
+            .zip(&x_star)
+            .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs()).fold(0.0f32, f32::max))
+            .fold(0.0, f32::max)
+    };
+    let mut refined = x_star.clone();
+    loss.optimum(&mut ImplicitStep::new(n, 10), &objective, &state, &few, true, &mut refined).unwrap();
+    let mut restarted = x_star.clone();
+    loss.optimum(&mut ImplicitStep::new(n, 10), &objective, &state, &few, false, &mut restarted).unwrap();
+    let e_refined = loss.eval(&objective, &body, &pos, &velocity, dt, &refined).unwrap().0.total();
+    assert!(e_refined <= e_star * (1.0 + 1e-5), "refined {e_refined} against {e_star}");
+    assert!(
+        farthest(&refined) < 0.1 * farthest(&restarted),
+        "refined {} m from the optimum, restarted {} m",
+        farthest(&refined),
+        farthest(&restarted)
+    );
     // The pull at the optimum itself is zero; elsewhere its gradient is its derivative.
     assert_eq!(loss.add_pull(&x_star, &x_star, 1.0, dt), 0.0);
     loss.eval(&objective, &body, &pos, &velocity, dt, &coast).unwrap();
@@ -333,6 +355,20 @@ fn train_supervised_pull_toward_the_optimum() {
     assert!(pulled > 0, "no step recorded a pull");
     assert_ne!(a.params().mlps(), b.params().mlps());
     assert_eq!(TrainConfig::from_json(&on.to_json()).unwrap(), on);
+    // The pull toward the network's own refined prediction: recorded, and another training.
+    let own = TrainConfig { supervised_start: PullStart::Prediction, ..on.clone() };
+    let mut c = Trainer::new(own.clone(), data(&own)).unwrap();
+    let mut pulled = 0;
+    for _ in 0..4 {
+        let r = c.iteration().unwrap();
+        pulled += r.steps.iter().filter(|s| s.supervised > 0.0 && s.supervised.is_finite()).count();
+    }
+    assert!(pulled > 0, "no step recorded a pull toward the refined prediction");
+    assert_ne!(c.params().mlps(), a.params().mlps());
+    assert_eq!(TrainConfig::from_json(&own.to_json()).unwrap(), own);
+    assert!(own.to_json().contains("\"supervised_start\": \"prediction\""));
+    assert_eq!(PullStart::parse("coasting").unwrap(), PullStart::Coasting);
+    assert!(PullStart::parse("optimum").is_err());
     assert_eq!(hood::train::config::parse_supervised("0, 0, 30").unwrap(), (0.0, 0, 30));
     assert!(hood::train::config::parse_supervised("1, 100").is_err());
     assert!(hood::train::config::parse_supervised("-1, 100, 30").is_err());

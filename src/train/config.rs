@@ -99,6 +99,12 @@ pub struct TrainConfig {
     /// (see [`crate::train::StepLoss::add_pull`]), the iteration it stops at, and the L-BFGS
     /// iterations of the f32 implicit step that finds the optimum.
     pub supervised: (f64, u64, usize),
+    /// Where the supervised pull's L-BFGS starts: from coasting (the pull's target is the
+    /// step's optimum, or close to it) or from the network's own prediction (the target is the
+    /// prediction refined by a few quasi-Newton iterations: a small, curvature-aware
+    /// improvement of what the network does, which weighs the objective's soft directions more
+    /// than its raw gradient does).
+    pub supervised_start: PullStart,
     /// Carried rollouts (off when 0 tracks): the number of tracks and the probability that a
     /// track is restarted from the skinned garment when drawn. A track keeps the state its last
     /// rollout ended in and the next draw of it continues from there, so that the network also
@@ -160,6 +166,7 @@ impl Default for TrainConfig {
             validate_every: 500,
             validation: (4, 30),
             supervised: (0.0, 0, 30),
+            supervised_start: PullStart::Coasting,
             carry: (0, 0.0),
             reference_states: 0.0,
             ema: 0.0,
@@ -233,6 +240,38 @@ fn supervised(j: &Json) -> Result<(f64, u64, usize)> {
         .filter(|a| a.len() == 3 && a.iter().all(|x| x.is_finite() && *x >= 0.0))
         .ok_or_else(|| bad("supervised", "expected [weight, until_iteration, lbfgs_iterations], non-negative"))?;
     Ok((a[0], a[1] as u64, (a[2] as usize).max(1)))
+}
+
+/// Where the supervised pull's L-BFGS starts (config key `supervised_start`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PullStart {
+    /// From coasting, `pos + velocity`: the target is the step's optimum (as converged as the
+    /// iteration count allows).
+    Coasting,
+    /// From the network's prediction: the target is that prediction refined.
+    Prediction,
+}
+
+impl PullStart {
+    /// The config's name: `coasting` or `prediction`.
+    pub fn name(self) -> &'static str {
+        match self {
+            PullStart::Coasting => "coasting",
+            PullStart::Prediction => "prediction",
+        }
+    }
+
+    /// Reads a [`name`](Self::name).
+    ///
+    /// # Errors
+    /// [`Error::Parse`] for any other word.
+    pub fn parse(name: &str) -> Result<PullStart> {
+        match name {
+            "coasting" => Ok(PullStart::Coasting),
+            "prediction" => Ok(PullStart::Prediction),
+            _ => Err(bad("supervised_start", "expected \"coasting\" or \"prediction\"")),
+        }
+    }
 }
 
 /// Parses `WEIGHT,UNTIL,ITERATIONS` (the config key `supervised` without brackets), e.g. for a
@@ -313,6 +352,9 @@ impl TrainConfig {
                     c.validation = (a[0].max(0.0) as usize, a[1].max(1.0) as usize);
                 }
                 "supervised" => c.supervised = supervised(v)?,
+                "supervised_start" => {
+                    c.supervised_start = PullStart::parse(v.as_str().unwrap_or(""))?;
+                }
                 "carry" => c.carry = carry(v)?,
                 "reference_states" => c.reference_states = probability(float(v, key)?, key)?,
                 "ema" => c.ema = ema(float(v, key)?)?,
@@ -359,7 +401,7 @@ impl TrainConfig {
              \"clip\": {},\n  \"rollout_max\": {}, \"rollout_every\": {}, \"noise\": {:e}, \
              \"collision_weight\": [{:e}, {:e}], \"collision_ramp\": {},\n  \"decoder_init_scale\": {}, \"random_materials\": {}, \
              \"random_centres\": {}, \"checkpoint_every\": {}, \"validate_every\": {}, \"validation\": [{}, {}], \
-             \"supervised\": [{:e}, {}, {}], \"carry\": [{}, {}], \"reference_states\": {}, \"ema\": {}, \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
+             \"supervised\": [{:e}, {}, {}], \"supervised_start\": \"{}\", \"carry\": [{}, {}], \"reference_states\": {}, \"ema\": {}, \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
             self.latent,
             self.hidden_layers,
             self.levels,
@@ -385,6 +427,7 @@ impl TrainConfig {
             self.supervised.0,
             self.supervised.1,
             self.supervised.2,
+            self.supervised_start.name(),
             self.carry.0,
             self.carry.1,
             self.reference_states,

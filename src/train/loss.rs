@@ -95,8 +95,10 @@ impl StepLoss {
     }
 
     /// The step's optimum `x*` (the implicit step of the physics issue, L-BFGS in f32 under
-    /// `params` from the coasting guess) into `x_star`, under the same contact rules as
-    /// [`StepLoss::eval`], whose body frames it reuses: call `eval` first, for the same step.
+    /// `params`) into `x_star`, under the same contact rules as [`StepLoss::eval`], whose body
+    /// frames it reuses: call `eval` first, for the same step. The L-BFGS starts from the
+    /// coasting guess, or, with `from_x_star`, from the positions already in `x_star` (a
+    /// prediction to refine).
     ///
     /// # Errors
     /// Errors of [`ImplicitStep::step`].
@@ -107,6 +109,7 @@ impl StepLoss {
         objective: &Objective,
         state: &StepState<'_, f32>,
         params: &LbfgsParams,
+        from_x_star: bool,
         x_star: &mut [[f32; 3]],
     ) -> Result<LbfgsReport> {
         let current = FaceFrame { centroids: self.current.centroids(), normals: self.current.face_normals() };
@@ -120,7 +123,11 @@ impl StepLoss {
             query_current: &self.current,
             query_next: &self.next,
         };
-        solver.step(&self.cloth, objective, state, Some(&body), params, x_star)
+        if from_x_star {
+            solver.refine(&self.cloth, objective, state, Some(&body), params, x_star)
+        } else {
+            solver.step(&self.cloth, objective, state, Some(&body), params, x_star)
+        }
     }
 
     /// Adds the supervised pull toward the optimum, `weight · Σ m_i |x_i − x*_i|² / (2 dt²)`

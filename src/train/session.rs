@@ -3,7 +3,7 @@
 //! prediction to the next, normaliser statistics accumulated on every pass, checkpoints that
 //! resume exactly, validation rollouts and export to `.hood`.
 
-use super::config::TrainConfig;
+use super::config::{PullStart, TrainConfig};
 use super::data::{Dataset, Sample};
 use super::fast::FastWorkspace;
 use super::inputs::{BodyFrames, GarmentState, InputBuilder, StepData};
@@ -417,7 +417,11 @@ impl Trainer {
                     };
                     let solver = solver.get_or_insert_with(|| ImplicitStep::new(n, 10));
                     let params = LbfgsParams { max_iterations: self.cfg.supervised.2, ..converged_solver() };
-                    loss.optimum(solver, &objective, &state, &params, &mut x_star)?;
+                    let from_prediction = self.cfg.supervised_start == PullStart::Prediction;
+                    if from_prediction {
+                        x_star.copy_from_slice(&self.ws.new_pos);
+                    }
+                    loss.optimum(solver, &objective, &state, &params, from_prediction, &mut x_star)?;
                     sr.supervised = loss.add_pull(&self.ws.new_pos, &x_star, pull, dt);
                 }
                 let dx = loss.grad();

@@ -4,6 +4,7 @@ use crate::io_err;
 use clap::Args;
 use hood::io::write_atomic;
 use hood::model::ModelBytes;
+use hood::train::config::PullStart;
 use hood::train::{Dataset, IterationReport, TrainConfig, Trainer, ValidationReport};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -43,6 +44,11 @@ pub struct TrainArgs {
     /// example `0,0,30` continues a supervised run on the objective alone.
     #[arg(long, value_parser = parse_supervised)]
     supervised: Option<(f64, u64, usize)>,
+    /// Where the supervised pull's L-BFGS starts (config key `supervised_start`), overriding the
+    /// config's, also when resuming: `coasting` (the pull's target is the step's optimum) or
+    /// `prediction` (the target is the network's own prediction refined by those iterations).
+    #[arg(long, value_parser = parse_pull_start)]
+    supervised_start: Option<PullStart>,
     /// Base learning rate (config key `learning_rate`), overriding the config's, also when
     /// resuming (a deliberate fork: the schedule's halvings so far still apply, so the rate in
     /// force becomes `BASE · (0.5^halvings + 0.01)`; it is printed).
@@ -89,6 +95,10 @@ fn parse_carry(text: &str) -> Result<(usize, f64), String> {
 
 fn parse_supervised(text: &str) -> Result<(f64, u64, usize), String> {
     hood::train::config::parse_supervised(text).map_err(|e| e.to_string())
+}
+
+fn parse_pull_start(text: &str) -> Result<PullStart, String> {
+    PullStart::parse(text).map_err(|e| e.to_string())
 }
 
 fn expand(dir: &str) -> PathBuf {
@@ -269,6 +279,10 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     if let Some(s) = a.supervised {
         t.cfg.supervised = s;
         eprintln!("supervised pull: weight {:e} until iteration {}, {} L-BFGS iterations", s.0, s.1, s.2);
+    }
+    if let Some(start) = a.supervised_start {
+        t.cfg.supervised_start = start;
+        eprintln!("supervised pull's L-BFGS starts from {}", start.name());
     }
     if let Some(d) = a.ema {
         t.set_ema(d)?;
