@@ -406,11 +406,31 @@ fn train_cli_resume_with_other_scenes() {
     let o = hood(&["--scenes-from", second.to_str().unwrap(), "--iterations", "1"]);
     assert!(!o.status.success(), "a new run must refuse --scenes-from");
     assert!(String::from_utf8_lossy(&o.stderr).contains("--scenes-from"), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = hood(&["--config", first.to_str().unwrap(), "--iterations", "2"]);
+    let o = hood(&["--config", first.to_str().unwrap(), "--iterations", "2", "--snapshot-every", "1"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // `--snapshot-every`: one exported model per N-th iteration, the last one the run's own.
+    let snapshot = |it: u64| run.join("snapshots").join(format!("{it}.hood"));
+    let (one, two) = (std::fs::read(snapshot(1)).unwrap(), std::fs::read(snapshot(2)).unwrap());
+    assert_eq!(two, std::fs::read(run.join("model.hood")).unwrap());
+    assert_ne!(one, two, "the weights moved between iterations 1 and 2");
+    for it in [1, 2] {
+        let bytes = hood::model::ModelBytes::read(snapshot(it)).unwrap();
+        bytes.model().unwrap();
+    }
+    assert!(!hood(&["--snapshot-every", "0"]).status.success(), "a snapshot period of 0 is refused");
     // The fork also switches the supervised pull on (`--supervised`), recorded like the scenes.
-    let o = hood(&["--scenes-from", second.to_str().unwrap(), "--iterations", "3", "--supervised", "2,5,7"]);
+    let o = hood(&[
+        "--scenes-from",
+        second.to_str().unwrap(),
+        "--iterations",
+        "3",
+        "--supervised",
+        "2,5,7",
+        "--snapshot-every",
+        "2",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!snapshot(3).exists(), "3 is not a multiple of 2");
     let recorded = TrainConfig::from_json(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
     assert_eq!(recorded.scenes.len(), 2);
     assert_eq!(recorded.supervised, (2.0, 5, 7));
@@ -420,6 +440,11 @@ fn train_cli_resume_with_other_scenes() {
     assert_eq!(in_checkpoint.supervised, (2.0, 5, 7));
     assert!(!hood(&["--supervised", "2,5"]).status.success(), "three values are required");
     assert_eq!(in_checkpoint.latent, cfg.latent, "only the scenes change");
+    // A run that passes an iteration again (here afresh) leaves its snapshot as it was.
+    std::fs::write(snapshot(1), b"kept").unwrap();
+    let o = hood(&["--fresh", "--config", first.to_str().unwrap(), "--iterations", "1", "--snapshot-every", "1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(std::fs::read(snapshot(1)).unwrap(), b"kept");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -76,6 +76,11 @@ pub struct TrainArgs {
     /// Also copy the exported model here at every checkpoint.
     #[arg(long)]
     export: Option<PathBuf>,
+    /// Keep the exported model of every N-th iteration as `DIR/snapshots/ITERATION.hood`, for
+    /// `hood validate` to compare. A snapshot is written once: a resumed run that passes the
+    /// same iteration again leaves it as it is.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    snapshot_every: Option<u64>,
     /// Folder holding `assets/` (default: ../shared beside the source).
     #[arg(long)]
     shared: Option<PathBuf>,
@@ -330,12 +335,28 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     let deadline = a.hours.map(|h| h * 3600.0);
     let mut last_print = Instant::now();
     let mut recent = 0.0f64;
-    let save = |t: &Trainer| -> hood::Result<()> {
-        t.save_checkpoint(&ckpt)?;
+    let snapshots = dir.join("snapshots");
+    // The checkpoint, `model.hood` and the snapshot that are due, from one export.
+    let save = |t: &Trainer, checkpoint: bool| -> hood::Result<()> {
+        let snapshot = a
+            .snapshot_every
+            .filter(|n| t.iteration.is_multiple_of(*n))
+            .map(|_| snapshots.join(format!("{}.hood", t.iteration)))
+            .filter(|p| !p.exists());
+        if !checkpoint && snapshot.is_none() {
+            return Ok(());
+        }
         let bytes = t.export(&[])?;
-        write_atomic(&dir.join("model.hood"), &bytes)?;
-        if let Some(p) = &a.export {
-            write_atomic(p, &bytes)?;
+        if checkpoint {
+            t.save_checkpoint(&ckpt)?;
+            write_atomic(&dir.join("model.hood"), &bytes)?;
+            if let Some(p) = &a.export {
+                write_atomic(p, &bytes)?;
+            }
+        }
+        if let Some(p) = snapshot {
+            std::fs::create_dir_all(&snapshots).map_err(|e| io_err(&snapshots, e))?;
+            write_atomic(&p, &bytes)?;
         }
         Ok(())
     };
@@ -360,9 +381,7 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
         }
         let out_of_time = deadline.is_some_and(|d| started.elapsed().as_secs_f64() > d);
         let stopping = out_of_time || stop.exists();
-        if t.iteration % t.cfg.checkpoint_every == 0 || stopping || t.iteration == t.cfg.iterations {
-            save(&t)?;
-        }
+        save(&t, t.iteration % t.cfg.checkpoint_every == 0 || stopping || t.iteration == t.cfg.iterations)?;
         if last_print.elapsed().as_secs_f64() > 1.0 {
             progress(&t, start_it, started, recent);
             last_print = Instant::now();
