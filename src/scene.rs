@@ -71,6 +71,8 @@ pub enum MotionKind {
     ArmSwings,
     /// Random smooth poses within joint limits, from a seed.
     RandomPoses(u64),
+    /// A clip of the motion corpus: a family and the seed of its draws (`jumps-3`, `dance-1001`).
+    Corpus(proc_::Family, u64),
 }
 
 impl MotionKind {
@@ -83,6 +85,7 @@ impl MotionKind {
             MotionKind::Turn => "turn".into(),
             MotionKind::ArmSwings => "arm-swings".into(),
             MotionKind::RandomPoses(s) => alloc::format!("random-{s}"),
+            MotionKind::Corpus(f, s) => alloc::format!("{}-{s}", f.name()),
         }
     }
 
@@ -94,11 +97,22 @@ impl MotionKind {
             "jump" => MotionKind::Jump,
             "turn" => MotionKind::Turn,
             "arm-swings" => MotionKind::ArmSwings,
-            _ => MotionKind::RandomPoses(name.strip_prefix("random-")?.parse().ok()?),
+            _ => {
+                let (family, seed) = name.rsplit_once('-')?;
+                let seed = seed.parse().ok()?;
+                match family {
+                    "random" => MotionKind::RandomPoses(seed),
+                    _ => MotionKind::Corpus(proc_::Family::parse(family)?, seed),
+                }
+            }
         })
     }
 
-    fn local(self, skel: &Skeleton, seconds: f32) -> Result<LocalMotion> {
+    /// The motion on `skel` (any rig with the CMU bone names), `seconds` long at 30 Hz.
+    ///
+    /// # Errors
+    /// Errors of the motion generators.
+    pub fn local(self, skel: &Skeleton, seconds: f32) -> Result<LocalMotion> {
         match self {
             MotionKind::Walk => proc_::walk(skel, seconds),
             MotionKind::Run => proc_::run(skel, seconds),
@@ -106,6 +120,7 @@ impl MotionKind {
             MotionKind::Turn => proc_::turn_on_the_spot(skel, seconds),
             MotionKind::ArmSwings => proc_::arm_swings(skel, seconds),
             MotionKind::RandomPoses(seed) => proc_::random_poses(skel, seconds, seed),
+            MotionKind::Corpus(family, seed) => proc_::family_motion(skel, family, seconds, seed),
         }
     }
 }
@@ -255,7 +270,7 @@ pub fn procedural(
 }
 
 #[cfg(feature = "std")]
-pub use assets::{makehuman, MakeHumanGarment};
+pub use assets::{makehuman, makehuman_on, MakeHumanGarment};
 
 #[cfg(feature = "std")]
 mod assets {
@@ -287,6 +302,21 @@ mod assets {
     /// # Errors
     /// [`Error::Io`] when the assets are absent; parse and fitting errors.
     pub fn makehuman(assets: &Path, which: MakeHumanGarment, max_frames: usize) -> Result<Scene> {
+        makehuman_on(assets, which, None, max_frames)
+    }
+
+    /// [`makehuman`] on `motion` instead of the CMU walk when given: a procedural motion or a
+    /// clip of the motion corpus, posed on the MakeHuman rig directly (it has the CMU bone
+    /// names), `max_frames` frames long.
+    ///
+    /// # Errors
+    /// As [`makehuman`], and errors of the motion generators.
+    pub fn makehuman_on(
+        assets: &Path,
+        which: MakeHumanGarment,
+        motion: Option<MotionKind>,
+        max_frames: usize,
+    ) -> Result<Scene> {
         let mh = MakeHuman::load(assets.join("body"))?;
         let path = assets.join("garments/female_casualsuit01.mhclo");
         let text = std::fs::read_to_string(&path).map_err(|e| io_err(&path, e))?;
@@ -313,37 +343,53 @@ mod assets {
             let waist = boundary_loop_pins(&garment, LoopChoice::Highest)?;
             garment.set_pinned(&pinned_flags(garment.n_vertices(), &waist)?)?;
         }
-        let bvh_path = assets.join("motions/cmu_12_03_walk.bvh");
-        let clip = bvh::read(&bvh_path)?.resample(MODEL_FPS)?;
-        let opts = RetargetOptions {
-            clip_rest: ClipRest::Frame(0),
-            rig_initial: Some(&mh.t_pose),
-            aliases: &[("LeftHandFinger1", "LeftHandIndex1"), ("RightHandFinger1", "RightHandIndex1")],
-            ..Default::default()
-        };
-        let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
-        // Frame 0 of the clip is its T-pose calibration frame: start on the walk.
-        let first = 1.min(clip.n_frames() - 1);
-        let frames = (clip.n_frames() - first).min(max_frames.max(1));
         let nb = mh.body.rest.len();
-        let mut poses = Vec::with_capacity(frames);
-        let mut positions = Vec::with_capacity(frames * nb);
+        let mut poses = Vec::new();
+        let mut positions = Vec::new();
         let mut tr = crate::rig::SkinTransforms::new(mh.skeleton.len());
         let mut buf = vec![[0.0; 3]; nb];
-        for f in first..first + frames {
-            let mut pose = Pose::rest(&mh.skeleton);
-            rt.pose(&mh.skeleton, &clip, f, &mut pose)?;
+        let mut push = |pose: Pose, poses: &mut Vec<Pose>, positions: &mut Vec<[f32; 3]>| -> Result<()> {
             tr.update(&mh.skeleton, &pose)?;
             crate::rig::skin(&tr, &mh.body_weights, &mh.body.rest, &mut buf)?;
             positions.extend_from_slice(&buf);
             poses.push(pose);
-        }
-        let motion = BodyMotion { fps: MODEL_FPS, n_vertices: nb, positions };
-        let body = BodyMesh::new(nb, &mh.body.faces)?;
-        let name = match which {
-            MakeHumanGarment::Tee => "MakeHuman t-shirt on CMU walk",
-            MakeHumanGarment::Jeans => "MakeHuman jeans on CMU walk",
+            Ok(())
         };
-        Scene::new(name.into(), garment, body, &mh.body.rest, &mh.body_weights, mh.skeleton.clone(), poses, motion)
+        if let Some(kind) = motion {
+            let frames = max_frames.max(1);
+            let local = kind.local(&mh.skeleton, (frames - 1).max(1) as f32 / MODEL_FPS)?;
+            for f in 0..frames.min(local.n_frames()) {
+                let mut pose = Pose::rest(&mh.skeleton);
+                local.pose(&mh.skeleton, f, &mut pose)?;
+                push(pose, &mut poses, &mut positions)?;
+            }
+        } else {
+            let bvh_path = assets.join("motions/cmu_12_03_walk.bvh");
+            let clip = bvh::read(&bvh_path)?.resample(MODEL_FPS)?;
+            let opts = RetargetOptions {
+                clip_rest: ClipRest::Frame(0),
+                rig_initial: Some(&mh.t_pose),
+                aliases: &[("LeftHandFinger1", "LeftHandIndex1"), ("RightHandFinger1", "RightHandIndex1")],
+                ..Default::default()
+            };
+            let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
+            // Frame 0 of the clip is its T-pose calibration frame: start on the walk.
+            let first = 1.min(clip.n_frames() - 1);
+            let frames = (clip.n_frames() - first).min(max_frames.max(1));
+            for f in first..first + frames {
+                let mut pose = Pose::rest(&mh.skeleton);
+                rt.pose(&mh.skeleton, &clip, f, &mut pose)?;
+                push(pose, &mut poses, &mut positions)?;
+            }
+        }
+        let body_motion = BodyMotion { fps: MODEL_FPS, n_vertices: nb, positions };
+        let body = BodyMesh::new(nb, &mh.body.faces)?;
+        let garment_name = match which {
+            MakeHumanGarment::Tee => "t-shirt",
+            MakeHumanGarment::Jeans => "jeans",
+        };
+        let motion_name = motion.map_or_else(|| "CMU walk".into(), |m| m.name());
+        let name = alloc::format!("MakeHuman {garment_name} on {motion_name}");
+        Scene::new(name, garment, body, &mh.body.rest, &mh.body_weights, mh.skeleton.clone(), poses, body_motion)
     }
 }

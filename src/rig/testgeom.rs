@@ -1,5 +1,6 @@
-//! Brute-force geometry for tests: generalised winding numbers and point-triangle distances.
+//! Brute-force geometry for tests: generalised winding numbers and mesh distances.
 
+use crate::body::geometry::point_triangle_distance;
 use glam::Vec3;
 
 /// Generalised winding number of a closed (or nearly closed) triangle mesh around `p`: about 1
@@ -16,44 +17,6 @@ pub(crate) fn winding_number(p: Vec3, pos: &[[f32; 3]], faces: &[[u32; 3]]) -> f
         total += 2.0 * libm::atan2(det, div);
     }
     total / (4.0 * core::f64::consts::PI)
-}
-
-/// Distance from `p` to triangle `abc`.
-pub(crate) fn point_triangle_distance(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> f32 {
-    // Ericson, Real-Time Collision Detection, 5.1.5.
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return ap.length();
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return bp.length();
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
-        return (p - (a + ab * v)).length();
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return cp.length();
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
-        return (p - (a + ac * w)).length();
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (p - (b + (c - b) * w)).length();
-    }
-    let denom = 1.0 / (va + vb + vc);
-    let (v, w) = (vb * denom, vc * denom);
-    (p - (a + ab * v + ac * w)).length()
 }
 
 /// Distance from `p` to the nearest triangle of the mesh.

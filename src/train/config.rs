@@ -26,13 +26,16 @@ pub enum SceneSource {
         /// Motion length, s.
         seconds: f32,
     },
-    /// A MakeHuman garment (`"tee"` or `"jeans"`) on the CMU walk, at most `frames` frames (the
-    /// scene is skipped with a warning when `../shared/assets` is absent).
+    /// A MakeHuman garment (`"tee"` or `"jeans"`) on the CMU walk, or on `motion` when given, at
+    /// most `frames` frames (the scene is skipped with a warning when `../shared/assets` is
+    /// absent).
     MakeHuman {
         /// `"tee"` or `"jeans"`.
         garment: String,
         /// Frame limit.
         frames: usize,
+        /// A procedural or corpus motion instead of the CMU walk.
+        motion: Option<MotionKind>,
     },
 }
 
@@ -43,7 +46,8 @@ impl SceneSource {
             SceneSource::Procedural { garment, vertices, motion, .. } => {
                 format!("{}-{}/{}", garment.name(), vertices, motion.name())
             }
-            SceneSource::MakeHuman { garment, .. } => format!("makehuman-{garment}"),
+            SceneSource::MakeHuman { garment, motion: None, .. } => format!("makehuman-{garment}"),
+            SceneSource::MakeHuman { garment, motion: Some(m), .. } => format!("makehuman-{garment}/{}", m.name()),
         }
     }
 }
@@ -159,8 +163,8 @@ impl Default for TrainConfig {
                 p(GarmentKind::Cape, 400, MotionKind::ArmSwings),
                 p(GarmentKind::Cape, 400, MotionKind::Turn),
                 p(GarmentKind::Skirt, 500, MotionKind::Jump),
-                SceneSource::MakeHuman { garment: "jeans".into(), frames: 300 },
-                SceneSource::MakeHuman { garment: "tee".into(), frames: 300 },
+                SceneSource::MakeHuman { garment: "jeans".into(), frames: 300, motion: None },
+                SceneSource::MakeHuman { garment: "tee".into(), frames: 300, motion: None },
             ],
             checkpoint_every: 250,
             validate_every: 500,
@@ -206,13 +210,18 @@ fn boolean(j: &Json, key: &str) -> Result<bool> {
 fn scene(j: &Json) -> Result<SceneSource> {
     let s = |k: &str| j.get(k).and_then(Json::as_str).ok_or_else(|| bad("scenes", &format!("each needs '{k}'")));
     let garment = s("garment")?;
+    let motion_named = |name: &str| {
+        MotionKind::parse(name).ok_or_else(|| {
+            bad("motion", "walk, run, jump, turn, arm-swings, random-<seed> or <corpus family>-<seed> (jumps-3)")
+        })
+    };
     if garment == "tee" || garment == "jeans" {
         let frames = j.get("frames").map(|v| uint(v, "frames")).transpose()?.unwrap_or(300) as usize;
-        return Ok(SceneSource::MakeHuman { garment: garment.to_string(), frames });
+        let motion = j.get("motion").map(|_| s("motion").and_then(motion_named)).transpose()?;
+        return Ok(SceneSource::MakeHuman { garment: garment.to_string(), frames, motion });
     }
     let kind = GarmentKind::parse(garment).ok_or_else(|| bad("garment", "skirt, dress, cape, tee or jeans"))?;
-    let motion = MotionKind::parse(s("motion")?)
-        .ok_or_else(|| bad("motion", "walk, run, jump, turn, arm-swings or random-<seed>"))?;
+    let motion = motion_named(s("motion")?)?;
     let vertices = j.get("vertices").map(|v| uint(v, "vertices")).transpose()?.unwrap_or(600) as usize;
     let seconds = j.get("seconds").map(|v| float(v, "seconds")).transpose()?.unwrap_or(6.0) as f32;
     if seconds.is_nan() || seconds < 0.2 {
@@ -389,8 +398,11 @@ impl TrainConfig {
                     garment.name(),
                     motion.name()
                 ),
-                SceneSource::MakeHuman { garment, frames } => {
+                SceneSource::MakeHuman { garment, frames, motion: None } => {
                     format!("{{\"garment\": \"{garment}\", \"frames\": {frames}}}")
+                }
+                SceneSource::MakeHuman { garment, frames, motion: Some(m) } => {
+                    format!("{{\"garment\": \"{garment}\", \"frames\": {frames}, \"motion\": \"{}\"}}", m.name())
                 }
             })
             .collect();

@@ -71,7 +71,7 @@ impl Dataset {
                     let m = mannequin.get_or_insert_with(Mannequin::new);
                     scene::procedural(m, *garment, *vertices, *motion, *seconds)
                 }
-                SceneSource::MakeHuman { garment, frames } => {
+                SceneSource::MakeHuman { garment, frames, motion } => {
                     let which = match garment.as_str() {
                         "tee" => MakeHumanGarment::Tee,
                         "jeans" => MakeHumanGarment::Jeans,
@@ -81,7 +81,7 @@ impl Dataset {
                         d.skipped.push((name, std::format!("{} not found", assets.display())));
                         continue;
                     }
-                    scene::makehuman(assets, which, *frames)
+                    scene::makehuman_on(assets, which, *motion, *frames)
                 }
             };
             let s = built?;

@@ -37,7 +37,9 @@ pub struct SimulateArgs {
     /// at 2,000; its dress at 4,000 vertices comes apart).
     #[arg(long, default_value_t = 2000)]
     vertices: usize,
-    /// Procedural motion: walk, run, jump, turn, arm-swings, random-<seed>.
+    /// Procedural motion: walk, run, jump, turn, arm-swings, random-<seed>, or a clip of the motion
+    /// corpus as <family>-<seed> (families: jumps, hop, skip, crouch, spin, dance, kick,
+    /// cartwheel, handstand, backflip, fall, mix). For tee and jeans, walk is the CMU walk.
     #[arg(long, default_value = "walk")]
     motion: String,
     /// Frames to simulate (30 per second).
@@ -162,8 +164,8 @@ fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
 
 /// A built-in scene long enough for `frames` steps, as a boxed animation, and its description:
 /// a procedural garment (skirt, dress, cape; about `vertices` vertices) on the procedural
-/// mannequin doing `motion`, or the MakeHuman t-shirt or jeans (`tee`, `jeans`) on the CMU walk,
-/// from `assets` (default: `../shared/assets` beside the source).
+/// mannequin doing `motion`, or the MakeHuman t-shirt or jeans (`tee`, `jeans`) on the CMU walk
+/// (`walk`) or `motion`, from `assets` (default: `../shared/assets` beside the source).
 pub fn named_scene(
     garment: &str,
     vertices: usize,
@@ -172,14 +174,15 @@ pub fn named_scene(
     assets: Option<&Path>,
 ) -> Result<(Box<dyn Animation>, String)> {
     let seconds = (frames + 1) as f32 / 30.0 + 0.1;
+    let motion_name = motion;
+    let motion =
+        MotionKind::parse(motion).ok_or_else(|| Error::parse("motion", 0, format!("unknown motion '{motion}'")))?;
     if let Some(kind) = GarmentKind::parse(garment) {
-        let motion =
-            MotionKind::parse(motion).ok_or_else(|| Error::parse("motion", 0, format!("unknown motion '{motion}'")))?;
         let s = procedural(&Mannequin::new(), kind, vertices, motion, seconds)?;
         let name = s.name.clone();
         return Ok((Box::new(s), name));
     }
-    use hood::scene::{makehuman, MakeHumanGarment};
+    use hood::scene::{makehuman_on, MakeHumanGarment};
     let which = match garment {
         "tee" => MakeHumanGarment::Tee,
         "jeans" => MakeHumanGarment::Jeans,
@@ -192,7 +195,8 @@ pub fn named_scene(
         }
     };
     let assets = assets.map_or_else(|| hood::workloads::default_shared_dir().join("assets"), Path::to_path_buf);
-    let s = makehuman(&assets, which, frames + 1)?;
+    let on = (motion_name != "walk").then_some(motion);
+    let s = makehuman_on(&assets, which, on, frames + 1)?;
     let name = s.name.clone();
     Ok((Box::new(s), name))
 }
@@ -205,6 +209,12 @@ fn print_frame(r: &FrameRecord, frames: usize) {
     });
     if let Some(p) = r.inside_percent {
         optional.push_str(&format!("  inside {p:.2}%"));
+    }
+    if let Some(o) = r.off_body {
+        optional.push_str(&format!("  off body {:.1}%", o.off_percent));
+        if let Some(d) = o.max_drift {
+            optional.push_str(&format!("  drift {:.1} cm", 100.0 * d));
+        }
     }
     say!(
         "frame {:>4}/{frames}  {:>7.2} ms  objective {:>10.4} J (stretch {:.4}, bend {:.2e}, inertia {:.4}, gravity {:.4}, collision {:.2e}, friction {:.2e})  penetrating {:>5.2}%  strain {:.3}  speed {:.2} m/s{optional}{}",
@@ -329,6 +339,9 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
             _ => String::new(),
         }
     );
+    if let Some(text) = s.off_body_text() {
+        say!("{text}");
+    }
     print_gap_by_term("relative gap by term", s);
     if a.common_states && a.gap_every > 0 {
         let reference = Reference::Converged(ObjectiveArg::Training.objective());

@@ -5,11 +5,13 @@
 //! Everything is in metres, y up, the mannequin facing +z with x its left, feet on y = 0, rest
 //! pose an A-pose (arms 45 degrees down), motions at 30 Hz.
 
+mod corpus;
 mod garments;
 mod mannequin;
 mod motions;
 mod sdf;
 
+pub use corpus::{family_motion, Family};
 pub use garments::{cape, long_dress, skirt, square_cloth, ProceduralGarment};
 pub use mannequin::{Mannequin, DEFAULT_SPACING};
 pub use motions::{arm_swings, jump, random_poses, run, turn_on_the_spot, walk, LocalMotion};

@@ -61,14 +61,19 @@ impl LocalMotion {
 }
 
 /// Joint angles of one frame about world axes, by bone, and the root offset.
-struct Frame {
-    rot: Vec<Quat>,
-    root: Vec3,
+pub(crate) struct Frame {
+    /// World-axis rotation of each bone relative to its parent.
+    pub(crate) rot: Vec<Quat>,
+    /// Root offset, m (y is added after grounding).
+    pub(crate) root: Vec3,
+    /// How much of the grounding offset applies, 0..1 (1 unless a motion leaves the floor on
+    /// purpose, as a flight of a flip does).
+    pub(crate) contact: f32,
 }
 
 /// Bone indices by CMU name.
-struct Bones {
-    idx: Vec<usize>,
+pub(crate) struct Bones {
+    pub(crate) idx: Vec<usize>,
 }
 
 const NAMES: [&str; 21] = [
@@ -94,25 +99,25 @@ const NAMES: [&str; 21] = [
     "RightFoot",
     "LeftToeBase",
 ];
-const HIPS: usize = 0;
-const LOWER_BACK: usize = 1;
-const SPINE: usize = 2;
-const SPINE1: usize = 3;
-const NECK: usize = 4;
-const HEAD: usize = 5;
-const L_ARM: usize = 7;
-const L_FOREARM: usize = 8;
-const R_ARM: usize = 11;
-const R_FOREARM: usize = 12;
-const L_UPLEG: usize = 14;
-const L_LEG: usize = 15;
-const L_FOOT: usize = 16;
-const R_UPLEG: usize = 17;
-const R_LEG: usize = 18;
-const R_FOOT: usize = 19;
+pub(crate) const HIPS: usize = 0;
+pub(crate) const LOWER_BACK: usize = 1;
+pub(crate) const SPINE: usize = 2;
+pub(crate) const SPINE1: usize = 3;
+pub(crate) const NECK: usize = 4;
+pub(crate) const HEAD: usize = 5;
+pub(crate) const L_ARM: usize = 7;
+pub(crate) const L_FOREARM: usize = 8;
+pub(crate) const R_ARM: usize = 11;
+pub(crate) const R_FOREARM: usize = 12;
+pub(crate) const L_UPLEG: usize = 14;
+pub(crate) const L_LEG: usize = 15;
+pub(crate) const L_FOOT: usize = 16;
+pub(crate) const R_UPLEG: usize = 17;
+pub(crate) const R_LEG: usize = 18;
+pub(crate) const R_FOOT: usize = 19;
 
 impl Bones {
-    fn new(skel: &Skeleton) -> Result<Bones> {
+    pub(crate) fn new(skel: &Skeleton) -> Result<Bones> {
         let mut idx = Vec::with_capacity(NAMES.len());
         for (k, n) in NAMES.iter().enumerate() {
             idx.push(skel.find(n).ok_or(Error::OutOfRange { what: "rig lacks a CMU bone name", index: k })?);
@@ -124,52 +129,84 @@ impl Bones {
     }
 }
 
-fn rx(a: f32) -> Quat {
+pub(crate) fn rx(a: f32) -> Quat {
     Quat::from_rotation_x(a)
 }
-fn ry(a: f32) -> Quat {
+pub(crate) fn ry(a: f32) -> Quat {
     Quat::from_rotation_y(a)
 }
-fn rz(a: f32) -> Quat {
+pub(crate) fn rz(a: f32) -> Quat {
     Quat::from_rotation_z(a)
 }
 
-/// Points that touch the floor: heels (below the ankles) and toe tips, each with its bone.
-fn ground_points(skel: &Skeleton) -> Result<[(usize, Vec3); 4]> {
+/// What keeps a motion on the floor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Ground {
+    /// Nothing: the root moves as the motion says.
+    Free,
+    /// The lowest heel or toe stays at its rest height (standing and stepping motions).
+    Feet,
+    /// The lowest of heels, toes, knees, hands and the top of the head stays at the feet's rest
+    /// height (inversions, falls, kneeling).
+    AnyContact,
+}
+
+/// Points that touch the floor: heels (below the ankles) and toe tips, each with its bone; with
+/// `any_contact` also the knees, the finger tips and the top of the head.
+fn ground_points(skel: &Skeleton, any_contact: bool) -> Result<Vec<(usize, Vec3)>> {
     let f = |n: &str| skel.find(n).ok_or(Error::OutOfRange { what: "rig lacks a CMU bone name", index: 0 });
     let (lf, rf, lt, rt) = (f("LeftFoot")?, f("RightFoot")?, f("LeftToeBase")?, f("RightToeBase")?);
     let b = skel.bones();
     let heel = |i: usize| b[i].head - Vec3::new(0.0, 0.8 * b[i].head.y, 0.03);
-    Ok([(lf, heel(lf)), (rf, heel(rf)), (lt, b[lt].tail), (rt, b[rt].tail)])
+    let mut points = vec![(lf, heel(lf)), (rf, heel(rf)), (lt, b[lt].tail), (rt, b[rt].tail)];
+    if any_contact {
+        for name in ["LeftLeg", "RightLeg", "LeftHand", "RightHand", "Head"] {
+            let i = f(name)?;
+            points.push(if name.ends_with("Leg") { (i, b[i].head) } else { (i, b[i].tail) });
+        }
+    }
+    Ok(points)
 }
 
 /// Runs `f(t, frame)` at 30 Hz for `seconds`, converting world-axis angles to local rotations;
 /// `grounded` keeps the lowest heel/toe at its rest height (before `frame.root.y` is added).
-fn build(skel: &Skeleton, seconds: f32, grounded: bool, mut f: impl FnMut(f32, &mut Frame)) -> Result<LocalMotion> {
+fn build(skel: &Skeleton, seconds: f32, grounded: bool, f: impl FnMut(f32, &mut Frame)) -> Result<LocalMotion> {
+    build_on(skel, seconds, if grounded { Ground::Feet } else { Ground::Free }, f)
+}
+
+/// [`build`] with any [`Ground`] mode: the lowest contact point is brought to the rest height of
+/// the feet before `frame.root.y` is added.
+pub(crate) fn build_on(
+    skel: &Skeleton,
+    seconds: f32,
+    ground_mode: Ground,
+    mut f: impl FnMut(f32, &mut Frame),
+) -> Result<LocalMotion> {
     if !(seconds > 0.0 && seconds.is_finite()) {
         return Err(Error::OutOfRange { what: "motion duration", index: 0 });
     }
     let nb = skel.len();
     let n_frames = (seconds * MODEL_FPS) as usize + 1;
-    let ground = ground_points(skel)?;
-    let rest_low = ground.iter().map(|(_, p)| p.y).fold(f32::INFINITY, f32::min);
+    let ground = ground_points(skel, ground_mode == Ground::AnyContact)?;
+    let rest_low = ground[..4].iter().map(|(_, p)| p.y).fold(f32::INFINITY, f32::min);
     let mut out =
         LocalMotion { fps: MODEL_FPS, n_bones: nb, local: Vec::with_capacity(n_frames * nb), root: Vec::new() };
-    let mut frame = Frame { rot: vec![Quat::IDENTITY; nb], root: Vec3::ZERO };
+    let mut frame = Frame { rot: vec![Quat::IDENTITY; nb], root: Vec3::ZERO, contact: 1.0 };
     let mut local = vec![Quat::IDENTITY; nb];
     let mut pose = Pose::rest(skel);
     for k in 0..n_frames {
         frame.rot.fill(Quat::IDENTITY);
         frame.root = Vec3::ZERO;
+        frame.contact = 1.0;
         f(k as f32 / MODEL_FPS, &mut frame);
         for (b, bone) in skel.bones().iter().enumerate() {
             local[b] = (bone.frame.conjugate() * frame.rot[b] * bone.frame).normalize();
         }
         let mut root = frame.root;
-        if grounded {
+        if ground_mode != Ground::Free {
             skel.forward_kinematics(&local, [root.x, 0.0, root.z], &mut pose)?;
             let low = ground.iter().map(|&(b, p)| pose.transform_point(skel, b, p).y).fold(f32::INFINITY, f32::min);
-            root.y += rest_low - low;
+            root.y += frame.contact * (rest_low - low);
         }
         out.local.extend_from_slice(&local);
         out.root.push(root.into());
@@ -182,26 +219,32 @@ fn build(skel: &Skeleton, seconds: f32, grounded: bool, mut f: impl FnMut(f32, &
 fn gait(skel: &Skeleton, seconds: f32, speed: f32, cadence: f32, amp: f32, run: bool) -> Result<LocalMotion> {
     let b = Bones::new(skel)?.idx;
     build(skel, seconds, true, |t, fr| {
-        let ph = TAU * cadence * t;
-        for (side, shift) in [(0usize, 0.0f32), (1, PI)] {
-            let p = ph + shift;
-            let (hip, knee, foot) = if side == 0 { (L_UPLEG, L_LEG, L_FOOT) } else { (R_UPLEG, R_LEG, R_FOOT) };
-            let flex = 0.42 * amp * sinf(p);
-            let swing = 0.5 + 0.5 * cosf(p - 0.4);
-            let knee_flex = if run { 0.35 + 1.3 * swing * swing } else { 0.08 + 0.9 * swing * swing * swing };
-            fr.rot[b[hip]] = rx(-flex - if run { 0.25 } else { 0.0 });
-            fr.rot[b[knee]] = rx(knee_flex);
-            fr.rot[b[foot]] = rx(-0.15 * sinf(p - 0.5) - if run { 0.1 } else { 0.0 });
-            // Arms swing against the leg of the same side.
-            let (arm, fore) = if side == 0 { (L_ARM, L_FOREARM) } else { (R_ARM, R_FOREARM) };
-            let dz = if side == 0 { -0.55 } else { 0.55 };
-            fr.rot[b[arm]] = rx(0.35 * amp * sinf(p)) * rz(dz);
-            fr.rot[b[fore]] = rx(-(if run { 1.3 } else { 0.3 }) - 0.15 * amp * sinf(p));
-        }
-        fr.rot[b[SPINE]] = ry(0.06 * amp * sinf(ph)) * rx(if run { 0.15 } else { 0.03 });
-        fr.rot[b[HIPS]] = ry(-0.05 * amp * sinf(ph));
-        fr.root = Vec3::new(0.0, if run { 0.04 * (sinf(2.0 * ph)).abs() } else { 0.0 }, speed * t);
+        gait_pose(&b, TAU * cadence * t, amp, run, fr);
+        fr.root.z = speed * t;
     })
+}
+
+/// The joint angles of a gait at phase `ph` (radians of the stride cycle), amplitudes scaled by
+/// `amp`; sets `fr.root.y` to the run's bounce.
+pub(crate) fn gait_pose(b: &[usize], ph: f32, amp: f32, run: bool, fr: &mut Frame) {
+    for (side, shift) in [(0usize, 0.0f32), (1, PI)] {
+        let p = ph + shift;
+        let (hip, knee, foot) = if side == 0 { (L_UPLEG, L_LEG, L_FOOT) } else { (R_UPLEG, R_LEG, R_FOOT) };
+        let flex = 0.42 * amp * sinf(p);
+        let swing = 0.5 + 0.5 * cosf(p - 0.4);
+        let knee_flex = if run { 0.35 + 1.3 * swing * swing } else { 0.08 + 0.9 * swing * swing * swing };
+        fr.rot[b[hip]] = rx(-flex - if run { 0.25 } else { 0.0 });
+        fr.rot[b[knee]] = rx(knee_flex);
+        fr.rot[b[foot]] = rx(-0.15 * sinf(p - 0.5) - if run { 0.1 } else { 0.0 });
+        // Arms swing against the leg of the same side.
+        let (arm, fore) = if side == 0 { (L_ARM, L_FOREARM) } else { (R_ARM, R_FOREARM) };
+        let dz = if side == 0 { -0.55 } else { 0.55 };
+        fr.rot[b[arm]] = rx(0.35 * amp * sinf(p)) * rz(dz);
+        fr.rot[b[fore]] = rx(-(if run { 1.3 } else { 0.3 }) - 0.15 * amp * sinf(p));
+    }
+    fr.rot[b[SPINE]] = ry(0.06 * amp * sinf(ph)) * rx(if run { 0.15 } else { 0.03 });
+    fr.rot[b[HIPS]] = ry(-0.05 * amp * sinf(ph));
+    fr.root.y = if run { 0.04 * (sinf(2.0 * ph)).abs() } else { 0.0 };
 }
 
 /// Walking forward (+z) at about 1.2 m/s for `seconds`.
@@ -214,7 +257,7 @@ pub fn run(skel: &Skeleton, seconds: f32) -> Result<LocalMotion> {
     gait(skel, seconds, 3.0, 1.4, 1.6, true)
 }
 
-fn smoothstep(a: f32, b: f32, t: f32) -> f32 {
+pub(crate) fn smoothstep(a: f32, b: f32, t: f32) -> f32 {
     let x = ((t - a) / (b - a)).clamp(0.0, 1.0);
     x * x * (3.0 - 2.0 * x)
 }
@@ -284,7 +327,7 @@ pub fn arm_swings(skel: &Skeleton, seconds: f32) -> Result<LocalMotion> {
 
 /// Joint limits about the world x, y, z axes (radians), for the left side and the spine; the
 /// right side mirrors y and z.
-const LIMITS: [(usize, [[f32; 2]; 3]); 13] = [
+pub(crate) const LIMITS: [(usize, [[f32; 2]; 3]); 13] = [
     (HIPS, [[-0.1, 0.1], [-0.6, 0.6], [-0.08, 0.08]]),
     (LOWER_BACK, [[-0.1, 0.3], [-0.15, 0.15], [-0.1, 0.1]]),
     (SPINE, [[-0.1, 0.2], [-0.2, 0.2], [-0.1, 0.1]]),
@@ -301,13 +344,17 @@ const LIMITS: [(usize, [[f32; 2]; 3]); 13] = [
 ];
 
 /// The right-side twin of a left-side table index, if any.
-fn mirror(k: usize) -> Option<usize> {
+pub(crate) fn mirror(k: usize) -> Option<usize> {
     match k {
         6..=9 => Some(k + 4),
         L_UPLEG..=L_FOOT => Some(k + 3),
         _ => None,
     }
 }
+
+/// One random joint channel: bone, world axis, limits (radians) and three sines as
+/// `(weight, frequency Hz, phase)`.
+pub(crate) type Channel = (usize, usize, f32, f32, [(f32, f32, f32); 3]);
 
 /// Random smooth poses within joint limits (see the source for the table), for training
 /// variety: every joint angle is a sum of three sines of random frequency (0.1-0.7 Hz), phase and
@@ -322,8 +369,6 @@ pub fn random_poses(skel: &Skeleton, seconds: f32, seed: u64) -> Result<LocalMot
         z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
         ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
     };
-    // (bone, axis, lo, hi, [(weight, frequency, phase); 3])
-    type Channel = (usize, usize, f32, f32, [(f32, f32, f32); 3]);
     let mut channels: Vec<Channel> = Vec::new();
     for &(k, lim) in &LIMITS {
         let mut sides = vec![(b[k], lim)];
