@@ -34,8 +34,13 @@
  * Threads
  * -------
  * - A model may be shared by sims on many threads (it is read-only after loading).
- * - One sim is used by one thread at a time; different sims may be stepped concurrently.
+ * - One sim is used by one thread at a time; different sims may be stepped concurrently. The
+ *   library enforces it: a call on a sim that another thread is stepping or changing (or a
+ *   hood_sim_free while it does) returns HOOD_ERR_BUSY and does nothing; calls that only read a
+ *   sim may overlap each other.
  * - hood_last_error() is per thread.
+ * - Callbacks (the executor's run) must not throw a C++ exception or otherwise unwind into the
+ *   library: that aborts the process. Catch inside the callback.
  */
 #ifndef HOOD_H
 #define HOOD_H
@@ -87,6 +92,7 @@ typedef uint32_t hood_status;
 #define HOOD_ERR_MODEL_IN_USE 102u     /* hood_model_free on a model that live sims still use */
 #define HOOD_ERR_PANIC 103u            /* an internal error (a bug in hood); the handle may be unusable */
 #define HOOD_ERR_BAD_POINTER 104u      /* a pointer misaligned for its type, or an output overlapping an input */
+#define HOOD_ERR_BUSY 105u             /* the sim is in use by a call on another thread */
 
 /* The message of the most recent failing call on this thread ("" if none): NUL-terminated, owned
  * by the library, valid until the next hood_* call on this thread. Successful calls leave it. */
@@ -199,7 +205,7 @@ typedef struct hood_sim hood_sim;
  * and body; it borrows the model (see hood_model_free). */
 hood_status hood_sim_new(const hood_model *model, const hood_garment *garment, const hood_body_desc *body,
                          const hood_sim_config *config, hood_sim **out);
-/* Frees a sim (NULL: nothing to do). */
+/* Frees a sim (NULL: nothing to do); HOOD_ERR_BUSY, freeing nothing, while another thread steps it. */
 hood_status hood_sim_free(hood_sim *sim);
 
 /* Garment vertices of the sim. */
@@ -261,9 +267,10 @@ hood_status hood_sim_teleport(hood_sim *sim, const float *rotation, const float 
 typedef void (*hood_task_fn)(void *ctx, uint32_t index);
 
 /* `run(user, n_tasks, task, ctx)` must call task(ctx, i) exactly once for every i in
- * [0, n_tasks), from any threads, and return only after every call has returned. Calling a task
- * twice, or concurrently with itself, is undefined behaviour (the library detects only a wrong
- * NUMBER of calls, which it reports as HOOD_ERR_PANIC from the step). `parallelism`: how many
+ * [0, n_tasks), from any threads, and return only after every call has returned; it must not
+ * throw (wrap a C++ job system's run in try/catch). The library refuses a second call of an index
+ * and an index out of range (the step then fails with HOOD_ERR_PANIC and leaves the state
+ * unchanged); returning before every task has returned is undefined behaviour. `parallelism`: how many
  * tasks are worth splitting work into (0 counts as 1). `user` is passed back unchanged; it must
  * stay valid while the sim uses the executor and be usable from the thread stepping the sim. */
 typedef struct hood_executor {

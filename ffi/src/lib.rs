@@ -23,7 +23,7 @@ use std::collections::BTreeMap;
 use std::ffi::{c_char, c_void, CStr, CString};
 use std::mem::ManuallyDrop;
 use std::panic::{catch_unwind, AssertUnwindSafe};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 /// A status code: [`HOOD_OK`] or an error (codes 1-14 are [`Error::code`]).
@@ -69,6 +69,8 @@ pub const HOOD_ERR_MODEL_IN_USE: hood_status = 102;
 pub const HOOD_ERR_PANIC: hood_status = 103;
 /// A pointer argument is misaligned for its element type, or an output array overlaps an input.
 pub const HOOD_ERR_BAD_POINTER: hood_status = 104;
+/// The sim is in use by a call on another thread (a step, or a free while it steps).
+pub const HOOD_ERR_BUSY: hood_status = 105;
 
 /// Required alignment of model bytes (`hood::model::file::ALIGN`).
 pub const HOOD_MODEL_ALIGN: usize = hood::model::file::ALIGN;
@@ -126,6 +128,8 @@ enum Failure {
     Pointer(&'static str, &'static str),
     Handle(&'static str),
     InUse(usize),
+    /// A sim used by a call on another thread.
+    Busy(&'static str),
 }
 
 impl From<Error> for Failure {
@@ -142,6 +146,7 @@ impl Failure {
             Failure::Pointer(..) => HOOD_ERR_BAD_POINTER,
             Failure::Handle(_) => HOOD_ERR_INVALID_HANDLE,
             Failure::InUse(_) => HOOD_ERR_MODEL_IN_USE,
+            Failure::Busy(_) => HOOD_ERR_BUSY,
         }
     }
 
@@ -152,6 +157,9 @@ impl Failure {
             Failure::Pointer(what, why) => format!("{what} {why}"),
             Failure::Handle(what) => format!("{what} is not a live handle (already freed, or never created)"),
             Failure::InUse(n) => format!("the model is still used by {n} sim(s); free them first"),
+            Failure::Busy(what) => {
+                format!("{what} is in use by a call on another thread (one thread at a time per sim)")
+            }
         }
     }
 }
@@ -617,7 +625,13 @@ pub struct hood_sim {
     /// `hood_model_free` enforces.
     sim: ManuallyDrop<Sim<'static>>,
     model: *const hood_model,
+    /// Calls in progress: 0 none, [`WRITER`] one call that changes the sim, else that many
+    /// calls that only read it. Taken under the registry lock (so a free never races a call).
+    access: AtomicU32,
 }
+
+/// [`hood_sim::access`] of a call that changes the sim.
+const WRITER: u32 = u32::MAX;
 
 impl Drop for hood_sim {
     fn drop(&mut self) {
@@ -795,7 +809,10 @@ pub unsafe extern "C" fn hood_sim_new(
             Ok(sim) => {
                 // The sim holds the count from here on (released when it is dropped).
                 std::mem::forget(count);
-                let h = register(Box::new(hood_sim { sim: ManuallyDrop::new(sim), model }), Kind::Sim);
+                let h = register(
+                    Box::new(hood_sim { sim: ManuallyDrop::new(sim), model, access: AtomicU32::new(0) }),
+                    Kind::Sim,
+                );
                 // SAFETY: `out` checked non-null.
                 unsafe { write_out(out, h) };
                 Ok(())
@@ -805,29 +822,120 @@ pub unsafe extern "C" fn hood_sim_new(
     })
 }
 
-/// Frees a sim.
+/// Frees a sim; [`HOOD_ERR_BUSY`] (freeing nothing) while a call on another thread uses it.
 ///
 /// # Safety
-/// `sim` is NULL or a handle (checked against the registry); no other thread uses it.
+/// `sim` is NULL or a handle (checked against the registry).
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_free(sim: *mut hood_sim) -> hood_status {
-    guard(|| unregister(sim, Kind::Sim, "sim").map(drop))
+    guard(|| {
+        if sim.is_null() {
+            return Ok(());
+        }
+        let boxed = {
+            let reg = live();
+            if reg.get(&(sim as usize)) != Some(&Kind::Sim) {
+                return Err(Failure::Handle("sim"));
+            }
+            // SAFETY: a live sim handle; calls take their access under this same lock, so none
+            // can start between this check and the removal below.
+            if unsafe { &*sim }.access.load(Ordering::Acquire) != 0 {
+                return Err(Failure::Busy("sim"));
+            }
+            drop(reg);
+            unregister(sim, Kind::Sim, "sim")?
+        };
+        drop(boxed);
+        Ok(())
+    })
 }
 
-/// # Safety
-/// `sim` is NULL or a pointer from this library; no other thread uses it during the call.
-unsafe fn sim_ref<'a>(sim: *const hood_sim) -> Result<&'a hood_sim> {
-    check_live(sim, Kind::Sim, "sim")?;
-    // SAFETY: a live sim handle.
-    Ok(unsafe { &*sim })
+/// A call's use of a live sim: shared (reads) or exclusive (changes), released on drop.
+struct SimAccess<'a> {
+    handle: &'a mut hood_sim,
+    exclusive: bool,
 }
 
+impl Drop for SimAccess<'_> {
+    fn drop(&mut self) {
+        if self.exclusive {
+            self.handle.access.store(0, Ordering::Release);
+        } else {
+            self.handle.access.fetch_sub(1, Ordering::AcqRel);
+        }
+    }
+}
+
+/// Takes access to `sim` under the registry lock: checks the handle, then claims the sim
+/// (exclusive: no other call may be in progress; shared: no exclusive one).
+///
 /// # Safety
-/// As [`sim_ref`].
-unsafe fn sim_mut<'a>(sim: *mut hood_sim) -> Result<&'a mut hood_sim> {
-    check_live(sim, Kind::Sim, "sim")?;
-    // SAFETY: a live sim handle, used by one thread at a time (caller's rule).
-    Ok(unsafe { &mut *sim })
+/// `sim` is NULL or a pointer from this library.
+unsafe fn access<'a>(sim: *const hood_sim, exclusive: bool) -> Result<SimAccess<'a>> {
+    if sim.is_null() {
+        return Err(Failure::Null("sim"));
+    }
+    let reg = live();
+    if reg.get(&(sim as usize)) != Some(&Kind::Sim) {
+        return Err(Failure::Handle("sim"));
+    }
+    // SAFETY: a live sim handle (checked under the lock that `hood_sim_free` takes).
+    let s = unsafe { &*sim };
+    let claimed = if exclusive {
+        s.access.compare_exchange(0, WRITER, Ordering::AcqRel, Ordering::Acquire).is_ok()
+    } else {
+        s.access.fetch_update(Ordering::AcqRel, Ordering::Acquire, |a| (a < WRITER - 1).then_some(a + 1)).is_ok()
+    };
+    drop(reg);
+    if !claimed {
+        return Err(Failure::Busy("sim"));
+    }
+    // SAFETY: the claim keeps the sim alive (a free is refused while it is held) and keeps
+    // other calls out: exclusive access is unique, and shared access only ever reads (the
+    // mutable reference is handed out by `sim_mut` alone).
+    Ok(SimAccess { handle: unsafe { &mut *(sim as *mut hood_sim) }, exclusive })
+}
+
+/// Shared access for a call that reads the sim.
+///
+/// # Safety
+/// `sim` is NULL or a pointer from this library.
+unsafe fn sim_ref<'a>(sim: *const hood_sim) -> Result<SimRead<'a>> {
+    // SAFETY: the caller's promise.
+    Ok(SimRead(unsafe { access(sim, false)? }))
+}
+
+/// Exclusive access for a call that changes the sim.
+///
+/// # Safety
+/// `sim` is NULL or a pointer from this library.
+unsafe fn sim_mut<'a>(sim: *mut hood_sim) -> Result<SimAccess<'a>> {
+    // SAFETY: the caller's promise.
+    unsafe { access(sim, true) }
+}
+
+/// Shared access: derefs to `&hood_sim` only.
+struct SimRead<'a>(SimAccess<'a>);
+
+impl std::ops::Deref for SimRead<'_> {
+    type Target = hood_sim;
+    fn deref(&self) -> &hood_sim {
+        self.0.handle
+    }
+}
+
+impl std::ops::Deref for SimAccess<'_> {
+    type Target = hood_sim;
+    fn deref(&self) -> &hood_sim {
+        self.handle
+    }
+}
+
+impl std::ops::DerefMut for SimAccess<'_> {
+    fn deref_mut(&mut self) -> &mut hood_sim {
+        debug_assert!(self.exclusive);
+        self.handle
+    }
 }
 
 /// Garment vertex count.
@@ -913,7 +1021,7 @@ pub unsafe extern "C" fn hood_sim_step(
 ) -> hood_status {
     guard(|| {
         // SAFETY: checked by `sim_mut`.
-        let s = unsafe { sim_mut(sim)? };
+        let mut s = unsafe { sim_mut(sim)? };
         expect_len("body vertices", s.sim.state().body_pos.len(), n_body_vertices)?;
         expect_len("garment output vertices", s.sim.garment().n_vertices(), n_garment_vertices)?;
         require(garment_out, "garment_out")?;
@@ -991,7 +1099,7 @@ pub unsafe extern "C" fn hood_sim_set_pin_targets(
 ) -> hood_status {
     guard(|| {
         // SAFETY: checked by `sim_mut`.
-        let s = unsafe { sim_mut(sim)? };
+        let mut s = unsafe { sim_mut(sim)? };
         expect_len("pin targets", s.sim.garment().n_vertices(), n_vertices)?;
         require(targets, "targets")?;
         // SAFETY: count is the caller's promise.
@@ -1015,7 +1123,7 @@ pub unsafe extern "C" fn hood_sim_reset(
 ) -> hood_status {
     guard(|| {
         // SAFETY: checked by `sim_mut`.
-        let s = unsafe { sim_mut(sim)? };
+        let mut s = unsafe { sim_mut(sim)? };
         let n = s.sim.garment().n_vertices();
         expect_len("reset positions", n, n_vertices)?;
         require(positions, "positions")?;
@@ -1081,7 +1189,7 @@ pub unsafe extern "C" fn hood_sim_teleport(
 ) -> hood_status {
     guard(|| {
         // SAFETY: checked by `sim_mut`.
-        let s = unsafe { sim_mut(sim)? };
+        let mut s = unsafe { sim_mut(sim)? };
         let r: [f32; 9] = if rotation.is_null() {
             [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
         } else {
@@ -1126,10 +1234,16 @@ unsafe impl Send for CExecutor {}
 // SAFETY: as above; `CExecutor` has no interior mutability of its own.
 unsafe impl Sync for CExecutor {}
 
+/// Task indices a C executor may be handed at once: each has a claim bit, so that an index run
+/// twice is refused instead of aliasing a task's buffers (larger jobs run serially).
+const C_EXECUTOR_MAX_TASKS: usize = 4096;
+
 struct TaskCtx<'a> {
     task: &'a (dyn Fn(usize) + Sync),
     n: usize,
     calls: AtomicUsize,
+    /// One bit per task index, set by the first call of that index.
+    claimed: [AtomicU64; C_EXECUTOR_MAX_TASKS / 64],
     bad: AtomicBool,
     panicked: AtomicBool,
 }
@@ -1146,6 +1260,12 @@ unsafe extern "C" fn run_task(ctx: *mut c_void, index: u32) {
         c.bad.store(true, Ordering::SeqCst);
         return;
     }
+    // An index run a second time would alias the first run's buffers: refuse it.
+    let bit = 1u64 << (i % 64);
+    if c.claimed[i / 64].fetch_or(bit, Ordering::AcqRel) & bit != 0 {
+        c.bad.store(true, Ordering::SeqCst);
+        return;
+    }
     c.calls.fetch_add(1, Ordering::SeqCst);
     // No unwinding through the C job system: remember the panic and re-raise it after `run`.
     if catch_unwind(AssertUnwindSafe(|| (c.task)(i))).is_err() {
@@ -1153,7 +1273,10 @@ unsafe extern "C" fn run_task(ctx: *mut c_void, index: u32) {
     }
 }
 
-impl Executor for CExecutor {
+// SAFETY: whatever the C `run` does, `run_task` runs each index in `0..n` at most once (claim
+// bits) and `run` returns only after the C `run` has (the header's contract: every task has
+// finished by then); a missing or repeated index is reported as a failed step.
+unsafe impl Executor for CExecutor {
     fn parallelism(&self) -> usize {
         self.raw.parallelism.max(1) as usize
     }
@@ -1162,11 +1285,16 @@ impl Executor for CExecutor {
         if n == 0 {
             return;
         }
-        let n32 = u32::try_from(n).expect("more tasks than fit in u32");
+        if n > C_EXECUTOR_MAX_TASKS {
+            (0..n).for_each(task);
+            return;
+        }
+        let n32 = n as u32;
         let ctx = TaskCtx {
             task,
             n,
             calls: AtomicUsize::new(0),
+            claimed: std::array::from_fn(|_| AtomicU64::new(0)),
             bad: AtomicBool::new(false),
             panicked: AtomicBool::new(false),
         };
@@ -1192,7 +1320,7 @@ impl Executor for CExecutor {
 pub unsafe extern "C" fn hood_sim_set_executor(sim: *mut hood_sim, executor: *const hood_executor) -> hood_status {
     guard(|| {
         // SAFETY: checked by `sim_mut`.
-        let s = unsafe { sim_mut(sim)? };
+        let mut s = unsafe { sim_mut(sim)? };
         let exec: Box<dyn Executor> = if executor.is_null() {
             let threads = s.sim.config().threads;
             if threads > 1 {

@@ -166,6 +166,7 @@ fn status_codes_mirror_error_codes() {
         HOOD_ERR_MODEL_IN_USE,
         HOOD_ERR_PANIC,
         HOOD_ERR_BAD_POINTER,
+        HOOD_ERR_BUSY,
     ] {
         assert!(seen.insert(c), "code {c} reused");
     }
@@ -664,8 +665,17 @@ fn teleport_moves_state_rigidly_and_translation_commutes_with_steps() {
 /// or misbehaves on request.
 #[repr(C)]
 struct TestExec {
-    mode: u32, // 0: all tasks in reverse; 1: skip the last task; 2: call an index past the end
+    mode: u32, // 0: all tasks in reverse; 1: skip the last task; 2: call an index past the end;
+    // 3: call index 0 twice; 4: as 0, but first wait until `release` is set (after setting `entered`)
     calls: std::sync::atomic::AtomicUsize,
+    entered: std::sync::atomic::AtomicBool,
+    release: std::sync::atomic::AtomicBool,
+}
+
+impl TestExec {
+    fn new(mode: u32) -> TestExec {
+        TestExec { mode, calls: Default::default(), entered: Default::default(), release: Default::default() }
+    }
 }
 
 unsafe extern "C" fn test_run(user: *mut std::ffi::c_void, n: u32, task: hood_task_fn, ctx: *mut std::ffi::c_void) {
@@ -673,6 +683,12 @@ unsafe extern "C" fn test_run(user: *mut std::ffi::c_void, n: u32, task: hood_ta
     let e = unsafe { &*(user as *const TestExec) };
     let task = task.unwrap();
     e.calls.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    if e.mode == 4 {
+        e.entered.store(true, std::sync::atomic::Ordering::SeqCst);
+        while !e.release.load(std::sync::atomic::Ordering::SeqCst) {
+            std::thread::yield_now();
+        }
+    }
     let upto = if e.mode == 1 { n.saturating_sub(1) } else { n };
     for i in (0..upto).rev() {
         // SAFETY: the executor contract.
@@ -682,6 +698,10 @@ unsafe extern "C" fn test_run(user: *mut std::ffi::c_void, n: u32, task: hood_ta
         // SAFETY: the library must ignore (and report) out-of-range indices.
         unsafe { task(ctx, n + 5) };
     }
+    if e.mode == 3 {
+        // SAFETY: the library must refuse (and report) an index run twice.
+        unsafe { task(ctx, 0) };
+    }
 }
 
 #[test]
@@ -690,7 +710,7 @@ fn executor_callback_runs_the_step_and_misuse_is_caught() {
     let sc = scene(8);
     let n = sc.rest.len();
     let (a, b) = (sc.sim(l.model), sc.sim(l.model));
-    let good = TestExec { mode: 0, calls: Default::default() };
+    let good = TestExec::new(0);
     let exec = hood_executor { user: &good as *const TestExec as *mut _, parallelism: 3, run: Some(test_run) };
     // SAFETY: `good` outlives its use by `b` (restored to NULL below).
     assert_eq!(unsafe { hood_sim_set_executor(b, &exec) }, HOOD_OK);
@@ -702,8 +722,8 @@ fn executor_callback_runs_the_step_and_misuse_is_caught() {
     }
     assert!(good.calls.load(std::sync::atomic::Ordering::SeqCst) > 0, "the executor was not used");
     assert_eq!(out_a, out_b, "task order changed the result");
-    for mode in [1, 2] {
-        let bad = TestExec { mode, calls: Default::default() };
+    for mode in [1, 2, 3] {
+        let bad = TestExec::new(mode);
         let exec = hood_executor { user: &bad as *const TestExec as *mut _, parallelism: 3, run: Some(test_run) };
         let before = positions(b, n);
         let mut sentinel = vec![[5.0f32; 3]; n];
@@ -799,6 +819,87 @@ fn config_effects_are_honoured() {
         assert!(nrm.iter().all(|v| (len(*v) - 1.0).abs() < 1e-3), "normals are not unit length");
         assert_eq!(hood_sim_free(sim), HOOD_OK);
         assert_eq!(hood_garment_free(g), HOOD_OK);
+    }
+}
+
+/// A raw pointer that may cross threads (the tests use it as the header allows).
+struct SendPtr<T>(*mut T);
+impl<T> Clone for SendPtr<T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<T> Copy for SendPtr<T> {}
+// SAFETY: only handed to the library, which checks every use.
+unsafe impl<T> Send for SendPtr<T> {}
+
+#[test]
+fn a_sim_in_use_on_another_thread_is_busy_for_step_and_free() {
+    let l = load(8, 13);
+    let sc = scene(6);
+    let n = sc.rest.len();
+    let sim = sc.sim(l.model);
+    let exec = Box::leak(Box::new(TestExec::new(4)));
+    let raw = hood_executor { user: exec as *const TestExec as *mut _, parallelism: 2, run: Some(test_run) };
+    // SAFETY: `exec` is leaked, so it outlives the sim.
+    assert_eq!(unsafe { hood_sim_set_executor(sim, &raw) }, HOOD_OK);
+    let p = SendPtr(sim);
+    let body = sc.body_at(1, [0.0; 3]);
+    let stepper = std::thread::spawn(move || {
+        let p = p;
+        let mut out = vec![[0.0f32; 3]; n];
+        step(p.0, &body, &mut out)
+    });
+    while !exec.entered.load(std::sync::atomic::Ordering::SeqCst) {
+        std::thread::yield_now();
+    }
+    // The other thread is inside the step: every call that changes or frees the sim is refused.
+    let mut out = vec![[0.0f32; 3]; n];
+    assert_eq!(step(sim, &sc.body_at(1, [0.0; 3]), &mut out), HOOD_ERR_BUSY);
+    assert!(last_error().contains("another thread"), "{}", last_error());
+    // SAFETY: a live sim (the library refuses the free while it is in use).
+    unsafe {
+        assert_eq!(hood_sim_free(sim), HOOD_ERR_BUSY);
+        assert_eq!(hood_sim_set_executor(sim, null()), HOOD_ERR_BUSY);
+    }
+    exec.release.store(true, std::sync::atomic::Ordering::SeqCst);
+    assert_eq!(stepper.join().unwrap(), HOOD_OK);
+    assert_eq!(step(sim, &sc.body_at(2, [0.0; 3]), &mut out), HOOD_OK, "{}", last_error());
+    // SAFETY: a live sim, now idle.
+    assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+}
+
+#[test]
+fn free_racing_steps_on_another_thread_never_crashes() {
+    let l = load(8, 14);
+    for _ in 0..5 {
+        let sc = scene(6);
+        let n = sc.rest.len();
+        let sim = SendPtr(sc.sim(l.model));
+        let frames: Vec<Vec<[f32; 3]>> = (1..=40).map(|t| sc.body_at(t, [0.0; 3])).collect();
+        let stepper = std::thread::spawn(move || {
+            let sim = sim;
+            let mut out = vec![[0.0f32; 3]; n];
+            let mut codes = Vec::new();
+            for f in &frames {
+                codes.push(step(sim.0, f, &mut out));
+            }
+            codes
+        });
+        // Free as soon as the sim is idle: BUSY while a step runs, then OK exactly once.
+        let mut freed = 0;
+        while freed == 0 {
+            // SAFETY: a handle of this library (checked; refused while in use).
+            match unsafe { hood_sim_free(sim.0) } {
+                HOOD_OK => freed += 1,
+                HOOD_ERR_BUSY => std::thread::yield_now(),
+                other => panic!("free gave {other}: {}", last_error()),
+            }
+        }
+        let codes = stepper.join().unwrap();
+        // Steps before the free succeed; after it the handle is gone.
+        let first_gone = codes.iter().position(|&c| c != HOOD_OK).unwrap_or(codes.len());
+        assert!(codes[first_gone..].iter().all(|&c| c == HOOD_ERR_INVALID_HANDLE), "{codes:?}");
     }
 }
 

@@ -224,6 +224,7 @@ fn compiler_checks_types_constants_and_layouts() {
         HOOD_ERR_MODEL_IN_USE,
         HOOD_ERR_PANIC,
         HOOD_ERR_BAD_POINTER,
+        HOOD_ERR_BUSY,
         HOOD_MODEL_ALIGN,
         HOOD_EFFECT_BODY_COLLISION,
         HOOD_EFFECT_PINNING,

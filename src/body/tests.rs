@@ -624,7 +624,8 @@ fn body_query_on_a_thread_pool_matches_serial() {
 struct Reversed(usize);
 
 #[cfg(feature = "std")]
-impl crate::sim::Executor for Reversed {
+// SAFETY: every index once (reversed, possibly split over two threads joined before return).
+unsafe impl crate::sim::Executor for Reversed {
     fn parallelism(&self) -> usize {
         self.0
     }

@@ -5,10 +5,13 @@
 
 /// Runs the independent tasks of a step.
 ///
-/// # Safety contract for implementors (checked by nothing, relied on by the step)
-/// [`run`](Executor::run) must call `task(i)` exactly once for every `i` in `0..n`, from any
-/// threads, and return only after every call has returned.
-pub trait Executor: Send + Sync {
+/// # Safety
+/// The step gives each task index its own part of its buffers, so an implementor must keep this
+/// contract (nothing checks it, and breaking it creates aliasing mutable references):
+/// [`run`](Executor::run) calls `task(i)` exactly once for every `i` in `0..n` (never twice,
+/// never an index outside `0..n`), from any threads, and returns only after every call has
+/// returned. A task that panics may end `run` by unwinding, after the other calls returned.
+pub unsafe trait Executor: Send + Sync {
     /// How many tasks are worth splitting work into (at least 1).
     fn parallelism(&self) -> usize;
     /// Calls `task(i)` once for each `i in 0..n` and returns when all calls are done.
@@ -19,7 +22,8 @@ pub trait Executor: Send + Sync {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Serial;
 
-impl Executor for Serial {
+// SAFETY: every index once, in order, on the calling thread.
+unsafe impl Executor for Serial {
     fn parallelism(&self) -> usize {
         1
     }
@@ -204,7 +208,9 @@ mod pool {
         }
     }
 
-    impl Executor for ThreadPool {
+    // SAFETY: each index is claimed once from a shared counter and `run` waits for every
+    // claimed task to finish before it returns (see `run` below).
+    unsafe impl Executor for ThreadPool {
         fn parallelism(&self) -> usize {
             self.threads()
         }
