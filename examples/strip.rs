@@ -7,12 +7,14 @@
 //! Writes `OUT_DIR/procedural_walk_skirt.png` (the procedural mannequin walking, with a skirt
 //! posed by skinning with diffused weights) and, when `ASSETS_DIR` (default `../shared/assets`)
 //! holds the MakeHuman body and the CMU walk, `OUT_DIR/cmu_walk.png` (the walk retargeted onto
-//! the MakeHuman body). Six frames each, side view (from the character's left), metres.
+//! the MakeHuman body), and `OUT_DIR/motions/<family>.png` for every family of the motion corpus
+//! (seed 1, eight frames over four seconds; `docs/motions/` holds them). Six frames each
+//! otherwise, side view (from the character's left), metres.
 
 use hood::render::{Camera, Image, Style};
 use hood::rig::fit::{diffused_weights, pose_garment, DIFFUSION_SAMPLES};
 use hood::rig::motion::{animate, BodyMotion, ClipRest, Retarget, RetargetOptions, MODEL_FPS};
-use hood::rig::procedural::{skirt, walk, Mannequin};
+use hood::rig::procedural::{family_motion, skirt, walk, Family, Mannequin};
 use hood::rig::Pose;
 use std::path::PathBuf;
 
@@ -64,6 +66,20 @@ fn main() -> hood::Result<()> {
     let p = out.join("procedural_walk_skirt.png");
     hood::io::png::write_strip(&p, &frames)?;
     println!("wrote {} ({} body vertices, skirt {} vertices)", p.display(), m.rest().len(), g.rest.len());
+
+    // The motion corpus: every family, seed 1, on the mannequin.
+    let dir = out.join("motions");
+    std::fs::create_dir_all(&dir)
+        .map_err(|e| hood::Error::Io { path: dir.display().to_string(), message: e.to_string() })?;
+    for family in Family::ALL {
+        let mo = family_motion(m.skeleton(), family, 4.0, 1)?;
+        let body = mo.animate(m.skeleton(), m.weights(), m.rest())?;
+        let frames: Vec<Image> =
+            pick(&body, 8).into_iter().map(|f| frame_image(body.frame(f), m.faces(), None)).collect();
+        let p = dir.join(format!("{}.png", family.name()));
+        hood::io::png::write_strip(&p, &frames)?;
+        println!("wrote {}", p.display());
+    }
 
     // CMU walk on the MakeHuman body.
     if !assets.join("body/base.obj").exists() || !assets.join("motions/cmu_12_03_walk.bvh").exists() {

@@ -108,6 +108,17 @@ impl MotionKind {
         })
     }
 
+    /// Whether the motion belongs to the held-out split of the motion corpus (validation only):
+    /// corpus clips and random poses with a seed from [`proc_::HELD_OUT_SEEDS`] on, and the
+    /// back-flip family.
+    pub fn is_held_out(self) -> bool {
+        match self {
+            MotionKind::Corpus(f, s) => proc_::is_held_out(f, s),
+            MotionKind::RandomPoses(s) => s >= proc_::HELD_OUT_SEEDS,
+            _ => false,
+        }
+    }
+
     /// The motion on `skel` (any rig with the CMU bone names), `seconds` long at 30 Hz.
     ///
     /// # Errors

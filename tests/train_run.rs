@@ -41,6 +41,18 @@ fn train_config_json_round_trip() {
     assert!(e.contains("latnet"), "{e}");
     assert!(TrainConfig::from_json("{\"scenes\": [{\"garment\": \"hat\", \"motion\": \"walk\"}]}").is_err());
     assert!(TrainConfig::from_json("{\"latent\": -3}").is_err());
+    // Corpus clips parse by name, on procedural and MakeHuman garments, and round-trip.
+    let corpus = r#"{"scenes": [{"garment": "dress", "motion": "dance-4", "seconds": 2},
+        {"garment": "tee", "frames": 30, "motion": "cartwheel-2"}]}"#;
+    let c = TrainConfig::from_json(corpus).unwrap();
+    assert_eq!(TrainConfig::from_json(&c.to_json()).unwrap(), c);
+    assert_eq!(c.scenes[1].name(), "makehuman-tee/cartwheel-2");
+    // The held-out split cannot be trained on.
+    for motion in ["jumps-1000", "backflip-3", "random-1001"] {
+        let text = format!(r#"{{"scenes": [{{"garment": "tee", "motion": "{motion}"}}]}}"#);
+        let e = TrainConfig::from_json(&text).unwrap_err().to_string();
+        assert!(e.contains("held out"), "{motion}: {e}");
+    }
 }
 
 /// The configs committed beside the shipped models (the record of how each was trained, and

@@ -211,9 +211,16 @@ fn scene(j: &Json) -> Result<SceneSource> {
     let s = |k: &str| j.get(k).and_then(Json::as_str).ok_or_else(|| bad("scenes", &format!("each needs '{k}'")));
     let garment = s("garment")?;
     let motion_named = |name: &str| {
-        MotionKind::parse(name).ok_or_else(|| {
+        let m = MotionKind::parse(name).ok_or_else(|| {
             bad("motion", "walk, run, jump, turn, arm-swings, random-<seed> or <corpus family>-<seed> (jumps-3)")
-        })
+        })?;
+        if m.is_held_out() {
+            return Err(bad(
+                "motion",
+                "held out for validation (seeds from 1000 on and every backflip): not for training",
+            ));
+        }
+        Ok(m)
     };
     if garment == "tee" || garment == "jeans" {
         let frames = j.get("frames").map(|v| uint(v, "frames")).transpose()?.unwrap_or(300) as usize;

@@ -2,7 +2,10 @@
 //! four 300-frame scenes the cards report (the procedural skirt at 500 vertices and dress at
 //! 2,000 on the procedural walk, the MakeHuman t-shirt and jeans on the CMU walk), each scored
 //! on its own rollout and one step at a time from common states, with the training objective;
-//! the figures come out as one Markdown table and every rollout as a PNG strip.
+//! the figures come out as one Markdown table and every rollout as a PNG strip. `--held-out`
+//! runs the held-out split of the motion corpus instead (motions no training run may use), and
+//! any `GARMENT:MOTION` pair can be named. Every row says first whether the garment stayed on
+//! the body (the off-body metric): a lost garment fails whatever its other figures.
 
 use crate::io_err;
 use crate::objective::ObjectiveArg;
@@ -21,18 +24,76 @@ use std::time::Instant;
 const SCENES: [(&str, &str, usize, &str); 4] = [
     ("skirt", "skirt", 500, "walk"),
     ("dress", "dress", 2000, "walk"),
-    ("tee", "tee", 0, ""),
-    ("jeans", "jeans", 0, ""),
+    ("tee", "tee", 0, "walk"),
+    ("jeans", "jeans", 0, "walk"),
 ];
+
+/// The held-out split's validation scenes (`--held-out`): vigorous corpus motions with seeds no
+/// training run may use, the whole back-flip family, on the MakeHuman t-shirt and jeans and the
+/// procedural dress and skirt.
+const HELD_OUT: [&str; 16] = [
+    "tee:jumps-1001",
+    "tee:hop-1001",
+    "tee:dance-1001",
+    "tee:spin-1001",
+    "tee:cartwheel-1001",
+    "tee:handstand-1001",
+    "tee:backflip-1001",
+    "tee:mix-1001",
+    "jeans:jumps-1002",
+    "jeans:kick-1002",
+    "jeans:cartwheel-1002",
+    "jeans:dance-1002",
+    "dress:jumps-1003",
+    "dress:dance-1003",
+    "dress:spin-1003",
+    "skirt:hop-1004",
+];
+
+/// One scene to validate on.
+#[derive(Clone, Debug)]
+struct SceneSpec {
+    /// The name in the table and the strips' file names.
+    label: String,
+    garment: String,
+    vertices: usize,
+    motion: String,
+}
+
+impl SceneSpec {
+    /// A name of [`SCENES`], or `GARMENT:MOTION` (the procedural garments at the sizes of
+    /// [`SCENES`], the cape at 400 vertices).
+    fn parse(name: &str) -> Result<SceneSpec> {
+        if let Some(&(label, garment, vertices, motion)) = SCENES.iter().find(|c| c.0 == name) {
+            return Ok(SceneSpec { label: label.into(), garment: garment.into(), vertices, motion: motion.into() });
+        }
+        let unknown = || {
+            Error::parse("scenes", 0, format!("unknown scene '{name}' (skirt, dress, tee, jeans or GARMENT:MOTION)"))
+        };
+        let (garment, motion) = name.split_once(':').ok_or_else(unknown)?;
+        let vertices = match garment {
+            "cape" => 400,
+            "tee" | "jeans" => 0,
+            g => SCENES.iter().find(|c| c.1 == g).ok_or_else(unknown)?.2,
+        };
+        let label = name.replace(':', "-");
+        Ok(SceneSpec { label, garment: garment.into(), vertices, motion: motion.into() })
+    }
+}
 
 #[derive(Args)]
 pub struct ValidateArgs {
     /// The `.hood` files to validate (one table row per file and scene).
     #[arg(required = true)]
     models: Vec<PathBuf>,
-    /// Scenes, comma-separated, from skirt, dress, tee, jeans.
+    /// Scenes, comma-separated: skirt, dress, tee, jeans (the cards' training-walk scenes), or
+    /// GARMENT:MOTION (e.g. tee:jumps-1001; motions as `hood simulate --motion` takes them).
     #[arg(long, default_value = "skirt,dress,tee,jeans", value_delimiter = ',')]
     scenes: Vec<String>,
+    /// The held-out split of the motion corpus instead of `--scenes`: 16 scenes of vigorous
+    /// motion (jumps, hops, dances, spins, inversions, a mix) with seeds no training run may use.
+    #[arg(long)]
+    held_out: bool,
     /// Frames of every rollout (30 per second).
     #[arg(long, default_value_t = 300)]
     frames: usize,
@@ -124,10 +185,9 @@ fn labels(models: &[PathBuf]) -> Vec<String> {
 }
 
 /// Runs one model on one scene.
-fn validate_one(model: &Model<'_>, scene: usize, a: &ValidateArgs, strip: &Path) -> Result<Row> {
+fn validate_one(model: &Model<'_>, scene: &SceneSpec, a: &ValidateArgs, strip: &Path) -> Result<Row> {
     let clock = Instant::now();
-    let (_, garment, vertices, motion) = SCENES[scene];
-    let (anim, _) = named_scene(garment, vertices, motion, a.frames, a.assets.as_deref())?;
+    let (anim, _) = named_scene(&scene.garment, scene.vertices, &scene.motion, a.frames, a.assets.as_deref())?;
     let frames = a.frames.min(anim.n_frames().saturating_sub(1));
     let opts = RolloutOptions {
         gap_every: a.gap_every,
@@ -169,23 +229,15 @@ fn validate_one(model: &Model<'_>, scene: usize, a: &ValidateArgs, strip: &Path)
 
 /// Runs `hood validate`.
 pub fn validate(a: ValidateArgs) -> Result<()> {
-    let scenes: Vec<usize> = a
-        .scenes
-        .iter()
-        .map(|s| {
-            SCENES
-                .iter()
-                .position(|c| c.0 == s.as_str())
-                .ok_or_else(|| Error::parse("scenes", 0, format!("unknown scene '{s}' (skirt, dress, tee, jeans)")))
-        })
-        .collect::<Result<_>>()?;
+    let names: Vec<&str> = if a.held_out { HELD_OUT.to_vec() } else { a.scenes.iter().map(String::as_str).collect() };
+    let scenes: Vec<SceneSpec> = names.iter().map(|s| SceneSpec::parse(s)).collect::<Result<_>>()?;
     let files: Vec<ModelBytes> = a.models.iter().map(ModelBytes::read).collect::<Result<_>>()?;
     // Validated once, before any rollout; the rollouts share them.
     let models: Vec<Model<'_>> = files.iter().map(ModelBytes::model).collect::<Result<_>>()?;
     std::fs::create_dir_all(&a.out).map_err(|e| io_err(&a.out, e))?;
     let labels = labels(&a.models);
     let stem = |m: usize| labels[m].as_str();
-    let jobs: Vec<(usize, usize)> = (0..models.len()).flat_map(|m| scenes.iter().map(move |&s| (m, s))).collect();
+    let jobs: Vec<(usize, usize)> = (0..models.len()).flat_map(|m| (0..scenes.len()).map(move |s| (m, s))).collect();
     let results: Mutex<Vec<Option<Result<Row>>>> = Mutex::new((0..jobs.len()).map(|_| None).collect());
     let next = AtomicUsize::new(0);
     let clock = Instant::now();
@@ -194,8 +246,8 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
             scope.spawn(|| loop {
                 let j = next.fetch_add(1, Ordering::Relaxed);
                 let Some(&(m, s)) = jobs.get(j) else { break };
-                let strip = a.out.join(format!("{}-{}.png", stem(m), SCENES[s].0));
-                let r = validate_one(&models[m], s, &a, &strip);
+                let strip = a.out.join(format!("{}-{}.png", stem(m), scenes[s].label));
+                let r = validate_one(&models[m], &scenes[s], &a, &strip);
                 let done = results.lock().map(|mut v| {
                     v[j] = Some(r);
                     v.iter().filter(|x| x.is_some()).count()
@@ -205,7 +257,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
                     done.unwrap_or(0),
                     jobs.len(),
                     a.models[m].display(),
-                    SCENES[s].0,
+                    scenes[s].label,
                     clock.elapsed().as_secs_f64()
                 );
             });
@@ -214,8 +266,8 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
     let results = results.into_inner().map_err(|_| Error::parse("validate", 0, "a rollout thread panicked"))?;
     let mut table = format!(
         "Validation: {} frames, gap and inside count every {} frames, training objective, {}{}{}, one thread per rollout.\n\n\
-         | model | scene | vertices | finite | own rollout: relative gap (absolute) | of which stretching | p95 | from common states | objective mean (J) | largest after frame 1 (J, frame) | penetrating % | inside % | largest strain | s |\n\
-         |---|---|---:|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
+         | model | scene | vertices | on the body | worn vertices off: max % (mean) | drift max (cm) | finite | own rollout: relative gap (absolute) | of which stretching | p95 | from common states | objective mean (J) | largest after frame 1 (J, frame) | penetrating % | inside % | largest strain | s |\n\
+         |---|---|---:|---|---:|---:|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
         a.frames,
         a.gap_every,
         a.precision,
@@ -225,11 +277,13 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
     let mut failed = None;
     // Each model's own-rollout relative gaps, for the closing line (one figure to rank snapshots).
     let mut gaps: Vec<Vec<f64>> = vec![Vec::new(); a.models.len()];
+    // Each model's verdicts: garment kept on the body (and finite) per scene.
+    let mut kept: Vec<Vec<bool>> = vec![Vec::new(); a.models.len()];
     for (&(m, s), r) in jobs.iter().zip(results) {
         let row = match r {
             Some(Ok(row)) => row,
             Some(Err(e)) => {
-                eprintln!("{} on {}: {e}", a.models[m].display(), SCENES[s].0);
+                eprintln!("{} on {}: {e}", a.models[m].display(), scenes[s].label);
                 failed.get_or_insert(e);
                 continue;
             }
@@ -237,13 +291,24 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         };
         let o = &row.own;
         gaps[m].extend(o.gap_mean);
+        kept[m].push(o.garment_kept());
         let f2 = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.2}"));
         let f3 = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.3}"));
         table += &format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.4} | {} | {:.2} | {} | {:.3} | {:.0} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.4} | {} | {:.2} | {} | {:.3} | {:.0} |\n",
             stem(m),
-            SCENES[s].0,
+            scenes[s].label,
             row.vertices,
+            match (o.lost_at, o.off_body_max) {
+                (Some(f), _) => format!("**lost at {f}**"),
+                (None, Some(_)) => "yes".into(),
+                (None, None) => "-".into(),
+            },
+            match (o.off_body_max, o.off_body_mean) {
+                (Some(x), Some(mean)) => format!("{x:.1} ({mean:.1})"),
+                _ => "-".into(),
+            },
+            o.max_drift.map_or_else(|| "-".into(), |d| format!("{:.1}", 100.0 * d)),
             if o.finite { "yes" } else { "**no**" },
             gap_cell(o),
             f3(o.gap_by_term.map(|t| t.stretching)),
@@ -266,6 +331,19 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
     if !means.is_empty() {
         table +=
             &format!("\nMean own-rollout relative gap over the {} scene(s): {}.\n", scenes.len(), means.join(", "));
+    }
+    let verdicts: Vec<String> = kept
+        .iter()
+        .enumerate()
+        .filter(|(_, k)| !k.is_empty())
+        .map(|(m, k)| format!("{} {} of {}", stem(m), k.iter().filter(|&&x| x).count(), k.len()))
+        .collect();
+    if !verdicts.is_empty() {
+        table += &format!(
+            "\nGarment on the body (under {} % of worn vertices over 10 cm off at every frame): {}.\n",
+            hood::eval::LOST_PERCENT,
+            verdicts.join(", ")
+        );
     }
     let path = a.out.join("validation.md");
     std::fs::write(&path, &table).map_err(|e| io_err(&path, e))?;

@@ -101,6 +101,16 @@ impl Family {
     }
 }
 
+/// Seeds from this one on are the held-out split: no training run may use them (the trainer
+/// refuses them), so validation on them measures motions no model has seen.
+pub const HELD_OUT_SEEDS: u64 = 1000;
+
+/// Whether `family` drawn with `seed` belongs to the held-out split: every seed from
+/// [`HELD_OUT_SEEDS`] on, and every clip of [`Family::Backflip`] (a whole family kept unseen).
+pub fn is_held_out(family: Family, seed: u64) -> bool {
+    seed >= HELD_OUT_SEEDS || family == Family::Backflip
+}
+
 /// The seed's draws, shared by every family.
 struct Draws {
     /// Amplitude scale, 0.8-1.2.
@@ -517,6 +527,12 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn the_held_out_split_is_high_seeds_and_the_back_flip() {
+        assert!(is_held_out(Family::Jumps, 1000) && is_held_out(Family::Backflip, 1));
+        assert!(!is_held_out(Family::Jumps, 999) && !is_held_out(Family::Cartwheel, 3));
     }
 
     #[test]

@@ -11,7 +11,7 @@ mod mannequin;
 mod motions;
 mod sdf;
 
-pub use corpus::{family_motion, Family};
+pub use corpus::{family_motion, is_held_out, Family, HELD_OUT_SEEDS};
 pub use garments::{cape, long_dress, skirt, square_cloth, ProceduralGarment};
 pub use mannequin::{Mannequin, DEFAULT_SPACING};
 pub use motions::{arm_swings, jump, random_poses, run, turn_on_the_spot, walk, LocalMotion};
