@@ -6,7 +6,7 @@
 
 mod common;
 use common::*;
-use hood::sim::{BodyDesc, Precision, Sim, SimConfig, Sleeping};
+use hood::sim::{BodyDesc, Precision, Sim, SimConfig, Sleeping, StepMode};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
@@ -61,7 +61,13 @@ fn step_every_effect_precision_and_thread_count() {
             for normals in [true, false] {
                 for sleeping in [None, Some(Sleeping::default())] {
                     for precision in [Precision::F32, Precision::Bf16] {
-                        for threads in [1, 2] {
+                        for (threads, step) in [
+                            (1, StepMode::Network),
+                            (2, StepMode::Network),
+                            (1, StepMode::Solver { iterations: 4 }),
+                            (2, StepMode::Solver { iterations: 4 }),
+                        ] {
+                            let network = step == StepMode::Network;
                             let cfg = SimConfig {
                                 body_collision: body,
                                 pinning,
@@ -73,7 +79,8 @@ fn step_every_effect_precision_and_thread_count() {
                                 // solver refinement with the sleeping, which keeps the
                                 // combinations few.
                                 projection: (body && normals).then_some(0.004),
-                                refine: sleeping.map(|_| 3),
+                                refine: sleeping.filter(|_| network).map(|_| 3),
+                                step,
                                 ..SimConfig::default()
                             };
                             let b0 = scene.body_at(0);

@@ -508,3 +508,40 @@ fn runtime_refinement_coasts_in_the_carried_frame() {
         assert!(gained > 0.0 && left <= 1e-3 * gained, "frame {t}: {left:e} J left of {gained:e}");
     }
 }
+
+/// The solver step mode: no network, the implicit step by L-BFGS from the coasting guess. It
+/// lowers the objective from coasting, more iterations lower it further from the same state,
+/// the first step is a regular one (no start-up), a random model's weights do not matter, and
+/// it refuses `refine` beside it.
+#[test]
+fn runtime_solver_step_mode_is_the_implicit_step_without_the_network() {
+    use hood::sim::StepMode;
+    let scene = Scene::new(12, 12);
+    let b0 = scene.body_at(0);
+    let new = |seed: u64, iterations: u32| {
+        let bytes = random_model(16, seed, false);
+        let cfg = SimConfig { step: StepMode::Solver { iterations }, ..SimConfig::default() };
+        let model = bytes.model().unwrap();
+        let mut sim =
+            Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap();
+        let mut objective = Vec::new();
+        for t in 1..=20 {
+            sim.step(&scene.body_at(t)).unwrap();
+            let r = *sim.last_refinement().unwrap();
+            assert!(r.f <= r.f_start, "frame {t}: {r:?}");
+            objective.push(r.f);
+        }
+        (objective, sim.positions().to_vec())
+    };
+    let (few, x_few) = new(1, 5);
+    let (other_model, x_other) = new(2, 5);
+    assert_eq!((few.clone(), x_few), (other_model, x_other), "the network's weights changed a solver step");
+    // From the same first state, 100 iterations reach a lower objective than 5.
+    let (many, _) = new(1, 100);
+    assert!(many[0] < few[0], "first step: {} with 100 iterations against {} with 5", many[0], few[0]);
+    let bytes = random_model(16, 1, false);
+    let model = bytes.model().unwrap();
+    let cfg = SimConfig { step: StepMode::Solver { iterations: 5 }, refine: Some(3), ..SimConfig::default() };
+    let err = Sim::new(&model, &scene.garment, None, cfg).err();
+    assert!(matches!(err, Some(Error::UnsupportedEffect { .. })), "{err:?}");
+}

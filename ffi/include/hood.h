@@ -178,6 +178,12 @@ typedef struct hood_sim_config {
                                    (1 ..= 1000) L-BFGS iterations of the physics objective (f32,
                                    training form), started from the network's prediction. Trades
                                    time for accuracy; the cost grows with the garment's vertices */
+    uint32_t solver_iterations; /* 0 (the default): the network computes every step. N (1 ..= 1000):
+                                   the solver step mode, no network: each step is the implicit step
+                                   of the same objective by N L-BFGS iterations from the coasting
+                                   guess, with no start-up step (HOOD_EFFECT_REFINE must be off,
+                                   else HOOD_ERR_UNSUPPORTED_EFFECT). hood_sim_last_refinement
+                                   reports each solve */
 } hood_sim_config;
 
 /* The defaults: body collision, pinning, start-up, auto-teleport (0.45 m) and the speed limit
@@ -217,7 +223,7 @@ typedef struct hood_refinement {
     float energy_before;
     float energy_after;
 } hood_refinement;
-hood_status hood_sim_last_refinement(const hood_sim *sim, hood_refinement *out);
+hood_status hood_sim_last_refinement(const hood_sim *sim, hood_refinement *out); /* also the solver step mode's solve */
 hood_status hood_sim_vertex_count(const hood_sim *sim, size_t *out);
 /* Body vertices the sim expects per step (0 without a body or without HOOD_EFFECT_BODY_COLLISION). */
 hood_status hood_sim_body_vertex_count(const hood_sim *sim, size_t *out);

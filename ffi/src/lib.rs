@@ -16,7 +16,7 @@ use hood::body::rigid::RigidMotion;
 use hood::body::BodyMesh;
 use hood::mesh::{Garment, GarmentDesc, Material};
 use hood::model::Model;
-use hood::sim::{BodyDesc, Executor, Precision, Serial, Sim, SimConfig, SimState, Sleeping, ThreadPool};
+use hood::sim::{BodyDesc, Executor, Precision, Serial, Sim, SimConfig, SimState, Sleeping, StepMode, ThreadPool};
 use hood::Error;
 use std::cell::RefCell;
 use std::collections::BTreeMap;
@@ -586,6 +586,8 @@ pub struct hood_sim_config {
     pub projection_margin: f32,
     /// Solver refinement iterations per step.
     pub refine_iterations: u32,
+    /// 0: the network steps; N: the solver step mode, N L-BFGS iterations per step.
+    pub solver_iterations: u32,
 }
 
 /// The body of a scene (see the header).
@@ -674,6 +676,10 @@ pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
             speed_limit: d.speed_limit.unwrap_or(hood::sim::DEFAULT_SPEED_LIMIT),
             projection_margin: d.projection.unwrap_or(hood::sim::DEFAULT_PROJECTION_MARGIN),
             refine_iterations: d.refine.unwrap_or(hood::sim::DEFAULT_REFINE_ITERATIONS),
+            solver_iterations: match d.step {
+                StepMode::Network => 0,
+                StepMode::Solver { iterations } => iterations,
+            },
         };
         // SAFETY: non-null; writable by the caller's promise.
         unsafe { write_out(out, c) };
@@ -714,7 +720,13 @@ fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
     let projection = (c.effects & HOOD_EFFECT_COLLISION_PROJECTION != 0).then_some(c.projection_margin);
     // The count's range is checked by the sim (1 ..= hood::sim::MAX_REFINE_ITERATIONS).
     let refine = (c.effects & HOOD_EFFECT_REFINE != 0).then_some(c.refine_iterations);
+    // Likewise (and the sim refuses it beside HOOD_EFFECT_REFINE).
+    let step = match c.solver_iterations {
+        0 => StepMode::Network,
+        iterations => StepMode::Solver { iterations },
+    };
     Ok(SimConfig {
+        step,
         teleport,
         speed_limit,
         projection,
@@ -976,8 +988,11 @@ pub unsafe extern "C" fn hood_sim_last_refinement(sim: *const hood_sim, out: *mu
         // SAFETY: checked by `sim_ref`.
         let s = unsafe { sim_ref(sim)? };
         require(out, "out")?;
-        if s.sim.config().refine.is_none() {
-            return Err(Error::UnsupportedEffect { effect: "refinement (HOOD_EFFECT_REFINE is off)" }.into());
+        if s.sim.config().refine.is_none() && s.sim.config().step == StepMode::Network {
+            return Err(Error::UnsupportedEffect {
+                effect: "refinement (HOOD_EFFECT_REFINE is off and the solver step mode is not on)",
+            }
+            .into());
         }
         let r = s.sim.last_refinement().map_or(hood_refinement::default(), |r| hood_refinement {
             iterations: r.iterations as u32,

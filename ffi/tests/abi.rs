@@ -802,6 +802,20 @@ fn config_effects_are_honoured() {
         assert_eq!(hood_sim_new(l.model, g, &bd, &cfg, &mut sim), HOOD_OK);
         assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_ERR_UNSUPPORTED_EFFECT);
         assert_eq!(hood_sim_free(sim), HOOD_OK);
+        // The solver step mode: off by default (0), range-checked, refused beside refinement,
+        // reported by hood_sim_last_refinement.
+        assert_eq!(cfg.solver_iterations, 0, "the network steps by default");
+        let mut solver = cfg;
+        solver.solver_iterations = hood::sim::MAX_REFINE_ITERATIONS + 1;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &solver, &mut sim), HOOD_ERR_OUT_OF_RANGE);
+        solver.solver_iterations = 4;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &solver, &mut sim), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_step(sim, body.as_ptr().cast(), body.len(), buf.as_mut_ptr().cast(), n), HOOD_OK);
+        assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_OK);
+        assert!(rep.iterations >= 1 && rep.energy_after <= rep.energy_before, "{rep:?}");
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        solver.effects |= HOOD_EFFECT_REFINE;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &solver, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
         refine.effects &= !HOOD_EFFECT_BODY_COLLISION;
         assert_eq!(hood_sim_new(l.model, g, null(), &refine, &mut sim), HOOD_OK, "{}", last_error());
         assert_eq!(hood_sim_free(sim), HOOD_OK);

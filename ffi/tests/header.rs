@@ -290,7 +290,8 @@ fn compiler_checks_types_constants_and_layouts() {
             teleport_threshold,
             speed_limit,
             projection_margin,
-            refine_iterations
+            refine_iterations,
+            solver_iterations
         }
     );
     layout!(cpp, hood_body_desc { positions, n_vertices, indices, n_faces, omitted });

@@ -56,6 +56,22 @@ pub const BODY_EDGE_RADIUS: f32 = 0.03;
 /// enough that a garbage count is refused instead of exhausting the system's threads.
 pub const MAX_THREADS: usize = 256;
 
+/// How a step advances the garment.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum StepMode {
+    /// The network predicts the step (HOOD), optionally refined ([`SimConfig::refine`]).
+    #[default]
+    Network,
+    /// No network: the implicit step itself, `iterations` L-BFGS iterations (1 ..=
+    /// [`MAX_REFINE_ITERATIONS`]) of the refinement's objective started from the coasting guess
+    /// (every free vertex moving on at its velocity). No start-up step; the network's buffers
+    /// are not touched. The model still sets the garment's checks (materials, pins).
+    Solver {
+        /// L-BFGS iterations per step.
+        iterations: u32,
+    },
+}
+
 /// Arithmetic of the network.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Precision {
@@ -126,6 +142,8 @@ pub struct SimConfig {
     /// trades time for accuracy, bringing each step toward the implicit step's optimum; its
     /// cost grows with the garment's vertices. [`Sim::last_refinement`] reports each one.
     pub refine: Option<u32>,
+    /// What computes the step: the network (the default) or the solver alone.
+    pub step: StepMode,
     /// Threads for the step's parallel parts when no executor is plugged in with
     /// [`Sim::set_executor`]: 1 runs serially; more (up to [`MAX_THREADS`]) starts a
     /// [`ThreadPool`] (feature `std`), with fewer workers if the system refuses some.
@@ -146,6 +164,7 @@ impl Default for SimConfig {
             speed_limit: Some(DEFAULT_SPEED_LIMIT),
             projection: None,
             refine: None,
+            step: StepMode::Network,
             threads: 1,
         }
     }
@@ -317,7 +336,16 @@ impl<'m> Sim<'m> {
             }
             _ => None,
         };
-        let refiner = match cfg.refine {
+        let iterations = match (cfg.step, cfg.refine) {
+            (StepMode::Solver { .. }, Some(_)) => {
+                return Err(Error::UnsupportedEffect {
+                    effect: "refine with the solver step mode (set the solver's iterations instead)",
+                })
+            }
+            (StepMode::Solver { iterations }, None) => Some(iterations),
+            (StepMode::Network, refine) => refine,
+        };
+        let refiner = match iterations {
             Some(iterations) => Some(Refiner::new(garment, body_state.as_ref().map(|b| &b.mesh), iterations)?),
             None => None,
         };
@@ -559,7 +587,7 @@ impl<'m> Sim<'m> {
             }
         }
         let next = if self.body.is_some() { Some(body_next) } else { None };
-        if self.state.started {
+        if self.state.started || self.cfg.step != StepMode::Network {
             self.advance(next, carry, DT, observer)?;
         } else {
             // Start-up: static body (next = current), dt = 1/3 s, no velocity; then the regular
@@ -646,7 +674,6 @@ impl<'m> Sim<'m> {
         let n = self.garment.n_vertices();
         let carried = carry != [0.0; 3];
         let last = if dt == DT_STARTUP { [0.0; 3] } else { self.last_carry };
-        let shifted = carried || last != [0.0; 3];
         // Pinned vertices sit at their targets before the graph is built; keep the old
         // positions so that a refused step leaves the state unchanged.
         self.new_pos.copy_from_slice(&self.state.pos);
@@ -657,6 +684,83 @@ impl<'m> Sim<'m> {
                 self.new_pos[i] = if carried { [t[0] - carry[0], t[1] - carry[1], t[2] - carry[2]] } else { t };
             }
         }
+        match self.cfg.step {
+            StepMode::Network => self.predict(body_next, carry, last, dt, observer)?,
+            StepMode::Solver { .. } => {
+                // The coasting guess, which the solver below refines into the implicit step.
+                for i in 0..n {
+                    let v = if self.pinned[i] { [0.0; 3] } else { self.state.velocity[i] };
+                    self.new_vel[i] = v;
+                    if !self.pinned[i] {
+                        let p = self.state.pos[i];
+                        self.new_pos[i] = [p[0] + v[0], p[1] + v[1], p[2] + v[2]];
+                    }
+                }
+            }
+        }
+        if carried {
+            for p in self.new_pos.iter_mut() {
+                *p = [p[0] + carry[0], p[1] + carry[1], p[2] + carry[2]];
+            }
+        }
+        // Not the start-up step: its optimum at dt = 1/3 s is a relaxation (for cloth without a
+        // body, a free fall of a metre), and the velocity it leaves would carry that into the
+        // first frame. The network's own start-up prediction is HOOD's.
+        let refined = self.refiner.is_some() && !first_step;
+        if let (Some(r), true) = (&mut self.refiner, refined) {
+            let now = &self.state.body_pos[..];
+            let input = RefineInput {
+                pos: &self.state.pos,
+                velocity: &self.state.velocity,
+                carry,
+                dt,
+                pinned: &self.pinned,
+                body: self.body.as_ref().map(|b| RefineBody { mesh: &b.mesh, now, next: body_next.unwrap_or(now) }),
+            };
+            r.apply(&input, &mut self.new_pos, &mut self.new_vel)?;
+        }
+        if let Some(b) = &mut self.body {
+            if let Some(proj) = &mut b.projection {
+                let at = body_next.unwrap_or(&self.state.body_pos);
+                // A refined step has built the faces at the same frame.
+                let built = if refined { self.refiner.as_ref().and_then(Refiner::next_faces) } else { None };
+                proj.apply(&*self.exec, &b.mesh, at, built, &self.pinned, &mut self.new_pos, &mut self.new_vel)?;
+            }
+        }
+        // Commit.
+        if let (Some(r), true) = (&mut self.refiner, refined) {
+            r.commit();
+        }
+        core::mem::swap(&mut self.state.pos, &mut self.new_pos);
+        core::mem::swap(&mut self.state.velocity, &mut self.new_vel);
+        if let Some(next) = body_next {
+            core::mem::swap(&mut self.state.body_prev, &mut self.state.body_pos);
+            self.state.body_pos.copy_from_slice(next);
+        } else if !self.state.body_pos.is_empty() {
+            let (prev, cur) = (&mut self.state.body_prev, &self.state.body_pos);
+            prev.copy_from_slice(cur);
+        }
+        if self.cfg.normals {
+            vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
+        }
+        self.last_carry = carry;
+        Ok(())
+    }
+    /// The network's prediction of the step (features, forward pass, integration) into
+    /// `new_pos` / `new_vel`, in the speed limit's frame (see [`advance`](Self::advance)); pinned
+    /// vertices are already at their targets in `new_pos`.
+    fn predict(
+        &mut self,
+        body_next: Option<&[[f32; 3]]>,
+        carry: [f32; 3],
+        last: [f32; 3],
+        dt: f32,
+        observer: &mut dyn FnMut(Probe<'_>),
+    ) -> Result<()> {
+        let n = self.garment.n_vertices();
+        let carried = carry != [0.0; 3];
+        let shifted = carried || last != [0.0; 3];
+        let first_step = dt == DT_STARTUP;
         if let (true, Some(b), Some(next)) = (shifted, &mut self.body, body_next) {
             let shift = |out: &mut [[f32; 3]], src: &[[f32; 3]], by: [f32; 3]| {
                 for (o, p) in out.iter_mut().zip(src) {
@@ -800,52 +904,6 @@ impl<'m> Sim<'m> {
             self.new_vel[i] = nv;
             self.new_pos[i] = np;
         }
-        if carried {
-            for p in self.new_pos.iter_mut() {
-                *p = [p[0] + carry[0], p[1] + carry[1], p[2] + carry[2]];
-            }
-        }
-        // Not the start-up step: its optimum at dt = 1/3 s is a relaxation (for cloth without a
-        // body, a free fall of a metre), and the velocity it leaves would carry that into the
-        // first frame. The network's own start-up prediction is HOOD's.
-        let refined = self.refiner.is_some() && !first_step;
-        if let (Some(r), true) = (&mut self.refiner, refined) {
-            let now = &self.state.body_pos[..];
-            let input = RefineInput {
-                pos: &self.state.pos,
-                velocity: &self.state.velocity,
-                carry,
-                dt,
-                pinned: &self.pinned,
-                body: self.body.as_ref().map(|b| RefineBody { mesh: &b.mesh, now, next: body_next.unwrap_or(now) }),
-            };
-            r.apply(&input, &mut self.new_pos, &mut self.new_vel)?;
-        }
-        if let Some(b) = &mut self.body {
-            if let Some(proj) = &mut b.projection {
-                let at = body_next.unwrap_or(&self.state.body_pos);
-                // A refined step has built the faces at the same frame.
-                let built = if refined { self.refiner.as_ref().and_then(Refiner::next_faces) } else { None };
-                proj.apply(&*self.exec, &b.mesh, at, built, &self.pinned, &mut self.new_pos, &mut self.new_vel)?;
-            }
-        }
-        // Commit.
-        if let (Some(r), true) = (&mut self.refiner, refined) {
-            r.commit();
-        }
-        core::mem::swap(&mut self.state.pos, &mut self.new_pos);
-        core::mem::swap(&mut self.state.velocity, &mut self.new_vel);
-        if let Some(next) = body_next {
-            core::mem::swap(&mut self.state.body_prev, &mut self.state.body_pos);
-            self.state.body_pos.copy_from_slice(next);
-        } else if !self.state.body_pos.is_empty() {
-            let (prev, cur) = (&mut self.state.body_prev, &self.state.body_pos);
-            prev.copy_from_slice(cur);
-        }
-        if self.cfg.normals {
-            vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
-        }
-        self.last_carry = carry;
         Ok(())
     }
 }

@@ -11,7 +11,7 @@ use hood::mesh::{Garment, GarmentDesc};
 use hood::model::ModelBytes;
 use hood::rig::procedural::Mannequin;
 use hood::scene::{procedural, GarmentKind, MotionKind};
-use hood::sim::{Precision, SimConfig};
+use hood::sim::{Precision, SimConfig, StepMode};
 use hood::{Error, Result};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -87,6 +87,10 @@ pub struct SimulateArgs {
     /// from the prediction (0: the model alone). Trades time for accuracy.
     #[arg(long, default_value_t = 0)]
     refine: u32,
+    /// The solver step mode (`SimConfig::step`): no network, every step the implicit step by
+    /// this many L-BFGS iterations from the coasting guess (0: the network steps).
+    #[arg(long, default_value_t = 0)]
+    solver: u32,
     /// Objective of the printed figures and of the gap.
     #[arg(long, value_enum, default_value_t = ObjectiveArg::Evaluation)]
     objective: ObjectiveArg,
@@ -201,6 +205,14 @@ pub fn named_scene(
     Ok((Box::new(s), name))
 }
 
+/// The step mode of `--solver K`: the network for 0, else the solver with K iterations.
+pub fn step_mode(solver: u32) -> StepMode {
+    match solver {
+        0 => StepMode::Network,
+        iterations => StepMode::Solver { iterations },
+    }
+}
+
 fn print_frame(r: &FrameRecord, frames: usize) {
     let t = r.terms.unwrap_or_default();
     // The relative gap, then the absolute gap and the descent available (coasting - optimum).
@@ -287,6 +299,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         precision,
         projection: a.projection,
         refine: (a.refine > 0).then_some(a.refine),
+        step: step_mode(a.solver),
         ..SimConfig::default()
     };
     let faces = anim.garment().faces().to_vec();

@@ -9,7 +9,7 @@
 
 use crate::io_err;
 use crate::objective::ObjectiveArg;
-use crate::simulate::{named_scene, parse_precision};
+use crate::simulate::{named_scene, parse_precision, step_mode};
 use clap::Args;
 use hood::eval::{common_state_gaps, rollout, strip_images, Method, Reference, RolloutOptions, Summary};
 use hood::model::{Model, ModelBytes};
@@ -119,6 +119,11 @@ pub struct ValidateArgs {
     /// training-form objective, so the rows score the model with the effect.
     #[arg(long, default_value_t = 0)]
     refine: u32,
+    /// The solver step mode instead of the network (`SimConfig::step`): every step the implicit
+    /// step by this many L-BFGS iterations from the coasting guess (0: the network steps; the
+    /// model file then only names the row).
+    #[arg(long, default_value_t = 0)]
+    solver: u32,
     /// Output folder: `<model>-<scene>.png` strips and `validation.md` (the table).
     #[arg(long, short, default_value = "hood-validate")]
     out: PathBuf,
@@ -201,6 +206,7 @@ fn validate_one(model: &Model<'_>, scene: &SceneSpec, a: &ValidateArgs, strip: &
         precision: parse_precision(&a.precision)?,
         projection: a.projection,
         refine: (a.refine > 0).then_some(a.refine),
+        step: step_mode(a.solver),
         ..SimConfig::default()
     };
     let own = rollout(model, &*anim, frames, cfg, &opts)?;
@@ -273,6 +279,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         a.precision,
         a.projection.map_or_else(String::new, |m| format!(", collision projection (margin {m} m)")),
         if a.refine > 0 { format!(", {} refinement iterations per step", a.refine) } else { String::new() }
+            + &if a.solver > 0 { format!(", the solver step mode ({} iterations per step, no network)", a.solver) } else { String::new() }
     );
     let mut failed = None;
     // Each model's own-rollout relative gaps, for the closing line (one figure to rank snapshots).
