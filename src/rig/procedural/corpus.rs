@@ -289,7 +289,8 @@ fn spin(b: &[usize], d: &Draws, t: f32, fr: &mut Frame) {
     fr.rot[b[HIPS]] = ry(angle);
     let ph = TAU * 2.0 * d.tempo * t;
     for (side, shift) in [(0, 0.0), (1, PI)] {
-        let lift = (0.5 + 0.5 * sinf(ph + shift)).powi(2);
+        let half = 0.5 + 0.5 * sinf(ph + shift);
+        let lift = half * half;
         leg(b, fr, side, 0.35 * lift, 0.6 * lift, 0.0, 0.0);
         arm(b, fr, side, 1.0 + 0.4 * d.amp * sinf(0.5 * ph), 0.3 * d.travel, 0.0, 0.3);
     }
