@@ -33,6 +33,7 @@ extern crate std;
 #[cfg(feature = "std")]
 pub mod bench;
 pub mod body;
+pub mod checksum;
 pub mod error;
 pub mod eval;
 pub mod features;

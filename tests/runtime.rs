@@ -545,3 +545,21 @@ fn runtime_solver_step_mode_is_the_implicit_step_without_the_network() {
     let err = Sim::new(&model, &scene.garment, None, cfg).err();
     assert!(matches!(err, Some(Error::UnsupportedEffect { .. })), "{err:?}");
 }
+
+/// The shipped model files carry their checksum: a single flipped bit anywhere (here at 400
+/// positions spread over each file, header included) is refused at load.
+#[test]
+fn runtime_shipped_models_refuse_any_flipped_bit() {
+    for name in ["compact", "medium"] {
+        let path = format!("{}/models/{name}.hood", env!("CARGO_MANIFEST_DIR"));
+        let bytes = std::fs::read(&path).unwrap();
+        assert!(hood::model::ModelBytes::new(&bytes).model().is_ok(), "{name} loads");
+        let mut rng = hood::rng::Rng::new(17);
+        for k in 0..400 {
+            let mut b = bytes.clone();
+            let bit = if k < 128 { k } else { rng.below(b.len() * 8) };
+            b[bit / 8] ^= 1 << (bit % 8);
+            assert!(hood::model::ModelBytes::new(&b).model().is_err(), "{name}: bit {bit} flipped and it loaded");
+        }
+    }
+}

@@ -10,17 +10,7 @@ use std::string::ToString;
 use std::vec;
 use std::vec::Vec;
 
-/// CRC-32 (IEEE 802.3, reflected, polynomial 0xEDB88320) as PNG chunks use.
-pub fn crc32(bytes: &[u8]) -> u32 {
-    let mut crc = 0xFFFF_FFFFu32;
-    for &b in bytes {
-        crc ^= b as u32;
-        for _ in 0..8 {
-            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
-        }
-    }
-    !crc
-}
+pub use crate::checksum::crc32;
 
 fn chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
     out.extend_from_slice(&(data.len() as u32).to_be_bytes());

@@ -1,8 +1,9 @@
-//! The `.hood` model file: a 16-byte header (magic `HOODMDL\0`, format version, reserved) and
-//! an rkyv archive of the model with every layer already packed for the kernels, in f32 and
+//! The `.hood` model file: a 16-byte header (magic `HOODMDL\0`, format version, the CRC-32 of
+//! the archive) and an rkyv archive of the model with every layer already packed for the kernels, in f32 and
 //! (optionally) bf16, plus the shape, the normalisers and provenance.
 //!
-//! Loading ([`Model::from_bytes`]) validates the header, the archive (bounds, pointers, UTF-8)
+//! Loading ([`Model::from_bytes`]) validates the header, the archive's checksum (so that a
+//! damaged file is refused, not run with wrong weights), the archive (bounds, pointers, UTF-8)
 //! and every array size against the spec, then reads the weights **in place**: no copy, no
 //! repacking, so a buffer the engine memory-maps can be used directly. It must be 16-byte
 //! aligned and outlive the [`Model`]. Files are little-endian; a big-endian CPU is refused.
@@ -26,8 +27,9 @@ use rkyv::{Archive, Deserialize, Serialize};
 
 /// First eight bytes of every `.hood` file.
 pub const MAGIC: [u8; 8] = *b"HOODMDL\0";
-/// The format version this build writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+/// The format version this build writes: 2, whose header's last word is the CRC-32 of the
+/// archive. Version 1 (that word zero, no checksum) is still read.
+pub const FORMAT_VERSION: u32 = 2;
 /// Bytes before the archive.
 pub const HEADER_LEN: usize = 16;
 /// Required alignment of a model buffer.
@@ -191,7 +193,7 @@ pub fn write_model(params: &Params, with_bf16: bool, provenance: &[(&str, &str)]
     let mut out = Vec::with_capacity(HEADER_LEN + archive.len());
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-    out.extend_from_slice(&0u32.to_le_bytes());
+    out.extend_from_slice(&crate::checksum::crc32(&archive).to_le_bytes());
     out.extend_from_slice(&archive);
     Ok(out)
 }
@@ -337,12 +339,19 @@ impl<'a> Model<'a> {
         if bytes.len() < HEADER_LEN || bytes[..8] != MAGIC {
             return Err(corrupt("not a .hood model file (bad magic)"));
         }
-        let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-        if version != FORMAT_VERSION {
+        let word = |k: usize| u32::from_le_bytes([bytes[k], bytes[k + 1], bytes[k + 2], bytes[k + 3]]);
+        let version = word(8);
+        if version != FORMAT_VERSION && version != 1 {
             return Err(corrupt("unsupported .hood format version"));
         }
         if !(bytes.as_ptr() as usize).is_multiple_of(ALIGN) {
             return Err(corrupt("model buffer is not 16-byte aligned"));
+        }
+        if version == 1 && word(12) != 0 {
+            return Err(corrupt("version-1 header with a non-zero reserved word"));
+        }
+        if version == FORMAT_VERSION && crate::checksum::crc32(&bytes[HEADER_LEN..]) != word(12) {
+            return Err(corrupt("checksum mismatch: the file is damaged"));
         }
         let rec = rkyv::access::<ArchivedModelRec, rkyv::rancor::Error>(&bytes[HEADER_LEN..]).map_err(rkyv_err)?;
         let e = rec.effects;

@@ -53,9 +53,45 @@ fn model_file_refuses_truncation_at_every_length() {
     }
 }
 
+/// The same archive under a version-1 header (no checksum), as files written before it were.
+fn as_version_1(bytes: &[u8]) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    b[8..12].copy_from_slice(&1u32.to_le_bytes());
+    b[12..16].copy_from_slice(&0u32.to_le_bytes());
+    b
+}
+
 #[test]
-fn model_file_bit_flips_are_errors_not_panics() {
+fn model_file_refuses_every_damaged_byte_and_bit() {
+    // Every byte of a tiny model changed: all refused by the checksum.
+    let spec = ModelSpec::with_schedule(4, 2, 2, "f,c0").unwrap();
+    let tiny = write_model(&Params::init(&spec, 3).unwrap(), true, &[]).unwrap();
+    for i in 0..tiny.len() {
+        let mut b = tiny.clone();
+        b[i] ^= 0x5A;
+        assert!(ModelBytes::new(&b).model().is_err(), "byte {i} of {} changed and the file loaded", tiny.len());
+    }
+    // Single bits at many positions of a larger one.
     let bytes = write_model(&small(), true, &[]).unwrap();
+    for i in (0..bytes.len()).step_by(997) {
+        let mut b = bytes.clone();
+        b[i] ^= 0x5A;
+        assert!(ModelBytes::new(&b).model().is_err(), "byte {i} changed and the file loaded");
+    }
+    let mut rng = crate::rng::Rng::new(5);
+    for _ in 0..3000 {
+        let mut b = bytes.clone();
+        let bit = rng.below(b.len() * 8);
+        b[bit / 8] ^= 1 << (bit % 8);
+        let e = ModelBytes::new(&b).model().unwrap_err();
+        assert!(matches!(e, Error::CorruptData { .. }), "bit {bit}: {e:?}");
+    }
+}
+
+#[test]
+fn model_file_bit_flips_without_a_checksum_are_errors_not_panics() {
+    let bytes = as_version_1(&write_model(&small(), true, &[]).unwrap());
+    assert!(ModelBytes::new(&bytes).model().is_ok(), "a version-1 file loads");
     let mut rng = crate::rng::Rng::new(5);
     let (mut refused, mut accepted) = (0, 0);
     for _ in 0..3000 {
@@ -93,11 +129,12 @@ fn model_file_refuses_other_versions_and_misalignment() {
         Model::from_bytes(&shifted[1..]).unwrap_err(),
         Error::CorruptData { reason: "model buffer is not 16-byte aligned" }
     );
-    bytes[8] = 2;
+    bytes[8] = 3;
     assert_eq!(
         ModelBytes::new(&bytes).model().unwrap_err(),
         Error::CorruptData { reason: "unsupported .hood format version" }
     );
+    bytes[8] = 2;
     bytes[0] = b'X';
     assert!(ModelBytes::new(&bytes).model().is_err());
 }
