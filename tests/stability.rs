@@ -97,11 +97,18 @@ fn skirt_turn() -> &'static Scene {
     S.get_or_init(|| procedural(mannequin(), GarmentKind::Skirt, 300, MotionKind::Turn, 4.0).unwrap())
 }
 
-/// A scene repeated with period `period` frames, for `frames` frames.
+/// A scene replayed for `frames` frames: frame `f` shows the scene's frame `source(period, f)`
+/// (repeated with period `period` frames by [`repeat`]).
 struct Looped<'a> {
     scene: &'a Scene,
     period: usize,
     frames: usize,
+    source: fn(usize, usize) -> usize,
+}
+
+/// Frame `f` of a scene repeated every `period` frames.
+fn repeat(period: usize, f: usize) -> usize {
+    f % period
 }
 
 impl Animation for Looped<'_> {
@@ -115,10 +122,10 @@ impl Animation for Looped<'_> {
         self.frames
     }
     fn body_frame(&self, f: usize) -> &[[f32; 3]] {
-        self.scene.body_frame(f % self.period)
+        self.scene.body_frame((self.source)(self.period, f))
     }
     fn pin_targets(&self, f: usize, out: &mut [[f32; 3]]) -> hood::Result<()> {
-        self.scene.skinned_garment(f % self.period, out)
+        self.scene.skinned_garment((self.source)(self.period, f), out)
     }
     fn initial_garment(&self) -> hood::Result<Vec<[f32; 3]>> {
         self.scene.initial_garment(0)
@@ -169,7 +176,7 @@ fn max_dist(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
 fn stability_long_rollout_of_a_repeated_motion() {
     let model = shipped("stability_long_rollout_of_a_repeated_motion");
     let period = 120;
-    let anim = Looped { scene: skirt_turn(), period, frames: LONG_FRAMES + 1 };
+    let anim = Looped { scene: skirt_turn(), period, frames: LONG_FRAMES + 1, source: repeat };
     let r = run(&model, &anim, LONG_FRAMES, SimConfig::default(), Vec::new());
     assert_finite_and_bounded("long rollout", &r, LONG_FRAMES, Some(strain_bound(&anim)));
     let cycle_mean = |c: usize| {
@@ -514,7 +521,7 @@ fn stability_bf16_follows_f32() {
         println!("stability_bf16_follows_f32: SKIPPED (the model file has no bf16 weights)");
         return;
     }
-    let anim = Looped { scene: skirt_turn(), period: 120, frames: BF16_FRAMES + 1 };
+    let anim = Looped { scene: skirt_turn(), period: 120, frames: BF16_FRAMES + 1, source: repeat };
     let keep: Vec<usize> = (1..=BF16_FRAMES).collect();
     let f32_run = run(&model, &anim, BF16_FRAMES, SimConfig::default(), keep.clone());
     let cfg = SimConfig { precision: Precision::Bf16, ..SimConfig::default() };
@@ -533,44 +540,15 @@ fn stability_bf16_follows_f32() {
     println!("bf16 vs f32 over {BF16_FRAMES} frames: worst RMS {worst_rms:.4} m, worst max {worst_max:.4} m");
 }
 
-/// A scene played forward then backward, again and again (`period` frames each way), for
-/// `frames` frames: a long vigorous sequence without a jump in the pose where it repeats.
-struct PingPong<'a> {
-    scene: &'a Scene,
-    period: usize,
-    frames: usize,
-}
-
-impl PingPong<'_> {
-    fn source(&self, f: usize) -> usize {
-        let cycle = 2 * (self.period - 1);
-        let k = f % cycle;
-        if k < self.period {
-            k
-        } else {
-            cycle - k
-        }
-    }
-}
-
-impl Animation for PingPong<'_> {
-    fn garment(&self) -> &Garment {
-        &self.scene.garment
-    }
-    fn body_mesh(&self) -> Option<&BodyMesh> {
-        Some(&self.scene.body)
-    }
-    fn n_frames(&self) -> usize {
-        self.frames
-    }
-    fn body_frame(&self, f: usize) -> &[[f32; 3]] {
-        self.scene.body_frame(self.source(f))
-    }
-    fn pin_targets(&self, f: usize, out: &mut [[f32; 3]]) -> hood::Result<()> {
-        self.scene.skinned_garment(self.source(f), out)
-    }
-    fn initial_garment(&self) -> hood::Result<Vec<[f32; 3]>> {
-        self.scene.initial_garment(0)
+/// The source frame of frame `f` when a `period`-frame scene plays forward then backward, again
+/// and again: a long vigorous sequence without a jump in the pose where it repeats.
+fn ping_pong(period: usize, f: usize) -> usize {
+    let cycle = 2 * (period - 1);
+    let k = f % cycle;
+    if k < period {
+        k
+    } else {
+        cycle - k
     }
 }
 
@@ -594,7 +572,7 @@ fn stability_shared_tee_on_jumps_forward_and_back() {
     let period = 150;
     let motion = MotionKind::parse("jumps-1001").unwrap();
     let scene = hood::scene::makehuman_on(&assets, hood::scene::MakeHumanGarment::Tee, Some(motion), period).unwrap();
-    let anim = PingPong { scene: &scene, period, frames: JUMPS_FRAMES + 1 };
+    let anim = Looped { scene: &scene, period, frames: JUMPS_FRAMES + 1, source: ping_pong };
     let on_body = trained("stability_shared_tee_on_jumps_forward_and_back (on-body bounds)");
     let enforce = on_body.is_some();
     let model = on_body.unwrap_or_else(|| shipped("stability_shared_tee_on_jumps_forward_and_back"));
