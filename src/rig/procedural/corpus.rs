@@ -174,7 +174,7 @@ fn arc(s: f32) -> f32 {
 }
 
 /// Gravity, m/s².
-const G: f32 = 9.81;
+const G: f32 = crate::physics::GRAVITY as f32;
 
 /// Time in the air of a ballistic flight `h` metres high, s.
 fn flight_time(h: f32) -> f32 {
@@ -241,27 +241,41 @@ pub fn family_motion(skel: &Skeleton, family: Family, seconds: f32, seed: u64) -
 }
 
 fn jumps(b: &[usize], d: &Draws, t: f32, fr: &mut Frame) {
-    // In seconds: a countermovement crouch (0.1-0.55 s, slow enough that the hips never drop
-    // faster than gravity), the push to take-off at 0.8 s, a ballistic flight, a landing
-    // crouch and standing up, a pause.
+    // In seconds: a countermovement crouch (0.1-0.65 s, slow enough that the shoulders never
+    // drop faster than gravity), a push whose speed grows until take-off at 0.95 s (a push that
+    // slowed before take-off would throw a top up off the shoulders), a ballistic flight with
+    // the feet tucked, a landing that absorbs the fall, standing up, a pause.
     let h = 0.2 + 0.25 * d.height;
     let air = flight_time(h);
-    let (take_off, land) = (0.8, 0.8 + air);
+    let (dip, take_off) = (0.65, 0.95);
+    let land = take_off + air;
     let period = land + 1.1 + 0.3 / d.tempo;
     let n = floorf(t / period);
     let c = t - n * period;
-    let crouch = pulse(0.1, 0.55, 0.55, take_off, c) + 0.6 * pulse(land, land + 0.35, land + 0.45, land + 1.05, c);
-    let lift = ballistic(h, c - take_off);
-    let airborne = if lift > 0.0 { 1.0 } else { 0.0 };
-    let arms_up = pulse(0.5, 0.7, land - 0.1, land + 0.3, c);
+    let push = ((c - dip) / (take_off - dip)).clamp(0.0, 1.0);
+    let absorb = ((c - land) / 0.3).clamp(0.0, 1.0);
+    let crouch = if c < dip {
+        smoothstep(0.1, dip, c)
+    } else if c < take_off {
+        1.0 - push * push
+    } else if c < land {
+        0.0
+    } else {
+        0.6 * (1.0 - (1.0 - absorb) * (1.0 - absorb)) * (1.0 - smoothstep(land + 0.4, land + 1.0, c))
+    };
+    // In the air the feet leave the floor: no grounding, the tuck and lean eased in and out.
+    let s = (c - take_off) / air;
+    let airborne = if (0.0..=1.0).contains(&s) { sinf(PI * s) * sinf(PI * s) } else { 0.0 };
+    fr.contact = if (0.0..=1.0).contains(&s) { 0.0 } else { 1.0 };
+    let arms_up = pulse(0.5, 0.8, land - 0.1, land + 0.3, c);
     let forward = 0.7 * d.travel;
-    let tuck = 0.15 * airborne;
+    let tuck = 0.3 * airborne;
     for side in 0..2 {
-        leg(b, fr, side, 0.85 * d.amp * crouch + tuck, 1.4 * d.amp * crouch + tuck, 0.0, 0.5 * crouch);
+        leg(b, fr, side, 0.85 * d.amp * crouch + tuck, 1.4 * d.amp * crouch + 2.0 * tuck, 0.0, 0.5 * crouch);
         arm(b, fr, side, 0.2 * arms_up, 2.0 * arms_up - 0.4 * crouch, 0.0, 0.3 * crouch + 0.2);
     }
     fr.rot[b[LOWER_BACK]] = rx(0.4 * d.amp * crouch + 0.1 * forward * airborne);
-    fr.root.y = lift;
+    fr.root.y = ballistic(h, c - take_off);
     fr.root.z = forward * (n + smoothstep(take_off, land, c));
 }
 
@@ -289,13 +303,13 @@ fn hop(b: &[usize], d: &Draws, t: f32, fr: &mut Frame) {
 fn skip(b: &[usize], d: &Draws, t: f32, fr: &mut Frame) {
     let cadence = 1.1 * d.tempo;
     let ph = TAU * cadence * t;
-    gait_pose(b, ph, 1.3 * d.amp, true, fr);
+    gait_pose(b, ph, 1.3 * d.amp, 1.0, fr);
     for side in 0..2 {
         let s = if side == 0 { 1.0 } else { -1.0 };
         arm(b, fr, side, -0.2, 1.0 * d.amp * s * sinf(ph), 0.0, 1.0);
     }
     // A smooth bounce on every step (a cusp would drop the body faster than gravity).
-    let h = 0.03 + 0.03 * d.height;
+    let h = (0.02 + 0.025 * d.height) * smoothstep(0.0, 0.5, t);
     fr.root.y = 0.5 * h * (1.0 - cosf(2.0 * ph));
     fr.root.z = (1.8 + 0.8 * d.travel) * t;
 }
@@ -475,9 +489,12 @@ impl Mix {
                 sides.push((b[r], [lim[0], [-lim[1][1], -lim[1][0]], [-lim[2][1], -lim[2][0]]]));
             }
             for (bone, l) in sides {
+                // The trunk's bends move the shoulders most: slower waves there keep them from
+                // dropping faster than gravity.
+                let slow = if [LOWER_BACK, SPINE, SPINE1].iter().any(|&t| b[t] == bone) { 0.5 } else { 1.0 };
                 for (axis, &[lo, hi]) in l.iter().enumerate() {
                     if hi > lo {
-                        let waves = core::array::from_fn(|_| (u(0.2, 1.2), u(0.1, 0.9), u(0.0, TAU)));
+                        let waves = core::array::from_fn(|_| (u(0.2, 1.2), slow * u(0.1, 0.9), u(0.0, TAU)));
                         channels.push((bone, axis, lo, hi, waves));
                     }
                 }
@@ -497,11 +514,12 @@ impl Mix {
         self.heading += wmax * sinf(TAU * wf * t + wp) * dt;
         self.root += Vec3::new(sinf(self.heading), 0.0, cosf(self.heading)) * v * dt;
         // Stride phase advances with speed: cadence from about 0.8 Hz walking to 1.5 Hz running.
-        let run = v > 2.0;
+        // A walk turns into a run between 1.6 and 2.4 m/s.
+        let run = smoothstep(1.6, 2.4, v);
         self.stride += TAU * (0.8 + 0.22 * v) * dt;
         gait_pose(b, self.stride, (v / 1.2).min(1.6), run, fr);
         // A smooth running bounce instead of the gait's cusped one.
-        fr.root.y = if run { 0.02 * (1.0 - cosf(2.0 * self.stride)) } else { 0.0 };
+        fr.root.y = run * 0.02 * (1.0 - cosf(2.0 * self.stride));
         let mut angle = alloc::vec![[0.0f32; 3]; fr.rot.len()];
         for &(bone, axis, lo, hi, waves) in &self.channels {
             let total: f32 = waves.iter().map(|w| w.0).sum();
@@ -570,12 +588,14 @@ mod tests {
     }
 
     /// A body standing on its feet cannot make its centre of mass fall faster than gravity (the
-    /// floor only pushes): a clip that does would throw loose cloth off the shoulders whatever
-    /// the simulator. Checked on the centroid of the bone ends of the trunk, head and legs (the
-    /// arms, light in a body, are many bones of the rig), smoothed over three frames, for the
-    /// families on their feet (inversions switch between contact points).
+    /// floor only pushes), and a top hangs from the shoulders: a clip whose shoulders drop faster
+    /// than gravity throws loose cloth off them whatever the simulator (the converged implicit
+    /// step loses a t-shirt so). Checked, smoothed over three frames, on the centroid of the bone
+    /// ends of the trunk, head and legs (the arms, light in a body, are many bones of the rig)
+    /// and on the shoulder line (the mean of the shoulder joints and the base of the neck), for
+    /// the families on their feet (inversions switch between contact points).
     #[test]
-    fn no_family_on_its_feet_drops_its_centre_of_mass_faster_than_gravity() {
+    fn no_family_on_its_feet_drops_its_body_or_shoulders_faster_than_gravity() {
         let m = Mannequin::new();
         let skel = m.skeleton();
         let arms = ["Shoulder", "Arm", "Hand", "Finger", "Thumb"];
@@ -585,35 +605,55 @@ mod tests {
                 !arms.iter().any(|a| name.contains(a))
             })
             .collect();
-        let mut worst = Vec::new();
+        let shoulders: Vec<usize> =
+            ["LeftShoulder", "RightShoulder", "Spine1"].iter().map(|n| skel.find(n).unwrap()).collect();
+        // Largest downward acceleration of a height series (m/s²), smoothed over three frames,
+        // and its frame.
+        let worst_drop = |y: &[f32]| -> (f32, usize) {
+            let smooth: Vec<f32> = y.windows(3).map(|v| (v[0] + v[1] + v[2]) / 3.0).collect();
+            let mut w = (0.0f32, 0);
+            for (f, v) in smooth.windows(3).enumerate() {
+                let down = -(v[0] - 2.0 * v[1] + v[2]) * 900.0;
+                if down > w.0 {
+                    w = (down, f + 2);
+                }
+            }
+            w
+        };
+        let mut failures = Vec::new();
         for family in Family::ALL.into_iter().filter(|f| !f.inverts()) {
-            let mut w = (0.0f32, 0, 0);
+            let (mut centre, mut line) = ((0.0f32, 0, 0), (0.0f32, 0, 0));
             for seed in [1, 2, 3, 1001] {
                 let clip = family_motion(skel, family, 6.0, seed).unwrap();
                 let mut pose = Pose::rest(skel);
-                let y: Vec<f32> = (0..clip.n_frames())
-                    .map(|f| {
-                        clip.pose(skel, f, &mut pose).unwrap();
-                        body.iter().map(|&i| pose.tail(skel, i).y).sum::<f32>() / body.len() as f32
-                    })
-                    .collect();
-                let smooth: Vec<f32> = y.windows(3).map(|v| (v[0] + v[1] + v[2]) / 3.0).collect();
-                for (f, v) in smooth.windows(3).enumerate() {
-                    let down = -(v[0] - 2.0 * v[1] + v[2]) * 900.0;
-                    if down > w.0 {
-                        w = (down, seed, f + 2);
-                    }
+                let (mut yc, mut ys) = (Vec::new(), Vec::new());
+                for f in 0..clip.n_frames() {
+                    clip.pose(skel, f, &mut pose).unwrap();
+                    let mean =
+                        |bones: &[usize]| bones.iter().map(|&i| pose.tail(skel, i).y).sum::<f32>() / bones.len() as f32;
+                    yc.push(mean(&body));
+                    ys.push(mean(&shoulders));
+                }
+                let (c, s) = (worst_drop(&yc), worst_drop(&ys));
+                if c.0 > centre.0 {
+                    centre = (c.0, seed, c.1);
+                }
+                if s.0 > line.0 {
+                    line = (s.0, seed, s.1);
                 }
             }
-            std::println!("{family:?}: largest downward acceleration {:.1} m/s^2 (seed {}, frame {})", w.0, w.1, w.2);
-            worst.push((family, w));
-        }
-        for (family, (a, seed, f)) in worst {
-            // The bound allows for the estimate (bone ends, not a mass distribution, and the
+            std::println!(
+                "{family:?}: largest downward acceleration {:.1} m/s^2 of the centroid (seed {}, frame {}), {:.1} of the shoulders (seed {}, frame {})",
+                centre.0, centre.1, centre.2, line.0, line.1, line.2
+            );
+            // The bounds allow for the estimate (bone ends, not a mass distribution, and the
             // gaits' grounding by the lowest foot); the flights and crouches that threw cloth
             // off reached 2-8 g.
-            assert!(a < 1.5 * G, "{family:?} seed {seed} frame {f}: the centroid drops at {a} m/s^2");
+            if centre.0 > 1.5 * G || line.0 > 1.1 * G {
+                failures.push((family, centre, line));
+            }
         }
+        assert!(failures.is_empty(), "faster than gravity: {failures:?}");
     }
 
     #[test]

@@ -171,15 +171,28 @@ fn ground_points(skel: &Skeleton, any_contact: bool) -> Result<Vec<(usize, Vec3)
 /// Runs `f(t, frame)` at 30 Hz for `seconds`, converting world-axis angles to local rotations;
 /// `grounded` keeps the lowest heel/toe at its rest height (before `frame.root.y` is added).
 fn build(skel: &Skeleton, seconds: f32, grounded: bool, f: impl FnMut(f32, &mut Frame)) -> Result<LocalMotion> {
-    build_on(skel, seconds, if grounded { Ground::Feet } else { Ground::Free }, f)
+    build_frames(skel, seconds, if grounded { Ground::Feet } else { Ground::Free }, false, f)
 }
 
 /// [`build`] with any [`Ground`] mode: the lowest contact point is brought to the rest height of
-/// the feet before `frame.root.y` is added.
+/// the feet before `frame.root.y` is added; and, since a floor only pushes, the root never
+/// falls faster than gravity: where the grounded pose would drop it faster (a stance knee that
+/// bends faster than a body can fall), the body leaves the floor on a ballistic arc until the
+/// pose catches up with it.
 pub(crate) fn build_on(
     skel: &Skeleton,
     seconds: f32,
     ground_mode: Ground,
+    f: impl FnMut(f32, &mut Frame),
+) -> Result<LocalMotion> {
+    build_frames(skel, seconds, ground_mode, ground_mode != Ground::Free, f)
+}
+
+fn build_frames(
+    skel: &Skeleton,
+    seconds: f32,
+    ground_mode: Ground,
+    floor_only_pushes: bool,
     mut f: impl FnMut(f32, &mut Frame),
 ) -> Result<LocalMotion> {
     if !(seconds > 0.0 && seconds.is_finite()) {
@@ -208,6 +221,12 @@ pub(crate) fn build_on(
             let low = ground.iter().map(|&(b, p)| pose.transform_point(skel, b, p).y).fold(f32::INFINITY, f32::min);
             root.y += frame.contact * (rest_low - low);
         }
+        if floor_only_pushes && k >= 2 {
+            // Height after a fall under gravity alone from the last two frames, m.
+            let dt = 1.0 / MODEL_FPS;
+            let (y1, y2) = (out.root[k - 1][1], out.root[k - 2][1]);
+            root.y = root.y.max(2.0 * y1 - y2 - crate::physics::GRAVITY as f32 * dt * dt);
+        }
         out.local.extend_from_slice(&local);
         out.root.push(root.into());
     }
@@ -219,32 +238,35 @@ pub(crate) fn build_on(
 fn gait(skel: &Skeleton, seconds: f32, speed: f32, cadence: f32, amp: f32, run: bool) -> Result<LocalMotion> {
     let b = Bones::new(skel)?.idx;
     build(skel, seconds, true, |t, fr| {
-        gait_pose(&b, TAU * cadence * t, amp, run, fr);
+        gait_pose(&b, TAU * cadence * t, amp, if run { 1.0 } else { 0.0 }, fr);
         fr.root.z = speed * t;
     })
 }
 
 /// The joint angles of a gait at phase `ph` (radians of the stride cycle), amplitudes scaled by
-/// `amp`; sets `fr.root.y` to the run's bounce.
-pub(crate) fn gait_pose(b: &[usize], ph: f32, amp: f32, run: bool, fr: &mut Frame) {
+/// `amp`, `run` from 0 (a walk) to 1 (a run; between, a blend, so that a gait speeding up has no
+/// jump in its pose); sets `fr.root.y` to the run's bounce.
+pub(crate) fn gait_pose(b: &[usize], ph: f32, amp: f32, run: f32, fr: &mut Frame) {
+    // `walk` at 0, `run` at 1, exactly.
+    let blend = |walk: f32, run_value: f32| walk * (1.0 - run) + run_value * run;
     for (side, shift) in [(0usize, 0.0f32), (1, PI)] {
         let p = ph + shift;
         let (hip, knee, foot) = if side == 0 { (L_UPLEG, L_LEG, L_FOOT) } else { (R_UPLEG, R_LEG, R_FOOT) };
         let flex = 0.42 * amp * sinf(p);
         let swing = 0.5 + 0.5 * cosf(p - 0.4);
-        let knee_flex = if run { 0.35 + 1.3 * swing * swing } else { 0.08 + 0.9 * swing * swing * swing };
-        fr.rot[b[hip]] = rx(-flex - if run { 0.25 } else { 0.0 });
+        let knee_flex = blend(0.08 + 0.9 * swing * swing * swing, 0.35 + 1.3 * swing * swing);
+        fr.rot[b[hip]] = rx(-flex - blend(0.0, 0.25));
         fr.rot[b[knee]] = rx(knee_flex);
-        fr.rot[b[foot]] = rx(-0.15 * sinf(p - 0.5) - if run { 0.1 } else { 0.0 });
+        fr.rot[b[foot]] = rx(-0.15 * sinf(p - 0.5) - blend(0.0, 0.1));
         // Arms swing against the leg of the same side.
         let (arm, fore) = if side == 0 { (L_ARM, L_FOREARM) } else { (R_ARM, R_FOREARM) };
         let dz = if side == 0 { -0.55 } else { 0.55 };
         fr.rot[b[arm]] = rx(0.35 * amp * sinf(p)) * rz(dz);
-        fr.rot[b[fore]] = rx(-(if run { 1.3 } else { 0.3 }) - 0.15 * amp * sinf(p));
+        fr.rot[b[fore]] = rx(-blend(0.3, 1.3) - 0.15 * amp * sinf(p));
     }
-    fr.rot[b[SPINE]] = ry(0.06 * amp * sinf(ph)) * rx(if run { 0.15 } else { 0.03 });
+    fr.rot[b[SPINE]] = ry(0.06 * amp * sinf(ph)) * rx(blend(0.03, 0.15));
     fr.rot[b[HIPS]] = ry(-0.05 * amp * sinf(ph));
-    fr.root.y = if run { 0.04 * (sinf(2.0 * ph)).abs() } else { 0.0 };
+    fr.root.y = blend(0.0, 0.04 * (sinf(2.0 * ph)).abs());
 }
 
 /// Walking forward (+z) at about 1.2 m/s for `seconds`.
