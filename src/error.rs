@@ -99,6 +99,12 @@ pub enum Error {
         /// What was wrong.
         message: String,
     },
+    /// A closed mesh is wound inside out (its faces clockwise seen from outside, as a change of
+    /// handedness gives): its normals point inwards.
+    InsideOut {
+        /// Which mesh ("body", ...).
+        what: &'static str,
+    },
     /// An operating-system I/O failure (only produced under the `std` feature).
     Io {
         /// The path or resource.
@@ -130,6 +136,7 @@ impl Error {
             Error::CorruptData { .. } => 12,
             Error::Parse { .. } => 13,
             Error::Io { .. } => 14,
+            Error::InsideOut { .. } => 15,
         }
     }
 
@@ -172,6 +179,11 @@ impl fmt::Display for Error {
                 }
             }
             Error::Io { path, message } => write!(f, "{path}: {message}"),
+            Error::InsideOut { what } => write!(
+                f,
+                "the {what} mesh is inside out (signed volume negative: faces clockwise seen from outside); \
+                 reverse the order of every face's vertices"
+            ),
         }
     }
 }

@@ -3,6 +3,7 @@
 
 mod common;
 use common::*;
+use hood::body::BodyMesh;
 use hood::sim::{BodyDesc, Precision, Sim, SimConfig};
 use hood::Error;
 
@@ -562,4 +563,31 @@ fn runtime_shipped_models_refuse_any_flipped_bit() {
             assert!(hood::model::ModelBytes::new(&b).model().is_err(), "{name}: bit {bit} flipped and it loaded");
         }
     }
+}
+
+#[test]
+fn runtime_refuses_an_inside_out_body_and_surveys_a_coarse_one() {
+    let scene = Scene::new(6, 6);
+    let bytes = random_model(16, 5, false);
+    let model = bytes.model().unwrap();
+    let b0 = scene.body_at(0);
+    // As it comes: outward, and fine enough for the body edges' radius.
+    let sim = scene.sim(&model, SimConfig::default()).unwrap();
+    let survey = sim.body_survey().unwrap();
+    assert!(survey.volume > 0.0 && !survey.too_coarse_for(hood::sim::BODY_EDGE_RADIUS), "{survey:?}");
+    // Every face reversed, as a change of handedness between engines gives.
+    let flipped: Vec<[u32; 3]> = scene.body.faces().iter().map(|f| [f[0], f[2], f[1]]).collect();
+    let inside_out = BodyMesh::new(b0.len(), &flipped).unwrap();
+    let err =
+        Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &inside_out, positions: &b0 }), SimConfig::default())
+            .err()
+            .unwrap();
+    assert!(matches!(err, Error::InsideOut { what: "body" }), "{err}");
+    assert_eq!(err.code(), 15);
+    // 164 vertices over the same ellipsoid: accepted, and said to be too coarse.
+    let (cv, cf) = hood::body::shapes::ellipsoid(9, 18, [0.25, 0.3, 0.25], [0.0; 3]);
+    let coarse = BodyMesh::new(cv.len(), &cf).unwrap();
+    let sim = Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &coarse, positions: &cv }), SimConfig::default())
+        .unwrap();
+    assert!(sim.body_survey().unwrap().too_coarse_for(hood::sim::BODY_EDGE_RADIUS));
 }

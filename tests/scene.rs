@@ -117,3 +117,22 @@ fn scene_initial_states_are_not_torn() {
         }
     }
 }
+
+/// The bodies the project ships or builds are wound outward and fine enough for the body edges
+/// (MakeHuman skipped with a message when ../shared/assets is absent).
+#[test]
+fn scene_bodies_are_outward_and_fine_enough_for_the_body_edges() {
+    let m = Mannequin::new();
+    let mut scenes = vec![procedural(&m, GarmentKind::Dress, 800, MotionKind::Walk, 0.1).unwrap()];
+    let assets = hood::workloads::default_shared_dir().join("assets");
+    if assets.join("body/base.obj").exists() {
+        scenes.push(hood::scene::makehuman(&assets, hood::scene::MakeHumanGarment::Tee, 2).unwrap());
+    } else {
+        println!("SKIPPED the MakeHuman body: {} not found", assets.display());
+    }
+    for s in &scenes {
+        let survey = s.body.survey(s.body_frame(0)).unwrap();
+        println!("{}: {survey:?}", s.name);
+        assert!(!survey.inside_out() && !survey.too_coarse_for(hood::sim::BODY_EDGE_RADIUS), "{}: {survey:?}", s.name);
+    }
+}

@@ -71,7 +71,7 @@ const char *hood_version_string(void);
 typedef uint32_t hood_status;
 
 #define HOOD_OK 0u
-/* Codes 1-14 mirror hood::Error (Error::code). */
+/* Codes 1-15 mirror hood::Error (Error::code). */
 #define HOOD_ERR_INDEX_OUT_OF_RANGE 1u /* an index (e.g. in a face) refers past the end */
 #define HOOD_ERR_NON_FINITE 2u         /* a coordinate or parameter is NaN or infinite */
 #define HOOD_ERR_DEGENERATE_FACE 3u    /* a garment triangle has zero area */
@@ -86,6 +86,7 @@ typedef uint32_t hood_status;
 #define HOOD_ERR_CORRUPT_DATA 12u      /* model bytes corrupt, truncated, misaligned, other version */
 #define HOOD_ERR_PARSE 13u             /* a text input could not be parsed */
 #define HOOD_ERR_IO 14u                /* an operating-system I/O failure */
+#define HOOD_ERR_INSIDE_OUT 15u        /* the body mesh is wound inside out (reverse every face) */
 /* Codes of the C ABI itself. */
 #define HOOD_ERR_NULL_POINTER 100u     /* a required pointer argument is NULL */
 #define HOOD_ERR_INVALID_HANDLE 101u   /* not a live handle of that kind (freed, or never made) */
@@ -227,6 +228,21 @@ hood_status hood_sim_last_refinement(const hood_sim *sim, hood_refinement *out);
 hood_status hood_sim_vertex_count(const hood_sim *sim, size_t *out);
 /* Body vertices the sim expects per step (0 without a body or without HOOD_EFFECT_BODY_COLLISION). */
 hood_status hood_sim_body_vertex_count(const hood_sim *sim, size_t *out);
+
+/* Orientation and resolution of the sim's body at its first frame. hood_sim_new refuses a body
+ * wound inside out (faces clockwise seen from outside, as a change of handedness gives: negative
+ * signed volume) with HOOD_ERR_INSIDE_OUT. It accepts a body too coarse for the body edges (their
+ * radius is 3 cm: once the median face edge exceeds sqrt(3) * 3 cm, typical faces have points no
+ * body vertex reaches, and unpinned cloth can fall through between vertices); check too_coarse
+ * after creation and warn, or use a finer body. HOOD_ERR_UNSUPPORTED_EFFECT without a body or
+ * body collision. */
+typedef struct hood_body_survey {
+    float volume;       /* signed volume, m^3 (of an open mesh, an estimate) */
+    float median_edge;  /* m */
+    float longest_edge; /* m */
+    uint32_t too_coarse; /* 1: median_edge > sqrt(3) * 0.03 m; else 0 */
+} hood_body_survey;
+hood_status hood_sim_body_survey(const hood_sim *sim, hood_body_survey *out);
 
 /* Advances one frame. `body_next`: the body's vertices at the next frame, 3 * n_body_vertices
  * floats (NULL with 0 when the sim has no body). `garment_out`: receives the garment's new

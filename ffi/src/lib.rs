@@ -59,6 +59,8 @@ pub const HOOD_ERR_CORRUPT_DATA: hood_status = 12;
 pub const HOOD_ERR_PARSE: hood_status = 13;
 /// [`Error::Io`].
 pub const HOOD_ERR_IO: hood_status = 14;
+/// [`Error::InsideOut`].
+pub const HOOD_ERR_INSIDE_OUT: hood_status = 15;
 /// A required pointer argument is NULL.
 pub const HOOD_ERR_NULL_POINTER: hood_status = 100;
 /// Not a live handle of the expected kind.
@@ -1017,6 +1019,45 @@ pub unsafe extern "C" fn hood_sim_body_vertex_count(sim: *const hood_sim, out: *
         require(out, "out")?;
         // SAFETY: `out` non-null.
         unsafe { write_out(out, s.sim.state().body_pos.len()) };
+        Ok(())
+    })
+}
+
+/// Orientation and resolution of a sim's body (see the header).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct hood_body_survey {
+    /// Signed volume at the first frame, m³ (positive: wound outward).
+    pub volume: f32,
+    /// Median face edge, m.
+    pub median_edge: f32,
+    /// Longest face edge, m.
+    pub longest_edge: f32,
+    /// 1 when the median edge is too long for the body edges' radius (cloth may fall between
+    /// the body's vertices), else 0.
+    pub too_coarse: u32,
+}
+
+/// The survey of the sim's body (see the header).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_body_survey(sim: *const hood_sim, out: *mut hood_body_survey) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_ref`.
+        let s = unsafe { sim_ref(sim)? };
+        require(out, "out")?;
+        let survey =
+            s.sim.body_survey().ok_or(Error::UnsupportedEffect { effect: "body survey (the sim has no body)" })?;
+        let v = hood_body_survey {
+            volume: survey.volume as f32,
+            median_edge: survey.median_edge,
+            longest_edge: survey.longest_edge,
+            too_coarse: survey.too_coarse_for(hood::sim::BODY_EDGE_RADIUS) as u32,
+        };
+        // SAFETY: `out` non-null.
+        unsafe { write_out(out, v) };
         Ok(())
     })
 }

@@ -153,6 +153,7 @@ fn status_codes_mirror_error_codes() {
         (Error::CorruptData { reason: "" }, HOOD_ERR_CORRUPT_DATA),
         (Error::parse("", 0, ""), HOOD_ERR_PARSE),
         (Error::Io { path: String::new(), message: String::new() }, HOOD_ERR_IO),
+        (Error::InsideOut { what: "" }, HOOD_ERR_INSIDE_OUT),
     ];
     let mut seen = std::collections::BTreeSet::new();
     for (e, code) in cases {
@@ -936,4 +937,45 @@ fn one_model_shared_by_sims_on_several_threads() {
     let results: Vec<Vec<[f32; 3]>> = threads.into_iter().map(|t| t.join().unwrap()).collect();
     assert!(results.windows(2).all(|w| w[0] == w[1]), "sims on different threads disagree");
     assert_eq!(results[0], run());
+}
+
+#[test]
+fn an_inside_out_body_is_refused_and_a_coarse_one_reported() {
+    let m = load(16, 3);
+    let sc = scene(6);
+    // The test scene's body: 194 vertices over an ellipsoid, outward, and coarse.
+    let sim = sc.sim(m.model);
+    let mut survey = hood_body_survey::default();
+    // SAFETY: live handle, writable out.
+    assert_eq!(unsafe { hood_sim_body_survey(sim, &mut survey) }, HOOD_OK, "{}", last_error());
+    assert!(survey.volume > 0.0 && survey.too_coarse == 1, "{survey:?}");
+    // SAFETY: live handle.
+    assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+    // The same body with every face reversed.
+    let flipped: Vec<[u32; 3]> = sc.body_faces.iter().map(|f| [f[0], f[2], f[1]]).collect();
+    let g = sc.garment();
+    let bd = hood_body_desc { indices: flipped.as_ptr().cast(), ..sc.body_desc() };
+    let mut out = null_mut();
+    // SAFETY: live handles, valid descriptors.
+    assert_eq!(unsafe { hood_sim_new(m.model, g, &bd, null(), &mut out) }, HOOD_ERR_INSIDE_OUT);
+    assert!(out.is_null() && last_error().contains("inside out"), "{}", last_error());
+    // A finer body of the same shape: not coarse.
+    let (fine, fine_faces) = hood::body::shapes::ellipsoid(40, 64, [0.25, 0.3, 0.25], [0.0; 3]);
+    let bd = hood_body_desc {
+        positions: fine.as_ptr().cast(),
+        n_vertices: fine.len(),
+        indices: fine_faces.as_ptr().cast(),
+        n_faces: fine_faces.len(),
+        omitted: null(),
+    };
+    // SAFETY: as above.
+    assert_eq!(unsafe { hood_sim_new(m.model, g, &bd, null(), &mut out) }, HOOD_OK, "{}", last_error());
+    // SAFETY: live handle, writable out.
+    assert_eq!(unsafe { hood_sim_body_survey(out, &mut survey) }, HOOD_OK);
+    assert_eq!(survey.too_coarse, 0, "{survey:?}");
+    // SAFETY: live handles.
+    unsafe {
+        assert_eq!(hood_sim_free(out), HOOD_OK);
+        assert_eq!(hood_garment_free(g), HOOD_OK);
+    }
 }

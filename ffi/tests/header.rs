@@ -219,6 +219,7 @@ fn compiler_checks_types_constants_and_layouts() {
         HOOD_ERR_CORRUPT_DATA,
         HOOD_ERR_PARSE,
         HOOD_ERR_IO,
+        HOOD_ERR_INSIDE_OUT,
         HOOD_ERR_NULL_POINTER,
         HOOD_ERR_INVALID_HANDLE,
         HOOD_ERR_MODEL_IN_USE,
@@ -296,6 +297,7 @@ fn compiler_checks_types_constants_and_layouts() {
     );
     layout!(cpp, hood_body_desc { positions, n_vertices, indices, n_faces, omitted });
     layout!(cpp, hood_refinement { iterations, energy_before, energy_after });
+    layout!(cpp, hood_body_survey { volume, median_edge, longest_edge, too_coarse });
     layout!(cpp, hood_executor { user, parallelism, run });
     cpp.push_str("int main() { return 0; }\n");
 

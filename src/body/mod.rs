@@ -9,6 +9,7 @@
 //! * [`BodyFrame`]: owns the buffers and the two grids (vertices, face centroids) of one frame and
 //!   answers the two queries of the model: body edges and nearest faces.
 //! * [`shapes`]: procedural closed bodies.
+//! * [`BodySurvey`]: whether a body mesh is inside out or too coarse for the model.
 //! * [`Winding`]: which points lie inside the body (generalised winding number), for evaluation.
 
 mod frame;
@@ -16,10 +17,12 @@ pub mod geometry;
 mod grid;
 pub mod rigid;
 pub mod shapes;
+mod survey;
 mod winding;
 
 pub use frame::{BodyFrame, GarmentQuery};
 pub use grid::{Nearest, PointGrid, BLOCK, DEFAULT_CELLS_PER_POINT, X_SPLIT};
+pub use survey::BodySurvey;
 pub use winding::{winding_number_exact, Winding, CLUSTER, FAR};
 
 use crate::error::{Error, Result};

@@ -16,7 +16,7 @@ mod projection;
 mod refine;
 
 use crate::body::rigid::{best_rigid_motion, RigidMotion};
-use crate::body::{BodyMesh, Nearest, PointGrid};
+use crate::body::{BodyMesh, BodySurvey, Nearest, PointGrid};
 use crate::error::{Error, Result};
 use crate::features::{self, BodyNodes, Embeddings, GarmentNodes, DT, DT_STARTUP, EDGE_WIDTH, NODE_WIDTH};
 use crate::hierarchy::{Hierarchy, HierarchyConfig};
@@ -205,6 +205,8 @@ struct BodyState {
     carried_next: Vec<[f32; 3]>,
     /// Collision projection's buffers (only with [`SimConfig::projection`]).
     projection: Option<Projection>,
+    /// Orientation and resolution of the body at the first frame.
+    survey: BodySurvey,
 }
 
 /// One garment on one body, stepped by one model.
@@ -313,7 +315,10 @@ impl<'m> Sim<'m> {
         let n = garment.n_vertices();
         let body_state = match body {
             Some(b) if use_body => {
-                b.mesh.check_positions(b.positions)?;
+                let survey = b.mesh.survey(b.positions)?;
+                if survey.inside_out() {
+                    return Err(Error::InsideOut { what: "body" });
+                }
                 let nb = b.mesh.n_vertices();
                 Some(BodyState {
                     mesh: b.mesh.clone(),
@@ -332,6 +337,7 @@ impl<'m> Sim<'m> {
                         Some(margin) => Some(Projection::new(b.mesh, n, margin)?),
                         None => None,
                     },
+                    survey,
                 })
             }
             _ => None,
@@ -414,6 +420,14 @@ impl<'m> Sim<'m> {
     /// Body edges and active body nodes of the last network pass.
     pub fn last_body_counts(&self) -> (usize, usize) {
         self.last_body
+    }
+
+    /// Orientation and resolution of the body at the first frame (`None` without a body or
+    /// body collision). [`BodySurvey::too_coarse_for`] with [`BODY_EDGE_RADIUS`] says whether
+    /// unpinned cloth may fall between its vertices: [`Sim::new`] accepts such a body (a crude
+    /// proxy may be what a scene wants) but a caller should warn.
+    pub fn body_survey(&self) -> Option<BodySurvey> {
+        self.body.as_ref().map(|b| b.survey)
     }
 
     /// Garment vertices the collision projection moved in the last step (0 when it is off).
