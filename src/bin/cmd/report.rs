@@ -1,6 +1,8 @@
 //! `hood report`: accuracy against time (EVALUATION.md). Variants (models and their precisions,
-//! the implicit solver at several iteration counts) x workloads -> a Markdown table and an SVG
-//! plot of the relative objective gap against ms per step.
+//! models refined by the solver, the runtime's solver step mode and the f64 implicit solver at
+//! several iteration counts) x workloads (garment and motion) -> a Markdown table per workload with
+//! the Pareto front of time against gap marked and the off-body verdict, and an SVG plot of the
+//! relative objective gap against ms per step.
 
 use crate::io_err;
 use crate::objective::ObjectiveArg;
@@ -11,7 +13,7 @@ use hood::model::spec::format_schedule;
 use hood::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
 use hood::rig::procedural::Mannequin;
 use hood::scene::{procedural, GarmentKind, MotionKind};
-use hood::sim::{Precision, SimConfig};
+use hood::sim::{Precision, SimConfig, StepMode};
 use hood::solve::LbfgsParams;
 use hood::{Error, Result};
 use std::fmt::Write as _;
@@ -23,8 +25,9 @@ pub struct ReportArgs {
     /// (timing only) when there is none.
     #[arg(long, value_delimiter = ',')]
     model: Vec<PathBuf>,
-    /// Workloads: skirt, dress, cape (procedural mannequin walking), tee, jeans (MakeHuman on the
-    /// CMU walk; skipped when the assets are absent).
+    /// Workloads `GARMENT[:MOTION]`: skirt, dress, cape (procedural mannequin), tee, jeans
+    /// (MakeHuman; skipped when the assets are absent); the motion as `hood simulate --motion`
+    /// takes it (default: walk, for tee and jeans the CMU walk), e.g. `skirt:run,tee:jumps-1001`.
     #[arg(long, value_delimiter = ',', default_value = "skirt,jeans")]
     workload: Vec<String>,
     /// Vertices of the procedural garments (approximate).
@@ -44,7 +47,12 @@ pub struct ReportArgs {
     /// `SimConfig::refine`; comma-separated).
     #[arg(long, value_delimiter = ',')]
     refine: Vec<u32>,
-    /// Threads of the network step.
+    /// The runtime's solver step mode (`StepMode::Solver`, f32, no network) at these L-BFGS
+    /// iteration counts per step (comma-separated): the solver a game would ship, beside the f64
+    /// implicit solver of `--iterations`.
+    #[arg(long, value_delimiter = ',')]
+    solver: Vec<u32>,
+    /// Threads of the runtime's step (network, refinement and solver step mode).
     #[arg(long, default_value_t = 1)]
     threads: usize,
     /// Also score every variant one step at a time from common states (those of a converged
@@ -126,17 +134,28 @@ fn candidates(a: &ReportArgs) -> Result<Vec<Candidate>> {
 
 fn workload(a: &ReportArgs, name: &str, m: &Mannequin) -> Result<Option<Box<dyn Animation>>> {
     let seconds = (a.frames + 1) as f32 / 30.0 + 0.1;
-    if let Some(kind) = GarmentKind::parse(name) {
-        return Ok(Some(Box::new(procedural(m, kind, a.vertices, MotionKind::Walk, seconds)?)));
+    let (garment, motion) = match name.split_once(':') {
+        Some((g, mo)) => {
+            let motion = MotionKind::parse(mo)
+                .ok_or_else(|| Error::parse("workload", 0, format!("unknown motion '{mo}' in '{name}'")))?;
+            (g, Some(motion))
+        }
+        None => (name, None),
+    };
+    if let Some(kind) = GarmentKind::parse(garment) {
+        let motion = motion.unwrap_or(MotionKind::Walk);
+        return Ok(Some(Box::new(procedural(m, kind, a.vertices, motion, seconds)?)));
     }
-    use hood::scene::{makehuman, MakeHumanGarment};
-    let which = match name {
+    use hood::scene::{makehuman_on, MakeHumanGarment};
+    let which = match garment {
         "tee" => MakeHumanGarment::Tee,
         "jeans" => MakeHumanGarment::Jeans,
         _ => return Err(Error::parse("workload", 0, format!("unknown workload '{name}'"))),
     };
     let assets = a.assets.clone().unwrap_or_else(|| hood::workloads::default_shared_dir().join("assets"));
-    match makehuman(&assets, which, a.frames + 1) {
+    // The MakeHuman garments' walk is the CMU walk (no motion given).
+    let motion = motion.filter(|&mo| mo != MotionKind::Walk);
+    match makehuman_on(&assets, which, motion, a.frames + 1) {
         Ok(s) => Ok(Some(Box::new(s))),
         Err(e @ Error::Io { .. }) => {
             eprintln!("skipping {name}: {e}");
@@ -190,6 +209,14 @@ pub fn report(a: ReportArgs) -> Result<()> {
                 variants.push((format!("{} f32 + refine {k} it.", c.label), Method::Network { model, cfg }));
             }
         }
+        // The solver step mode runs no network; a Sim still borrows a model (any will do).
+        if let Some(model) = loaded.first() {
+            for &k in &a.solver {
+                let step = StepMode::Solver { iterations: k.max(1) };
+                let cfg = SimConfig { threads: a.threads.max(1), step, ..SimConfig::default() };
+                variants.push((format!("solver step f32 {k} it."), Method::Network { model, cfg }));
+            }
+        }
         for &k in &a.iterations {
             let solver = LbfgsParams { max_iterations: k.max(1), ..converged_solver() };
             variants.push((format!("implicit L-BFGS {k} it. (f64)"), Method::Implicit(solver)));
@@ -235,7 +262,7 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
     let _ = writeln!(s, "# Accuracy against time\n");
     let _ = writeln!(
         s,
-        "Generated by `hood report --workload {} --vertices {} --frames {} --gap-every {} --iterations {}{} --threads {} \
+        "Generated by `hood report --workload {} --vertices {} --frames {} --gap-every {} --iterations {}{}{} --threads {} \
          --objective {}{}` \
          (EVALUATION.md \"Accuracy against time\"; the figure is [report.svg](report.svg)).\n",
         a.workload.join(","),
@@ -244,6 +271,7 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
         a.gap_every,
         join(&a.iterations),
         if a.refine.is_empty() { String::new() } else { format!(" --refine {}", join(&a.refine)) },
+        if a.solver.is_empty() { String::new() } else { format!(" --solver {}", join(&a.solver)) },
         a.threads,
         a.objective.name(),
         if a.common_states { "" } else { " --common-states false" }
@@ -280,6 +308,22 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
              positions; ms/step includes both.\n"
         );
     }
+    if !a.solver.is_empty() {
+        let _ = writeln!(
+            s,
+            "\"solver step f32 k it.\" rows are the runtime's solver step mode (`StepMode::Solver`): no network, \
+             every step the implicit step of the training-form objective by k L-BFGS iterations in f32 from the \
+             coasting guess, at the runtime's threads; the \"implicit L-BFGS\" rows are the f64 reference solver.\n"
+        );
+    }
+    let _ = writeln!(
+        s,
+        "◆ marks the Pareto front of each workload: the variants that keep the garment on the body (under {} % of \
+         its worn vertices over {} cm from the body at every frame) and that no other such variant beats in both \
+         ms/step and gap mean. A garment lost is a failure whatever its gap.\n",
+        hood::eval::LOST_PERCENT,
+        100.0 * hood::eval::OFF_DISTANCE
+    );
     if a.objective == ObjectiveArg::Evaluation {
         let _ = writeln!(
             s,
@@ -317,31 +361,68 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
     s
 }
 
-/// The Markdown table of `rows`.
+/// Which of `rows` (one workload's) are on the Pareto front of time against accuracy: kept the
+/// garment on the body, finite, with a gap, and no other such row at most as slow and at most as
+/// far from the optimum, and better in one.
+fn pareto_front(rows: &[&Row]) -> Vec<bool> {
+    let eligible = |r: &Row| r.summary.finite && r.summary.garment_kept() && r.summary.gap_mean.is_some();
+    let point = |r: &Row| (r.summary.median_step_ms, r.summary.gap_mean.unwrap_or(f64::INFINITY));
+    rows.iter()
+        .map(|&r| {
+            eligible(r) && {
+                let (t, g) = point(r);
+                !rows.iter().any(|&o| {
+                    let (ot, og) = point(o);
+                    eligible(o) && ot <= t && og <= g && (ot < t || og < g)
+                })
+            }
+        })
+        .collect()
+}
+
+/// The Markdown tables of `rows`, one per workload, the Pareto front marked.
 fn table<'a>(s: &mut String, rows: impl Iterator<Item = &'a Row>) {
-    let _ = writeln!(
-        s,
-        "| workload | vertices | variant | ms/step | gap mean | of which stretching | gap p95 | absolute gap mean (mJ) | penetrating % (mean) | inside % (mean) | max strain | finite |"
-    );
-    let _ = writeln!(s, "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---|");
-    for r in rows {
-        let m = &r.summary;
+    let rows: Vec<&Row> = rows.collect();
+    let mut names: Vec<&str> = Vec::new();
+    for r in &rows {
+        if !names.contains(&r.workload.as_str()) {
+            names.push(&r.workload);
+        }
+    }
+    for name in names {
+        let cell: Vec<&Row> = rows.iter().copied().filter(|r| r.workload == name).collect();
+        let front = pareto_front(&cell);
+        let _ = writeln!(s, "\n### {name} ({} vertices)\n", cell[0].vertices);
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {:.2} | {} | {} | {} | {} | {:.2} | {} | {:.3} | {} |",
-            r.workload,
-            r.vertices,
-            r.variant,
-            m.median_step_ms,
-            fmt_opt(m.gap_mean),
-            fmt_opt(m.gap_by_term.map(|t| t.stretching)),
-            fmt_opt(m.gap_p95),
-            m.gap_abs_mean.map_or("-".to_string(), |g| format!("{:.2}", 1e3 * g)),
-            m.mean_penetrating_percent,
-            m.inside_mean.map_or("-".to_string(), |v| format!("{v:.2}")),
-            m.max_edge_strain,
-            if m.finite { "yes" } else { "no" }
+            "| variant | front | ms/step | gap mean | of which stretching | gap p95 | absolute gap mean (mJ) | on the body | worn off % (max) | penetrating % (mean) | inside % (mean) | max strain | finite |"
         );
+        let _ = writeln!(s, "|---|:-:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---|");
+        for (r, on_front) in cell.iter().zip(front) {
+            let m = &r.summary;
+            let on_body = match (m.lost_at, m.off_body_max) {
+                (Some(f), _) => format!("**lost at {f}**"),
+                (None, Some(_)) => "kept".to_string(),
+                (None, None) => "-".to_string(),
+            };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {:.2} | {} | {:.3} | {} |",
+                r.variant,
+                if on_front { "◆" } else { "" },
+                m.median_step_ms,
+                fmt_opt(m.gap_mean),
+                fmt_opt(m.gap_by_term.map(|t| t.stretching)),
+                fmt_opt(m.gap_p95),
+                m.gap_abs_mean.map_or("-".to_string(), |g| format!("{:.2}", 1e3 * g)),
+                on_body,
+                m.off_body_max.map_or("-".to_string(), |v| format!("{v:.1}")),
+                m.mean_penetrating_percent,
+                m.inside_mean.map_or("-".to_string(), |v| format!("{v:.2}")),
+                m.max_edge_strain,
+                if m.finite { "yes" } else { "no" }
+            );
+        }
     }
 }
 
