@@ -52,10 +52,10 @@ pub fn machine_peak() -> peak::Peak {
 /// cannot run.
 ///
 /// It says where two-thread timings were taken: about 30–40 ns when the threads' cores share
-/// an L3 cache, 170–200 ns across chiplets (both measured on the 2-core EPYC VM). On a 2-vCPU
-/// VM the host may move the vCPUs between the two while a benchmark runs; steps that hand data
-/// between threads (the trainer's above all) then run up to 1.6 times slower, so print this
-/// beside two-thread figures.
+/// an L3 cache, 170–200 ns across chiplets (on a two-core AMD EPYC). On a virtual machine the
+/// host may move the two virtual CPUs between such placements while a benchmark runs; steps that
+/// hand data between threads (the trainer's above all) then run up to 1.6 times slower, so print
+/// this beside two-thread figures.
 pub fn core_to_core_ns() -> Option<f64> {
     use std::sync::atomic::{AtomicU64, Ordering};
     use std::sync::Arc;
