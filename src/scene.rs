@@ -294,13 +294,89 @@ mod assets {
     use std::path::Path;
     use std::string::ToString;
 
-    /// The MakeHuman garments of the assets (pieces of `female_casualsuit01`).
+    /// The MakeHuman garments of the assets: the pieces of the three outfits of
+    /// `assets/garments` (README there). Tops hang free; trousers and leggings have their waist
+    /// pinned.
     #[derive(Clone, Copy, Debug, PartialEq, Eq)]
     pub enum MakeHumanGarment {
-        /// The t-shirt, 1,311 vertices, no pins.
+        /// The t-shirt of `female_casualsuit01`, 1,311 vertices.
         Tee,
-        /// The jeans, 886 vertices, waist pinned.
+        /// The jeans of `female_casualsuit01`, 886 vertices.
         Jeans,
+        /// The crop top of `female_sportsuit01`, 911 vertices.
+        CropTop,
+        /// The leggings of `female_sportsuit01`, 886 vertices.
+        Leggings,
+        /// The tee of `male_casualsuit04` (fitted to the same body), 810 vertices: held out from
+        /// training, for validation on a garment no model has seen.
+        MaleTee,
+        /// The jeans of `male_casualsuit04`, 886 vertices: held out like [`MakeHumanGarment::MaleTee`].
+        MaleJeans,
+    }
+
+    impl MakeHumanGarment {
+        /// Every piece.
+        pub const ALL: [MakeHumanGarment; 6] = [
+            MakeHumanGarment::Tee,
+            MakeHumanGarment::Jeans,
+            MakeHumanGarment::CropTop,
+            MakeHumanGarment::Leggings,
+            MakeHumanGarment::MaleTee,
+            MakeHumanGarment::MaleJeans,
+        ];
+
+        /// The name used on the command line and in training configs (`tee`, `jeans`,
+        /// `crop-top`, `leggings`, `male-tee`, `male-jeans`).
+        pub fn name(self) -> &'static str {
+            match self {
+                MakeHumanGarment::Tee => "tee",
+                MakeHumanGarment::Jeans => "jeans",
+                MakeHumanGarment::CropTop => "crop-top",
+                MakeHumanGarment::Leggings => "leggings",
+                MakeHumanGarment::MaleTee => "male-tee",
+                MakeHumanGarment::MaleJeans => "male-jeans",
+            }
+        }
+
+        /// The piece named `name` (see [`MakeHumanGarment::name`]).
+        pub fn parse(name: &str) -> Option<MakeHumanGarment> {
+            MakeHumanGarment::ALL.into_iter().find(|g| g.name() == name)
+        }
+
+        /// Whether the piece is held out from training (the garment split: validation only).
+        pub fn is_held_out(self) -> bool {
+            matches!(self, MakeHumanGarment::MaleTee | MakeHumanGarment::MaleJeans)
+        }
+
+        /// Whether its waist is pinned (the lower pieces).
+        pub fn pinned_waist(self) -> bool {
+            matches!(self, MakeHumanGarment::Jeans | MakeHumanGarment::Leggings | MakeHumanGarment::MaleJeans)
+        }
+
+        /// The outfit file (stem in `assets/garments`) and the piece's rank from the top (0: the
+        /// upper piece).
+        fn source(self) -> (&'static str, usize) {
+            match self {
+                MakeHumanGarment::Tee => ("female_casualsuit01", 0),
+                MakeHumanGarment::Jeans => ("female_casualsuit01", 1),
+                MakeHumanGarment::CropTop => ("female_sportsuit01", 0),
+                MakeHumanGarment::Leggings => ("female_sportsuit01", 1),
+                MakeHumanGarment::MaleTee => ("male_casualsuit04", 0),
+                MakeHumanGarment::MaleJeans => ("male_casualsuit04", 1),
+            }
+        }
+
+        /// What it is, for scene names.
+        fn description(self) -> &'static str {
+            match self {
+                MakeHumanGarment::Tee => "t-shirt",
+                MakeHumanGarment::Jeans => "jeans",
+                MakeHumanGarment::CropTop => "crop top",
+                MakeHumanGarment::Leggings => "leggings",
+                MakeHumanGarment::MaleTee => "men's tee",
+                MakeHumanGarment::MaleJeans => "men's jeans",
+            }
+        }
     }
 
     fn io_err(path: &Path, e: std::io::Error) -> Error {
@@ -329,7 +405,8 @@ mod assets {
         max_frames: usize,
     ) -> Result<Scene> {
         let mh = MakeHuman::load(assets.join("body"))?;
-        let path = assets.join("garments/female_casualsuit01.mhclo");
+        let (outfit, rank) = which.source();
+        let path = assets.join("garments").join(alloc::format!("{outfit}.mhclo"));
         let text = std::fs::read_to_string(&path).map_err(|e| io_err(&path, e))?;
         let binding = MhcloBinding::parse(&text, METRES_PER_UNIT)?;
         let obj = Obj::read(assets.join("garments").join(&binding.obj_file))?;
@@ -343,14 +420,11 @@ mod assets {
         };
         pieces.sort_by(|a, b| mean_y(b).total_cmp(&mean_y(a)));
         if pieces.len() != 2 {
-            return Err(Error::parse("female_casualsuit01", 0, "expected a t-shirt and jeans"));
+            return Err(Error::parse("mhclo", 0, alloc::format!("{outfit}: expected an upper and a lower piece")));
         }
-        let piece = match which {
-            MakeHumanGarment::Tee => &pieces[0],
-            MakeHumanGarment::Jeans => &pieces[1],
-        };
+        let piece = &pieces[rank];
         let mut garment = Garment::new(GarmentDesc::new(&piece.rest, &piece.faces))?;
-        if which == MakeHumanGarment::Jeans {
+        if which.pinned_waist() {
             let waist = boundary_loop_pins(&garment, LoopChoice::Highest)?;
             garment.set_pinned(&pinned_flags(garment.n_vertices(), &waist)?)?;
         }
@@ -395,10 +469,7 @@ mod assets {
         }
         let body_motion = BodyMotion { fps: MODEL_FPS, n_vertices: nb, positions };
         let body = BodyMesh::new(nb, &mh.body.faces)?;
-        let garment_name = match which {
-            MakeHumanGarment::Tee => "t-shirt",
-            MakeHumanGarment::Jeans => "jeans",
-        };
+        let garment_name = which.description();
         let motion_name = motion.map_or_else(|| "CMU walk".into(), |m| m.name());
         let name = alloc::format!("MakeHuman {garment_name} on {motion_name}");
         Scene::new(name, garment, body, &mh.body.rest, &mh.body_weights, mh.skeleton.clone(), poses, body_motion)

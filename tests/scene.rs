@@ -136,3 +136,27 @@ fn scene_bodies_are_outward_and_fine_enough_for_the_body_edges() {
         assert!(!survey.inside_out() && !survey.too_coarse_for(hood::sim::BODY_EDGE_RADIUS), "{}: {survey:?}", s.name);
     }
 }
+
+/// Every piece of the three MakeHuman outfits loads, fitted outside the body, the lower pieces'
+/// waists pinned, the men's outfit held out (skipped with a message when ../shared/assets is
+/// absent).
+#[test]
+fn scene_every_makehuman_outfit_piece_loads() {
+    use hood::scene::MakeHumanGarment;
+    let assets = hood::workloads::default_shared_dir().join("assets");
+    if !assets.join("body/base.obj").exists() {
+        println!("SKIPPED: {} not found", assets.display());
+        return;
+    }
+    let expected = [1311, 886, 911, 886, 810, 886];
+    for (g, n) in MakeHumanGarment::ALL.into_iter().zip(expected) {
+        assert_eq!(MakeHumanGarment::parse(g.name()), Some(g));
+        let s = hood::scene::makehuman_on(&assets, g, None, 2).unwrap();
+        assert_eq!(s.garment.n_vertices(), n, "{}", s.name);
+        let pins = s.garment.pinned().iter().filter(|&&p| p).count();
+        assert_eq!(pins > 0, g.pinned_waist(), "{}: {pins} pins", s.name);
+        let x = s.initial_garment(0).unwrap();
+        assert!(x.iter().flatten().all(|c| c.is_finite()), "{}", s.name);
+    }
+    assert!(MakeHumanGarment::MaleTee.is_held_out() && !MakeHumanGarment::CropTop.is_held_out());
+}

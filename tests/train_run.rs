@@ -53,6 +53,14 @@ fn train_config_json_round_trip() {
         let e = TrainConfig::from_json(&text).unwrap_err().to_string();
         assert!(e.contains("held out"), "{motion}: {e}");
     }
+    // So can the held-out garments; the other outfit pieces can be trained on.
+    for garment in ["male-tee", "male-jeans"] {
+        let text = format!(r#"{{"scenes": [{{"garment": "{garment}"}}]}}"#);
+        let e = TrainConfig::from_json(&text).unwrap_err().to_string();
+        assert!(e.contains("held out"), "{garment}: {e}");
+    }
+    let c = TrainConfig::from_json(r#"{"scenes": [{"garment": "crop-top", "motion": "dance-6"}]}"#).unwrap();
+    assert_eq!(c.scenes[0].name(), "makehuman-crop-top/dance-6");
 }
 
 /// The configs committed beside the shipped models (the record of how each was trained, and

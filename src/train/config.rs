@@ -26,11 +26,12 @@ pub enum SceneSource {
         /// Motion length, s.
         seconds: f32,
     },
-    /// A MakeHuman garment (`"tee"` or `"jeans"`) on the CMU walk, or on `motion` when given, at
+    /// A MakeHuman garment (a [`crate::scene::MakeHumanGarment`] name: `"tee"`, `"jeans"`,
+    /// `"crop-top"`, `"leggings"`; the men's outfit is held out) on the CMU walk, or on `motion` when given, at
     /// most `frames` frames (the scene is skipped with a warning when `../shared/assets` is
     /// absent).
     MakeHuman {
-        /// `"tee"` or `"jeans"`.
+        /// The [`crate::scene::MakeHumanGarment`] name.
         garment: String,
         /// Frame limit.
         frames: usize,
@@ -222,12 +223,16 @@ fn scene(j: &Json) -> Result<SceneSource> {
         }
         Ok(m)
     };
-    if garment == "tee" || garment == "jeans" {
+    if let Some(which) = crate::scene::MakeHumanGarment::parse(garment) {
+        if which.is_held_out() {
+            return Err(bad("garment", "held out for validation (the men's outfit): not for training"));
+        }
         let frames = j.get("frames").map(|v| uint(v, "frames")).transpose()?.unwrap_or(300) as usize;
         let motion = j.get("motion").map(|_| s("motion").and_then(motion_named)).transpose()?;
         return Ok(SceneSource::MakeHuman { garment: garment.to_string(), frames, motion });
     }
-    let kind = GarmentKind::parse(garment).ok_or_else(|| bad("garment", "skirt, dress, cape, tee or jeans"))?;
+    let kind = GarmentKind::parse(garment)
+        .ok_or_else(|| bad("garment", "skirt, dress, cape, tee, jeans, crop-top or leggings"))?;
     let motion = motion_named(s("motion")?)?;
     let vertices = j.get("vertices").map(|v| uint(v, "vertices")).transpose()?.unwrap_or(600) as usize;
     let seconds = j.get("seconds").map(|v| float(v, "seconds")).transpose()?.unwrap_or(6.0) as f32;

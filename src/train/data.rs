@@ -72,10 +72,8 @@ impl Dataset {
                     scene::procedural(m, *garment, *vertices, *motion, *seconds)
                 }
                 SceneSource::MakeHuman { garment, frames, motion } => {
-                    let which = match garment.as_str() {
-                        "tee" => MakeHumanGarment::Tee,
-                        "jeans" => MakeHumanGarment::Jeans,
-                        _ => return Err(Error::parse("training config", 0, "MakeHuman garments: tee or jeans")),
+                    let Some(which) = MakeHumanGarment::parse(garment) else {
+                        return Err(Error::parse("training config", 0, "unknown MakeHuman garment"));
                     };
                     if !assets.join("body/base.obj").exists() {
                         d.skipped.push((name, std::format!("{} not found", assets.display())));

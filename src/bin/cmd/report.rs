@@ -147,10 +147,8 @@ fn workload(a: &ReportArgs, name: &str, m: &Mannequin) -> Result<Option<Box<dyn 
         return Ok(Some(Box::new(procedural(m, kind, a.vertices, motion, seconds)?)));
     }
     use hood::scene::{makehuman_on, MakeHumanGarment};
-    let which = match garment {
-        "tee" => MakeHumanGarment::Tee,
-        "jeans" => MakeHumanGarment::Jeans,
-        _ => return Err(Error::parse("workload", 0, format!("unknown workload '{name}'"))),
+    let Some(which) = MakeHumanGarment::parse(garment) else {
+        return Err(Error::parse("workload", 0, format!("unknown workload '{name}'")));
     };
     let assets = a.assets.clone().unwrap_or_else(|| hood::workloads::default_shared_dir().join("assets"));
     // The MakeHuman garments' walk is the CMU walk (no motion given).
@@ -290,8 +288,8 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
          stretching\": the stretching term's part of it ((E_stretch(x) - E_stretch(x*)) / (E(x_hat) - E(x*)), the \
          parts of all terms add up to the gap); absolute gap: E(x) - E(x*) in mJ. Both are scored on each rollout's \
          own states: a rollout that keeps calmer states has less descent available, which raises its relative gap \
-         at an equal absolute one, and one that blows up has more. ms/step: median wall time of one step on this \
-         machine (the implicit solver in f64).\n",
+         at an equal absolute one, and one that blows up has more. ms/step: median wall time of one step on the machine that \
+         wrote the report (the implicit solver in f64).\n",
         a.gap_every,
         a.objective.name()
     );

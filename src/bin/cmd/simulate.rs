@@ -28,13 +28,14 @@ pub struct SimulateArgs {
     /// motion it produces is garbage).
     #[arg(long, conflicts_with = "model")]
     random_model: Option<usize>,
-    /// Garment: skirt, dress or cape (procedural mannequin), tee or jeans (MakeHuman body on the
-    /// CMU walk, from --assets).
+    /// Garment: skirt, dress or cape (procedural mannequin), or a MakeHuman outfit piece (tee,
+    /// jeans, crop-top, leggings, male-tee, male-jeans: the men's outfit is held out from
+    /// training), on the CMU walk unless --motion says otherwise (assets from --assets).
     #[arg(long, default_value = "dress")]
     garment: String,
     /// Vertices of a procedural garment (approximate). The default stays within the resolutions the
     /// shipped compact model is validated at (its card: it trains on 400–1,300 vertices and holds
-    /// at 2,000; its dress at 4,000 vertices comes apart).
+    /// a 4,000-vertex dress and skirt on the walk; it is untested beyond).
     #[arg(long, default_value_t = 2000)]
     vertices: usize,
     /// Procedural motion: walk, run, jump, turn, arm-swings, random-<seed>, or a clip of the motion
@@ -187,16 +188,13 @@ pub fn named_scene(
         return Ok((Box::new(s), name));
     }
     use hood::scene::{makehuman_on, MakeHumanGarment};
-    let which = match garment {
-        "tee" => MakeHumanGarment::Tee,
-        "jeans" => MakeHumanGarment::Jeans,
-        other => {
-            return Err(Error::parse(
-                "garment",
-                0,
-                format!("unknown garment '{other}' (skirt, dress, cape, tee, jeans)"),
-            ))
-        }
+    let Some(which) = MakeHumanGarment::parse(garment) else {
+        let names: Vec<&str> = MakeHumanGarment::ALL.iter().map(|g| g.name()).collect();
+        return Err(Error::parse(
+            "garment",
+            0,
+            format!("unknown garment '{garment}' (skirt, dress, cape, {})", names.join(", ")),
+        ));
     };
     let assets = assets.map_or_else(|| hood::workloads::default_shared_dir().join("assets"), Path::to_path_buf);
     let on = (motion_name != "walk").then_some(motion);

@@ -30,8 +30,9 @@ const SCENES: [(&str, &str, usize, &str); 4] = [
 
 /// The held-out split's validation scenes (`--held-out`): vigorous corpus motions with seeds no
 /// training run may use, the whole back-flip family, on the MakeHuman t-shirt and jeans and the
-/// procedural dress and skirt.
-const HELD_OUT: [&str; 16] = [
+/// procedural dress and skirt; and the held-out garments (the men's outfit) on the CMU walk and
+/// on held-out clips.
+const HELD_OUT: [&str; 19] = [
     "tee:jumps-1001",
     "tee:hop-1001",
     "tee:dance-1001",
@@ -48,6 +49,9 @@ const HELD_OUT: [&str; 16] = [
     "dress:dance-1003",
     "dress:spin-1003",
     "skirt:hop-1004",
+    "male-tee:walk",
+    "male-tee:dance-1005",
+    "male-jeans:jumps-1005",
 ];
 
 /// One scene to validate on.
@@ -73,7 +77,7 @@ impl SceneSpec {
         let (garment, motion) = name.split_once(':').ok_or_else(unknown)?;
         let vertices = match garment {
             "cape" => 400,
-            "tee" | "jeans" => 0,
+            g if hood::scene::MakeHumanGarment::parse(g).is_some() => 0,
             g => SCENES.iter().find(|c| c.1 == g).ok_or_else(unknown)?.2,
         };
         let label = name.replace(':', "-");
@@ -90,8 +94,9 @@ pub struct ValidateArgs {
     /// GARMENT:MOTION (e.g. tee:jumps-1001; motions as `hood simulate --motion` takes them).
     #[arg(long, default_value = "skirt,dress,tee,jeans", value_delimiter = ',')]
     scenes: Vec<String>,
-    /// The held-out split of the motion corpus instead of `--scenes`: 16 scenes of vigorous
-    /// motion (jumps, hops, dances, spins, inversions, a mix) with seeds no training run may use.
+    /// The held-out split instead of `--scenes`: 16 scenes of vigorous motion (jumps, hops,
+    /// dances, spins, inversions, a mix) with seeds no training run may use, and 3 of the
+    /// held-out garments (the men's tee and jeans).
     #[arg(long)]
     held_out: bool,
     /// Frames of every rollout (30 per second).
