@@ -19,6 +19,7 @@
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 #include <time.h>
 
 #define STEPS 60
@@ -26,7 +27,7 @@
 
 static int check(hood_status s, const char *what) {
     if (s != HOOD_OK) {
-        fprintf(stderr, "%s failed: status %u: %s\n", what, (unsigned)s, hood_last_error());
+        fprintf(stderr, "%s failed: %s: %s\n", what, hood_status_string(s), hood_last_error());
         return 0;
     }
     return 1;
@@ -173,6 +174,9 @@ int main(int argc, char **argv) {
 
     if (!check(hood_model_load(model_bytes, model_len, &model), "hood_model_load")) goto done;
     if (!check(hood_garment_new(rest, nv, faces, nf, NULL, 0, pinned, &garment), "hood_garment_new")) goto done;
+    /* Zeroed first (see the header's Conventions on struct_size), then every field set. */
+    memset(&bd, 0, sizeof bd);
+    bd.struct_size = sizeof(hood_body_desc);
     bd.positions = body_rest;
     bd.n_vertices = nb;
     bd.indices = body_faces;

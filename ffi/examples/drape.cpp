@@ -31,7 +31,7 @@ constexpr float kPi = 3.14159265358979f;
 
 void check(hood_status s, const char *what) {
     if (s != HOOD_OK) {
-        throw std::runtime_error(std::string(what) + " failed (status " + std::to_string(s) + "): " + hood_last_error());
+        throw std::runtime_error(std::string(what) + " failed: " + hood_status_string(s) + ": " + hood_last_error());
     }
 }
 
@@ -82,7 +82,8 @@ class HelperPool {
     HelperPool(const HelperPool &) = delete;
     HelperPool &operator=(const HelperPool &) = delete;
 
-    static void run(void *user, std::uint32_t n, hood_task_fn task, void *ctx) {
+    // HOOD_CALL: the calling convention the library calls `run` with (see hood.h).
+    static void HOOD_CALL run(void *user, std::uint32_t n, hood_task_fn task, void *ctx) {
         static_cast<HelperPool *>(user)->run_job(n, task, ctx);
     }
 
@@ -201,7 +202,7 @@ int run(int argc, char **argv) {
           "hood_garment_new");
     std::unique_ptr<hood_garment, GarmentFree> garment(raw_garment);
 
-    hood_body_desc bd{body_rest.data(), nb, body_faces.data(), body_faces.size() / 3, nullptr};
+    hood_body_desc bd{sizeof(hood_body_desc), body_rest.data(), nb, body_faces.data(), body_faces.size() / 3, nullptr};
     hood_sim_config cfg;
     hood_sim_config_default(&cfg);
     hood_sim *raw_sim = nullptr;
@@ -209,7 +210,7 @@ int run(int argc, char **argv) {
     std::unique_ptr<hood_sim, SimFree> sim(raw_sim);  // declared after the model: freed first
 
     HelperPool pool;  // dies before the sim, which is why it is unplugged after the last step
-    hood_executor exec{&pool, 2, &HelperPool::run};
+    hood_executor exec{sizeof(hood_executor), &pool, 2, &HelperPool::run};
     check(hood_sim_set_executor(sim.get(), &exec), "hood_sim_set_executor");
     std::printf("garment: %zu vertices, body: %zu vertices\n", nv, nb);
 

@@ -2,17 +2,29 @@
  * hood.h: the C ABI of hood (HOOD-style neural cloth). C99; usable from C++ unchanged.
  *
  * Link with the static library (libhood_ffi.a; on Linux also -lpthread -ldl -lm) or the dynamic
- * library (libhood_ffi.so / .dylib / .dll).
+ * library (libhood_ffi.so / .dylib / .dll; on Windows define HOOD_SHARED when using the DLL).
  *
  * Conventions
  * -----------
  * - Units: metres; y is up; one step is one frame at the model's 30 Hz (velocities are metres per
  *   frame). Positions are arrays of 3 * n floats (x, y, z per vertex); counts passed beside
  *   arrays are VERTEX (or face) counts, never float counts, and are checked against the handle.
- * - Every function except hood_version, hood_version_string, hood_last_error and
- *   hood_sim_config_default returns a hood_status: HOOD_OK (0) or an error code below. After an
- *   error, hood_last_error() explains it. Out-parameters are written only on success. A failed
- *   call changes nothing (a refused step leaves the simulation state unchanged).
+ * - Every function except hood_version, hood_version_string, hood_last_error, hood_status_string
+ *   and hood_sim_config_default returns a hood_status: HOOD_OK (0) or an error code below. After
+ *   an error, hood_last_error() explains it (hood_status_string names the code). Out-parameters
+ *   are written only on success. A failed call changes nothing (a refused step leaves the
+ *   simulation state unchanged).
+ * - Structs the caller passes in (hood_sim_config, hood_body_desc, hood_executor, hood_material)
+ *   start with `uint32_t struct_size`: set it to sizeof(the struct) (hood_sim_config_default
+ *   sets it for the config). It lets the structs grow in later versions without a caller built
+ *   against another header being misread. Every call that reads such a struct checks it and
+ *   refuses, with HOOD_ERR_STRUCT_SIZE: a struct_size smaller than the library's sizeof (an
+ *   older header); one larger than 4096 or not a multiple of the struct's alignment; and a
+ *   larger one (a newer header) unless every byte past the library's sizeof, up to struct_size,
+ *   is zero. Every field a later version adds takes zero to mean "unset", so a newer caller runs
+ *   on an older library as long as it leaves the new fields zero: zero the whole struct (memset)
+ *   before filling it. In an array of hood_material, materials[0].struct_size is the element
+ *   size (stride) and every element must carry the same struct_size.
  * - NULL handles or pointers give HOOD_ERR_NULL_POINTER, never a crash; where a pointer is
  *   optional, the comment says so. Handles that were never created or were already freed give
  *   HOOD_ERR_INVALID_HANDLE (the library keeps a registry of live handles; an address reused by a
@@ -41,12 +53,43 @@
  * - hood_last_error() is per thread.
  * - Callbacks (the executor's run) must not throw a C++ exception or otherwise unwind into the
  *   library: that aborts the process. Catch inside the callback.
+ *
+ * Linkage and calling convention
+ * ------------------------------
+ * - HOOD_API marks every function declaration: on Windows __declspec(dllimport) when HOOD_SHARED
+ *   is defined (linking hood_ffi.dll through its import library), else nothing (the static
+ *   library); elsewhere, with GCC or Clang, default symbol visibility (so that a
+ *   `#pragma GCC visibility push(hidden)` around the include does not hide them). Define HOOD_API
+ *   before including this header to override it.
+ * - HOOD_CALL is the calling convention of every function and callback type: __cdecl on 32-bit
+ *   Windows (the library's, whatever default the caller's compiler uses, e.g. /Gz or /Gr), empty
+ *   elsewhere. A callback the caller passes in (hood_executor.run) must be declared with it.
  */
 #ifndef HOOD_H
 #define HOOD_H
 
 #include <stddef.h>
 #include <stdint.h>
+
+#ifndef HOOD_API
+#if defined(_WIN32)
+#if defined(HOOD_SHARED)
+#define HOOD_API __declspec(dllimport)
+#else
+#define HOOD_API
+#endif
+#elif defined(__GNUC__) || defined(__clang__)
+#define HOOD_API __attribute__((visibility("default")))
+#else
+#define HOOD_API
+#endif
+#endif
+
+#if defined(_WIN32) && !defined(_WIN64)
+#define HOOD_CALL __cdecl
+#else
+#define HOOD_CALL
+#endif
 
 #ifdef __cplusplus
 extern "C" {
@@ -62,15 +105,15 @@ extern "C" {
 #define HOOD_VERSION HOOD_MAKE_VERSION(HOOD_VERSION_MAJOR, HOOD_VERSION_MINOR, HOOD_VERSION_PATCH)
 
 /* The library's version, as HOOD_MAKE_VERSION encodes it (compare with HOOD_VERSION). */
-uint32_t hood_version(void);
+HOOD_API uint32_t HOOD_CALL hood_version(void);
 /* The library's version as "major.minor.patch" (static storage, NUL-terminated). */
-const char *hood_version_string(void);
+HOOD_API const char *HOOD_CALL hood_version_string(void);
 
 /* ---- Status codes (never reused) --------------------------------------------------------- */
 
 typedef uint32_t hood_status;
 
-#define HOOD_OK 0u
+#define HOOD_OK 0u                     /* success */
 /* Codes 1-15 mirror hood::Error (Error::code). */
 #define HOOD_ERR_INDEX_OUT_OF_RANGE 1u /* an index (e.g. in a face) refers past the end */
 #define HOOD_ERR_NON_FINITE 2u         /* a coordinate or parameter is NaN or infinite */
@@ -94,10 +137,15 @@ typedef uint32_t hood_status;
 #define HOOD_ERR_PANIC 103u            /* an internal error (a bug in hood); the handle may be unusable */
 #define HOOD_ERR_BAD_POINTER 104u      /* a pointer misaligned for its type, or an output overlapping an input */
 #define HOOD_ERR_BUSY 105u             /* the sim is in use by a call on another thread */
+#define HOOD_ERR_STRUCT_SIZE 106u      /* struct_size is not one this library knows: the caller was built against another header */
 
 /* The message of the most recent failing call on this thread ("" if none): NUL-terminated, owned
  * by the library, valid until the next hood_* call on this thread. Successful calls leave it. */
-const char *hood_last_error(void);
+HOOD_API const char *HOOD_CALL hood_last_error(void);
+/* The name and meaning of a status code, e.g. "HOOD_ERR_BUSY: the sim is in use by a call on
+ * another thread"; "unknown status" for a code this library does not have. NUL-terminated, static
+ * storage; never fails and leaves hood_last_error alone. */
+HOOD_API const char *HOOD_CALL hood_status_string(hood_status code);
 
 /* ---- Model ------------------------------------------------------------------------------- */
 
@@ -109,16 +157,17 @@ typedef struct hood_model hood_model;
 /* Validates a .hood model file held in memory and views its weights in place (no copy).
  * `bytes` must be HOOD_MODEL_ALIGN-aligned (else HOOD_ERR_CORRUPT_DATA) and must stay valid and
  * unmodified until hood_model_free(*out) returns HOOD_OK. */
-hood_status hood_model_load(const uint8_t *bytes, size_t len, hood_model **out);
+HOOD_API hood_status HOOD_CALL hood_model_load(const uint8_t *bytes, size_t len, hood_model **out);
 /* Frees a model (NULL: nothing to do). HOOD_ERR_MODEL_IN_USE while sims made from it live. */
-hood_status hood_model_free(hood_model *model);
+HOOD_API hood_status HOOD_CALL hood_model_free(hood_model *model);
 /* Whether the model file holds bf16 weights too (needed for HOOD_PRECISION_BF16): 1 or 0. */
-hood_status hood_model_has_bf16(const hood_model *model, uint32_t *out);
+HOOD_API hood_status HOOD_CALL hood_model_has_bf16(const hood_model *model, uint32_t *out);
 
 /* ---- Garment ----------------------------------------------------------------------------- */
 
 /* Material of a cloth vertex, SI units (training ranges in hood::mesh::material::ranges). */
 typedef struct hood_material {
+    uint32_t struct_size; /* sizeof(hood_material); in an array, every element's (see Conventions) */
     float density; /* area density, kg/m^2 */
     float mu;      /* Lame mu, Pa */
     float lambda;  /* Lame lambda, Pa */
@@ -129,15 +178,15 @@ typedef struct hood_garment hood_garment;
 
 /* A garment mesh. `rest`: 3 * n_vertices floats (metres); `indices`: 3 * n_faces vertex
  * indices, counter-clockwise seen from outside. `materials` (optional, NULL with n_materials 0
- * for the default material): 1 (for all) or n_vertices entries. `pinned` (optional, NULL for
- * none): n_vertices flags, nonzero = pinned. */
-hood_status hood_garment_new(const float *rest, size_t n_vertices, const uint32_t *indices, size_t n_faces,
-                             const hood_material *materials, size_t n_materials, const uint8_t *pinned,
-                             hood_garment **out);
+ * for the default material): 1 (for all) or n_vertices entries, each materials[0].struct_size
+ * bytes. `pinned` (optional, NULL for none): n_vertices flags, nonzero = pinned. */
+HOOD_API hood_status HOOD_CALL hood_garment_new(const float *rest, size_t n_vertices, const uint32_t *indices,
+                                                size_t n_faces, const hood_material *materials, size_t n_materials,
+                                                const uint8_t *pinned, hood_garment **out);
 /* Frees a garment (NULL: nothing to do). */
-hood_status hood_garment_free(hood_garment *garment);
-hood_status hood_garment_vertex_count(const hood_garment *garment, size_t *out);
-hood_status hood_garment_face_count(const hood_garment *garment, size_t *out);
+HOOD_API hood_status HOOD_CALL hood_garment_free(hood_garment *garment);
+HOOD_API hood_status HOOD_CALL hood_garment_vertex_count(const hood_garment *garment, size_t *out);
+HOOD_API hood_status HOOD_CALL hood_garment_face_count(const hood_garment *garment, size_t *out);
 
 /* ---- Simulation -------------------------------------------------------------------------- */
 
@@ -156,6 +205,7 @@ hood_status hood_garment_face_count(const hood_garment *garment, size_t *out);
 #define HOOD_PRECISION_BF16 1u /* bf16 weights, f32 accumulation (model with bf16 weights) */
 
 typedef struct hood_sim_config {
+    uint32_t struct_size;    /* sizeof(hood_sim_config) (see Conventions); hood_sim_config_default sets it */
     uint32_t effects;        /* HOOD_EFFECT_* flags */
     uint32_t precision;      /* HOOD_PRECISION_* */
     uint32_t threads;        /* threads without an executor (0 or 1: the calling thread; at most 256,
@@ -190,14 +240,16 @@ typedef struct hood_sim_config {
 /* The defaults: body collision, pinning, start-up, auto-teleport (0.45 m) and the speed limit
  * (0.12 m/frame, 3.6 m/s) on; collision projection off (margin 0.002 m); refinement off
  * (10 iterations); f32; 1 thread;
- * sleeping after 3 frames below 1e-5 m/frame (when enabled). A NULL `out` is ignored
+ * sleeping after 3 frames below 1e-5 m/frame (when enabled). Writes the library's
+ * sizeof(hood_sim_config) bytes, struct_size included (set to that size). A NULL `out` is ignored
  * (only hood_last_error records it). */
-void hood_sim_config_default(hood_sim_config *out);
+HOOD_API void HOOD_CALL hood_sim_config_default(hood_sim_config *out);
 
 /* The body of a scene. `positions`: 3 * n_vertices floats, the body at the first frame (m).
  * `indices`: 3 * n_faces. `omitted` (optional, NULL for none): n_vertices flags, nonzero = the
  * vertex never collides (e.g. hands). */
 typedef struct hood_body_desc {
+    uint32_t struct_size; /* sizeof(hood_body_desc) (see Conventions) */
     const float *positions;
     size_t n_vertices;
     const uint32_t *indices;
@@ -210,24 +262,26 @@ typedef struct hood_sim hood_sim;
 /* A simulation of `garment` (starting at its rest positions) on `body` (optional: NULL for no
  * body) driven by `model`. `config` NULL means the defaults. The sim keeps copies of the garment
  * and body; it borrows the model (see hood_model_free). */
-hood_status hood_sim_new(const hood_model *model, const hood_garment *garment, const hood_body_desc *body,
-                         const hood_sim_config *config, hood_sim **out);
+HOOD_API hood_status HOOD_CALL hood_sim_new(const hood_model *model, const hood_garment *garment,
+                                            const hood_body_desc *body, const hood_sim_config *config,
+                                            hood_sim **out);
 /* Frees a sim (NULL: nothing to do); HOOD_ERR_BUSY, freeing nothing, while another thread steps it. */
-hood_status hood_sim_free(hood_sim *sim);
+HOOD_API hood_status HOOD_CALL hood_sim_free(hood_sim *sim);
 
-/* Garment vertices of the sim. */
 /* The last network step's solver refinement (HOOD_EFFECT_REFINE; HOOD_ERR_UNSUPPORTED_EFFECT when
- * it is off): accepted L-BFGS iterations and the objective (J) at the network's prediction and
- * after. All zero before the first refined step; the start-up step is not refined. */
+ * it is off; also the solver step mode's solve): accepted L-BFGS iterations and the objective (J)
+ * at the network's prediction and after. All zero before the first refined step; the start-up
+ * step is not refined. */
 typedef struct hood_refinement {
     uint32_t iterations;
     float energy_before;
     float energy_after;
 } hood_refinement;
-hood_status hood_sim_last_refinement(const hood_sim *sim, hood_refinement *out); /* also the solver step mode's solve */
-hood_status hood_sim_vertex_count(const hood_sim *sim, size_t *out);
+HOOD_API hood_status HOOD_CALL hood_sim_last_refinement(const hood_sim *sim, hood_refinement *out);
+/* Garment vertices of the sim. */
+HOOD_API hood_status HOOD_CALL hood_sim_vertex_count(const hood_sim *sim, size_t *out);
 /* Body vertices the sim expects per step (0 without a body or without HOOD_EFFECT_BODY_COLLISION). */
-hood_status hood_sim_body_vertex_count(const hood_sim *sim, size_t *out);
+HOOD_API hood_status HOOD_CALL hood_sim_body_vertex_count(const hood_sim *sim, size_t *out);
 
 /* Orientation and resolution of the sim's body at its first frame. hood_sim_new refuses a body
  * wound inside out (faces clockwise seen from outside, as a change of handedness gives: negative
@@ -242,35 +296,35 @@ typedef struct hood_body_survey {
     float longest_edge; /* m */
     uint32_t too_coarse; /* 1: median_edge > sqrt(3) * 0.03 m; else 0 */
 } hood_body_survey;
-hood_status hood_sim_body_survey(const hood_sim *sim, hood_body_survey *out);
+HOOD_API hood_status HOOD_CALL hood_sim_body_survey(const hood_sim *sim, hood_body_survey *out);
 
 /* Advances one frame. `body_next`: the body's vertices at the next frame, 3 * n_body_vertices
  * floats (NULL with 0 when the sim has no body). `garment_out`: receives the garment's new
  * positions, 3 * n_garment_vertices floats. Wrong counts give HOOD_ERR_SIZE_MISMATCH; a
  * non-finite body vertex gives HOOD_ERR_NON_FINITE; on any error the state is unchanged and
  * `garment_out` is not written. */
-hood_status hood_sim_step(hood_sim *sim, const float *body_next, size_t n_body_vertices, float *garment_out,
-                          size_t n_garment_vertices);
+HOOD_API hood_status HOOD_CALL hood_sim_step(hood_sim *sim, const float *body_next, size_t n_body_vertices,
+                                             float *garment_out, size_t n_garment_vertices);
 
 /* Copies the current garment positions (3 * n_vertices floats). */
-hood_status hood_sim_positions(const hood_sim *sim, float *out, size_t n_vertices);
+HOOD_API hood_status HOOD_CALL hood_sim_positions(const hood_sim *sim, float *out, size_t n_vertices);
 /* Copies the current garment velocities (m/frame, 3 * n_vertices floats). */
-hood_status hood_sim_velocities(const hood_sim *sim, float *out, size_t n_vertices);
+HOOD_API hood_status HOOD_CALL hood_sim_velocities(const hood_sim *sim, float *out, size_t n_vertices);
 /* Copies the vertex normals of the current positions (needs HOOD_EFFECT_NORMALS, else
  * HOOD_ERR_UNSUPPORTED_EFFECT). */
-hood_status hood_sim_normals(const hood_sim *sim, float *out, size_t n_vertices);
+HOOD_API hood_status HOOD_CALL hood_sim_normals(const hood_sim *sim, float *out, size_t n_vertices);
 
 /* Targets of the pinned vertices at the next frame: 3 * n_vertices floats, one per garment
  * vertex (only pinned entries are read and must be finite). Without a call pinned vertices keep
  * their last target (initially the rest position). */
-hood_status hood_sim_set_pin_targets(hood_sim *sim, const float *targets, size_t n_vertices);
+HOOD_API hood_status HOOD_CALL hood_sim_set_pin_targets(hood_sim *sim, const float *targets, size_t n_vertices);
 
 /* Restarts from `positions` (3 * n_vertices floats) with zero velocity; the start-up step runs
  * again if configured. `body_positions` (optional, NULL with 0 to keep the current body): the
  * body's vertices now, used as both previous and current frame (a body at rest). Pinned
  * vertices' targets become their given positions. */
-hood_status hood_sim_reset(hood_sim *sim, const float *positions, size_t n_vertices, const float *body_positions,
-                           size_t n_body_vertices);
+HOOD_API hood_status HOOD_CALL hood_sim_reset(hood_sim *sim, const float *positions, size_t n_vertices,
+                                              const float *body_positions, size_t n_body_vertices);
 
 /* Moves the garment rigidly without simulating (a cut, a respawn, a character teleported):
  * every garment position and pin target p becomes R p + t, every velocity v becomes R v, so the
@@ -280,13 +334,13 @@ hood_status hood_sim_reset(hood_sim *sim, const float *positions, size_t n_verti
  * `body_now` (3 * n_body_vertices floats: its vertices now, as previous and current frame), or,
  * with NULL and 0, at its current vertices moved by the same motion. Later hood_sim_step calls
  * pass the body in the moved frame. */
-hood_status hood_sim_teleport(hood_sim *sim, const float *rotation, const float *translation, const float *body_now,
-                              size_t n_body_vertices);
+HOOD_API hood_status HOOD_CALL hood_sim_teleport(hood_sim *sim, const float *rotation, const float *translation,
+                                                 const float *body_now, size_t n_body_vertices);
 
 /* ---- Executor (an engine's job system) --------------------------------------------------- */
 
 /* One task of a step: call task(ctx, i). */
-typedef void (*hood_task_fn)(void *ctx, uint32_t index);
+typedef void (HOOD_CALL *hood_task_fn)(void *ctx, uint32_t index);
 
 /* `run(user, n_tasks, task, ctx)` must call task(ctx, i) exactly once for every i in
  * [0, n_tasks), from any threads, and return only after every call has returned; it must not
@@ -294,16 +348,18 @@ typedef void (*hood_task_fn)(void *ctx, uint32_t index);
  * and an index out of range (the step then fails with HOOD_ERR_PANIC and leaves the state
  * unchanged); returning before every task has returned is undefined behaviour. `parallelism`: how many
  * tasks are worth splitting work into (0 counts as 1). `user` is passed back unchanged; it must
- * stay valid while the sim uses the executor and be usable from the thread stepping the sim. */
+ * stay valid while the sim uses the executor and be usable from the thread stepping the sim.
+ * `run` is declared with HOOD_CALL (see Linkage and calling convention). */
 typedef struct hood_executor {
+    uint32_t struct_size; /* sizeof(hood_executor) (see Conventions) */
     void *user;
     uint32_t parallelism;
-    void (*run)(void *user, uint32_t n_tasks, hood_task_fn task, void *ctx);
+    void (HOOD_CALL *run)(void *user, uint32_t n_tasks, hood_task_fn task, void *ctx);
 } hood_executor;
 
 /* Plugs in an executor for the step's parallel parts (the struct is copied). NULL restores the
  * sim's own (config.threads). This allocates per-task scratch; steps do not allocate. */
-hood_status hood_sim_set_executor(hood_sim *sim, const hood_executor *executor);
+HOOD_API hood_status HOOD_CALL hood_sim_set_executor(hood_sim *sim, const hood_executor *executor);
 
 #ifdef __cplusplus
 } /* extern "C" */

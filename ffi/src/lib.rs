@@ -26,7 +26,7 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::Mutex;
 
-/// A status code: [`HOOD_OK`] or an error (codes 1-14 are [`Error::code`]).
+/// A status code: [`HOOD_OK`] or an error (codes 1-15 are [`Error::code`]).
 pub type hood_status = u32;
 
 /// Success.
@@ -73,6 +73,9 @@ pub const HOOD_ERR_PANIC: hood_status = 103;
 pub const HOOD_ERR_BAD_POINTER: hood_status = 104;
 /// The sim is in use by a call on another thread (a step, or a free while it steps).
 pub const HOOD_ERR_BUSY: hood_status = 105;
+/// A struct's `struct_size` is not one this library accepts: the caller was built against another
+/// header (the rule is in the header's Conventions).
+pub const HOOD_ERR_STRUCT_SIZE: hood_status = 106;
 
 /// Required alignment of model bytes (`hood::model::file::ALIGN`).
 pub const HOOD_MODEL_ALIGN: usize = hood::model::file::ALIGN;
@@ -132,6 +135,8 @@ enum Failure {
     InUse(usize),
     /// A sim used by a call on another thread.
     Busy(&'static str),
+    /// A `struct_size` this library does not accept: the whole message.
+    StructSize(String),
 }
 
 impl From<Error> for Failure {
@@ -149,6 +154,7 @@ impl Failure {
             Failure::Handle(_) => HOOD_ERR_INVALID_HANDLE,
             Failure::InUse(_) => HOOD_ERR_MODEL_IN_USE,
             Failure::Busy(_) => HOOD_ERR_BUSY,
+            Failure::StructSize(_) => HOOD_ERR_STRUCT_SIZE,
         }
     }
 
@@ -162,6 +168,7 @@ impl Failure {
             Failure::Busy(what) => {
                 format!("{what} is in use by a call on another thread (one thread at a time per sim)")
             }
+            Failure::StructSize(msg) => msg.clone(),
         }
     }
 }
@@ -364,6 +371,147 @@ fn require<T>(p: *const T, what: &'static str) -> Result<()> {
     }
 }
 
+// ---- Extensible structs ------------------------------------------------------------------------
+
+/// A struct the caller passes in whose first field is `struct_size: u32`, the size of the struct
+/// in the header the caller was built against (`hood_sim_config`, `hood_body_desc`,
+/// `hood_executor`, `hood_material`). It lets the structs grow without old and new callers
+/// silently misreading each other; [`read_extensible`] applies the rule.
+///
+/// # Safety
+/// Implementors are `#[repr(C)]`, start with `struct_size: u32`, and have no invalid bit
+/// patterns (integers, floats, raw pointers, optional function pointers), so that reading any
+/// caller bytes as one is sound.
+unsafe trait Extensible: Copy {
+    /// The C name, for messages.
+    const NAME: &'static str;
+}
+
+/// The `struct_size` of `T` in this library (what `hood_sim_config_default` writes).
+const fn struct_size<T: Extensible>() -> u32 {
+    size_of::<T>() as u32
+}
+
+/// Largest `struct_size` accepted (a page, as openat2 limits its struct): a garbage size must not
+/// make the library scan megabytes of the caller's memory for nonzero bytes.
+const MAX_STRUCT_SIZE: usize = 4096;
+
+/// Reads an extensible struct through a caller pointer: the leading `struct_size` first, then,
+/// if it is acceptable, the prefix this library knows. The rule is that of Linux's openat2 and
+/// clone3, which lets callers built against an older or a newer header be told apart from
+/// current ones instead of being misread:
+///
+/// - smaller than `size_of::<T>()`: an older header, whose fields this library would read past
+///   the end of: refused;
+/// - equal: the current header;
+/// - larger: a newer header. Its extra fields are accepted only if every byte past
+///   `size_of::<T>()` (up to `struct_size`) is zero, the value a newer field must give for
+///   "unset" (a field set to anything else asks for something this library cannot do, so it is
+///   refused rather than ignored);
+/// - larger than [`MAX_STRUCT_SIZE`], or not a multiple of `T`'s alignment (which every C
+///   `sizeof` is, and which keeps the elements of an array aligned): refused.
+///
+/// `stride` is `None` for a lone struct or the first element of an array (whose `struct_size`
+/// becomes the array's stride), and the stride for the other elements, which must carry exactly
+/// that `struct_size` (checked before any byte past it is read, so a bad element never makes
+/// the library read beyond the array). `index` names the element in messages. Returns the value
+/// and the caller's `struct_size`. Every refusal is [`HOOD_ERR_STRUCT_SIZE`] except a NULL
+/// pointer ([`HOOD_ERR_NULL_POINTER`]) and a misaligned one ([`HOOD_ERR_BAD_POINTER`]).
+///
+/// # Safety
+/// `p` is NULL or points to a struct whose leading `u32` is readable and which has at least
+/// as many readable bytes as that `u32` says (`stride` for array elements), unchanged during
+/// the call.
+unsafe fn read_extensible<T: Extensible>(
+    p: *const T,
+    index: Option<usize>,
+    stride: Option<usize>,
+    what: &'static str,
+) -> Result<(T, usize)> {
+    require(p, what)?;
+    // `T` starts with a u32, so this also aligns the leading read.
+    aligned(p, what)?;
+    // SAFETY: non-null and aligned; the leading u32 is readable (caller).
+    let size = unsafe { p.cast::<u32>().read() } as usize;
+    let refuse = |why: String| {
+        let name = match index {
+            Some(i) => format!("{}[{i}]", T::NAME),
+            None => T::NAME.to_string(),
+        };
+        Err(Failure::StructSize(format!(
+            "{name}.struct_size is {size}: {why} (the caller was built against another hood.h; \
+             sizeof({}) is {} in this library)",
+            T::NAME,
+            size_of::<T>()
+        )))
+    };
+    if let Some(stride) = stride {
+        if size != stride {
+            return refuse(format!("every element must carry the first element's struct_size, {stride}"));
+        }
+    }
+    if size < size_of::<T>() {
+        return refuse("smaller than this library's struct (an older header)".into());
+    }
+    if size > MAX_STRUCT_SIZE {
+        return refuse(format!("larger than {MAX_STRUCT_SIZE} bytes"));
+    }
+    if !size.is_multiple_of(align_of::<T>()) {
+        return refuse(format!("not a multiple of the struct's alignment, {}", align_of::<T>()));
+    }
+    // SAFETY: `size` bytes are readable (caller) and `size_of::<T>() <= size`, so the tail
+    // `size_of::<T>()..size` is inside them.
+    let tail = unsafe { std::slice::from_raw_parts(p.cast::<u8>().add(size_of::<T>()), size - size_of::<T>()) };
+    if let Some(k) = tail.iter().position(|&b| b != 0) {
+        return refuse(format!(
+            "byte {} is not zero, past the {} bytes this library knows (a field it does not have is set)",
+            size_of::<T>() + k,
+            size_of::<T>()
+        ));
+    }
+    // SAFETY: aligned, and at least `size_of::<T>()` readable bytes; any bytes are a valid `T`
+    // (`Extensible`).
+    Ok((unsafe { p.read() }, size))
+}
+
+/// One extensible struct (see [`read_extensible`]).
+///
+/// # Safety
+/// As [`read_extensible`].
+unsafe fn read_struct<T: Extensible>(p: *const T, what: &'static str) -> Result<T> {
+    // SAFETY: the caller's promise.
+    Ok(unsafe { read_extensible(p, None, None, what)? }.0)
+}
+
+/// An array of `n` extensible structs (NULL allowed when `n == 0`). The caller's element size is
+/// `p[0].struct_size`, which every element must carry (see [`read_extensible`]).
+///
+/// # Safety
+/// `p` is NULL or points to `n` elements of `p[0].struct_size` bytes each, readable and
+/// unchanged during the call.
+unsafe fn read_struct_array<T: Extensible>(p: *const T, n: usize, what: &'static str) -> Result<Vec<T>> {
+    if n == 0 {
+        return Ok(Vec::new());
+    }
+    // SAFETY: element 0 is readable (caller).
+    let (first, stride) = unsafe { read_extensible(p, Some(0), None, what)? };
+    match n.checked_mul(stride) {
+        Some(b) if b <= isize::MAX as usize => {}
+        _ => return Err(Error::OutOfRange { what: "array length", index: n }.into()),
+    }
+    let mut out = Vec::with_capacity(n);
+    out.push(first);
+    for i in 1..n {
+        // SAFETY: inside the caller's `n * stride` bytes (checked not to overflow above); the
+        // stride is a multiple of `T`'s alignment, so the element is aligned.
+        let e = unsafe { p.byte_add(i * stride) };
+        // SAFETY: the element's `stride` bytes are readable (caller); a different
+        // `struct_size` is refused before any byte past `stride` is read.
+        out.push(unsafe { read_extensible(e, Some(i), Some(stride), what)? }.0);
+    }
+    Ok(out)
+}
+
 // ---- Version and errors ------------------------------------------------------------------------
 
 /// The library version, `(major << 16) | (minor << 8) | patch`.
@@ -383,6 +531,50 @@ pub extern "C" fn hood_version_string() -> *const c_char {
 pub extern "C" fn hood_last_error() -> *const c_char {
     static EMPTY: &CStr = c"";
     catch_unwind(|| LAST_ERROR.try_with(|s| s.borrow().as_ptr()).unwrap_or(EMPTY.as_ptr())).unwrap_or(EMPTY.as_ptr())
+}
+
+/// The name and meaning of a status code, as the header's comment on it states them (checked by
+/// `tests/header.rs`); "unknown status" for a code this library does not have.
+fn status_text(code: hood_status) -> &'static CStr {
+    match code {
+        HOOD_OK => c"HOOD_OK: success",
+        HOOD_ERR_INDEX_OUT_OF_RANGE => c"HOOD_ERR_INDEX_OUT_OF_RANGE: an index (e.g. in a face) refers past the end",
+        HOOD_ERR_NON_FINITE => c"HOOD_ERR_NON_FINITE: a coordinate or parameter is NaN or infinite",
+        HOOD_ERR_DEGENERATE_FACE => c"HOOD_ERR_DEGENERATE_FACE: a garment triangle has zero area",
+        HOOD_ERR_REPEATED_VERTEX => c"HOOD_ERR_REPEATED_VERTEX: a triangle names the same vertex twice",
+        HOOD_ERR_UNUSED_VERTEX => c"HOOD_ERR_UNUSED_VERTEX: a garment vertex belongs to no triangle",
+        HOOD_ERR_EMPTY => c"HOOD_ERR_EMPTY: something that must not be empty is",
+        HOOD_ERR_SIZE_MISMATCH => c"HOOD_ERR_SIZE_MISMATCH: an array has the wrong length",
+        HOOD_ERR_OUT_OF_RANGE => c"HOOD_ERR_OUT_OF_RANGE: a value is outside its documented range",
+        HOOD_ERR_CAPACITY_EXCEEDED => c"HOOD_ERR_CAPACITY_EXCEEDED: a capacity fixed at creation was exceeded",
+        HOOD_ERR_INCOMPATIBLE_MODEL => c"HOOD_ERR_INCOMPATIBLE_MODEL: the model cannot run this garment/body/config",
+        HOOD_ERR_UNSUPPORTED_EFFECT => c"HOOD_ERR_UNSUPPORTED_EFFECT: an effect the model was not trained with",
+        HOOD_ERR_CORRUPT_DATA => {
+            c"HOOD_ERR_CORRUPT_DATA: model bytes corrupt, truncated, misaligned, other version"
+        }
+        HOOD_ERR_PARSE => c"HOOD_ERR_PARSE: a text input could not be parsed",
+        HOOD_ERR_IO => c"HOOD_ERR_IO: an operating-system I/O failure",
+        HOOD_ERR_INSIDE_OUT => c"HOOD_ERR_INSIDE_OUT: the body mesh is wound inside out (reverse every face)",
+        HOOD_ERR_NULL_POINTER => c"HOOD_ERR_NULL_POINTER: a required pointer argument is NULL",
+        HOOD_ERR_INVALID_HANDLE => c"HOOD_ERR_INVALID_HANDLE: not a live handle of that kind (freed, or never made)",
+        HOOD_ERR_MODEL_IN_USE => c"HOOD_ERR_MODEL_IN_USE: hood_model_free on a model that live sims still use",
+        HOOD_ERR_PANIC => c"HOOD_ERR_PANIC: an internal error (a bug in hood); the handle may be unusable",
+        HOOD_ERR_BAD_POINTER => {
+            c"HOOD_ERR_BAD_POINTER: a pointer misaligned for its type, or an output overlapping an input"
+        }
+        HOOD_ERR_BUSY => c"HOOD_ERR_BUSY: the sim is in use by a call on another thread",
+        HOOD_ERR_STRUCT_SIZE => {
+            c"HOOD_ERR_STRUCT_SIZE: struct_size is not one this library knows: the caller was built against another header"
+        }
+        _ => c"unknown status",
+    }
+}
+
+/// The name and meaning of a status code ("unknown status" for others): a NUL-terminated string
+/// with static storage. Never fails, and leaves `hood_last_error` alone.
+#[no_mangle]
+pub extern "C" fn hood_status_string(code: hood_status) -> *const c_char {
+    status_text(code).as_ptr()
 }
 
 // ---- Model -------------------------------------------------------------------------------------
@@ -467,6 +659,8 @@ pub unsafe extern "C" fn hood_model_has_bf16(model: *const hood_model, out: *mut
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct hood_material {
+    /// `sizeof(hood_material)` in the caller's header (see its Conventions); an array's stride.
+    pub struct_size: u32,
     /// Area density, kg/m^2.
     pub density: f32,
     /// Lamé mu, Pa.
@@ -477,6 +671,11 @@ pub struct hood_material {
     pub bending: f32,
 }
 
+// SAFETY: `#[repr(C)]`, `struct_size` first, only integers and floats.
+unsafe impl Extensible for hood_material {
+    const NAME: &'static str = "hood_material";
+}
+
 /// A validated garment.
 pub struct hood_garment {
     garment: Garment,
@@ -485,7 +684,8 @@ pub struct hood_garment {
 /// Builds a garment (see the header).
 ///
 /// # Safety
-/// Every non-NULL array holds the documented number of elements; `out` is NULL or writable.
+/// Every non-NULL array holds the documented number of elements (`materials`: of
+/// `materials[0].struct_size` bytes each); `out` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn hood_garment_new(
     rest: *const f32,
@@ -505,8 +705,8 @@ pub unsafe extern "C" fn hood_garment_new(
         let rest = unsafe { points(rest, n_vertices, "rest")? };
         // SAFETY: as above; `[u32; 3]` has u32 alignment and no padding.
         let faces = unsafe { slice(indices as *const [u32; 3], n_faces, "indices")? };
-        // SAFETY: as above.
-        let mats = unsafe { slice(materials, n_materials, "materials")? };
+        // SAFETY: `n_materials` elements of `materials[0].struct_size` bytes (header).
+        let mats = unsafe { read_struct_array(materials, n_materials, "materials")? };
         let mats: Vec<Material> = mats
             .iter()
             .map(|m| Material { density: m.density, mu: m.mu, lambda: m.lambda, bending: m.bending })
@@ -570,6 +770,8 @@ pub unsafe extern "C" fn hood_garment_face_count(garment: *const hood_garment, o
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct hood_sim_config {
+    /// `sizeof(hood_sim_config)` in the caller's header (see its Conventions).
+    pub struct_size: u32,
     /// `HOOD_EFFECT_*` flags.
     pub effects: u32,
     /// `HOOD_PRECISION_*`.
@@ -596,6 +798,8 @@ pub struct hood_sim_config {
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct hood_body_desc {
+    /// `sizeof(hood_body_desc)` in the caller's header (see its Conventions).
+    pub struct_size: u32,
     /// First-frame positions, 3 floats per vertex.
     pub positions: *const f32,
     /// Vertex count.
@@ -608,19 +812,37 @@ pub struct hood_body_desc {
     pub omitted: *const u8,
 }
 
-/// One task of a step.
+// SAFETY: `#[repr(C)]`, `struct_size` first, only integers and floats.
+unsafe impl Extensible for hood_sim_config {
+    const NAME: &'static str = "hood_sim_config";
+}
+
+// SAFETY: `#[repr(C)]`, `struct_size` first, only integers and raw pointers.
+unsafe impl Extensible for hood_body_desc {
+    const NAME: &'static str = "hood_body_desc";
+}
+
+/// One task of a step (`extern "C"` is cdecl on 32-bit Windows, as `HOOD_CALL` declares it).
 pub type hood_task_fn = Option<unsafe extern "C" fn(ctx: *mut c_void, index: u32)>;
 
 /// An engine's job system (see the header for the contract of `run`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct hood_executor {
+    /// `sizeof(hood_executor)` in the caller's header (see its Conventions).
+    pub struct_size: u32,
     /// Passed back to `run`.
     pub user: *mut c_void,
     /// Tasks worth splitting into (0 counts as 1).
     pub parallelism: u32,
     /// Runs `task(ctx, i)` for every `i < n_tasks`.
     pub run: Option<unsafe extern "C" fn(user: *mut c_void, n_tasks: u32, task: hood_task_fn, ctx: *mut c_void)>,
+}
+
+// SAFETY: `#[repr(C)]`, `struct_size` first, only integers, a raw pointer and an optional
+// function pointer (any bits are a valid `Option<fn>`; calling it is the caller's contract).
+unsafe impl Extensible for hood_executor {
+    const NAME: &'static str = "hood_executor";
 }
 
 /// A simulation borrowing its model.
@@ -647,7 +869,7 @@ impl Drop for hood_sim {
     }
 }
 
-/// The defaults.
+/// The defaults, with `struct_size` set to this library's `sizeof(hood_sim_config)`.
 ///
 /// # Safety
 /// `out` is NULL (ignored) or writable.
@@ -669,6 +891,7 @@ pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
             | flag(d.projection.is_some(), HOOD_EFFECT_COLLISION_PROJECTION)
             | flag(d.refine.is_some(), HOOD_EFFECT_REFINE);
         let c = hood_sim_config {
+            struct_size: struct_size::<hood_sim_config>(),
             effects,
             precision: HOOD_PRECISION_F32,
             threads: d.threads as u32,
@@ -756,8 +979,9 @@ impl Drop for SimCount<'_> {
 /// Creates a sim (see the header).
 ///
 /// # Safety
-/// Handles are NULL or pointers from this library (checked); `body`'s arrays hold the
-/// documented counts; `config` is NULL or readable; `out` is NULL or writable.
+/// Handles are NULL or pointers from this library (checked); `body` and `config` are NULL or
+/// hold the `struct_size` bytes they state; `body`'s arrays hold the documented counts; `out` is
+/// NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_new(
     model: *const hood_model,
@@ -772,16 +996,16 @@ pub unsafe extern "C" fn hood_sim_new(
         let cfg = if config.is_null() {
             SimConfig::default()
         } else {
-            // SAFETY: non-null and readable (caller).
-            sim_config(unsafe { &*config })?
+            // SAFETY: non-null; `struct_size` readable bytes (caller).
+            sim_config(&unsafe { read_struct(config, "config")? })?
         };
         // SAFETY: a live garment handle (checked above).
         let garment = &unsafe { &*garment }.garment;
         let body_parts = if body.is_null() {
             None
         } else {
-            // SAFETY: non-null and readable (caller).
-            let b = unsafe { &*body };
+            // SAFETY: non-null; `struct_size` readable bytes (caller).
+            let b = unsafe { read_struct(body, "body")? };
             require(b.positions, "body positions")?;
             require(b.indices, "body indices")?;
             // SAFETY: counts are the caller's promise.
@@ -1370,8 +1594,8 @@ unsafe impl Executor for CExecutor {
 /// Plugs in (or with NULL removes) an engine executor.
 ///
 /// # Safety
-/// `sim` is NULL or a handle (checked); `executor` is NULL or readable and keeps the contract in
-/// the header.
+/// `sim` is NULL or a handle (checked); `executor` is NULL or holds the `struct_size` bytes it
+/// states and keeps the contract in the header.
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_set_executor(sim: *mut hood_sim, executor: *const hood_executor) -> hood_status {
     guard(|| {
@@ -1385,8 +1609,8 @@ pub unsafe extern "C" fn hood_sim_set_executor(sim: *mut hood_sim, executor: *co
                 Box::new(Serial)
             }
         } else {
-            // SAFETY: non-null and readable (caller).
-            let raw = unsafe { *executor };
+            // SAFETY: non-null; `struct_size` readable bytes (caller).
+            let raw = unsafe { read_struct(executor, "executor")? };
             let run = raw.run.ok_or(Failure::Null("executor run"))?;
             Box::new(CExecutor { raw, run })
         };

@@ -76,6 +76,7 @@ impl Scene {
 
     fn body_desc(&self) -> hood_body_desc {
         hood_body_desc {
+            struct_size: size_of_u32::<hood_body_desc>(),
             positions: self.body.as_ptr().cast(),
             n_vertices: self.body.len(),
             indices: self.body_faces.as_ptr().cast(),
@@ -119,6 +120,22 @@ fn velocities(sim: *const hood_sim, n: usize) -> Vec<[f32; 3]> {
     // SAFETY: `p` holds n points.
     assert_eq!(unsafe { hood_sim_velocities(sim, p.as_mut_ptr().cast(), n) }, HOOD_OK, "{}", last_error());
     p
+}
+
+/// `sizeof(T)` as a `struct_size`.
+fn size_of_u32<T>() -> u32 {
+    size_of::<T>() as u32
+}
+
+/// An executor struct of the current size.
+fn executor(user: *mut std::ffi::c_void, parallelism: u32, run: Option<RunFn>) -> hood_executor {
+    hood_executor { struct_size: size_of_u32::<hood_executor>(), user, parallelism, run }
+}
+
+type RunFn = unsafe extern "C" fn(*mut std::ffi::c_void, u32, hood_task_fn, *mut std::ffi::c_void);
+
+fn material(density: f32, mu: f32, lambda: f32, bending: f32) -> hood_material {
+    hood_material { struct_size: size_of_u32::<hood_material>(), density, mu, lambda, bending }
 }
 
 fn max_diff(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
@@ -168,6 +185,7 @@ fn status_codes_mirror_error_codes() {
         HOOD_ERR_PANIC,
         HOOD_ERR_BAD_POINTER,
         HOOD_ERR_BUSY,
+        HOOD_ERR_STRUCT_SIZE,
     ] {
         assert!(seen.insert(c), "code {c} reused");
     }
@@ -239,7 +257,7 @@ fn null_arguments_give_status() {
         assert_eq!(hood_sim_reset(sim, null(), n, null(), 0), HOOD_ERR_NULL_POINTER);
         assert_eq!(hood_sim_vertex_count(sim, null_mut()), HOOD_ERR_NULL_POINTER);
         assert_eq!(hood_sim_teleport(null_mut(), null(), null(), null(), 0), HOOD_ERR_NULL_POINTER);
-        let e = hood_executor { user: null_mut(), parallelism: 2, run: None };
+        let e = executor(null_mut(), 2, None);
         assert_eq!(hood_sim_set_executor(sim, &e), HOOD_ERR_NULL_POINTER);
         hood_sim_config_default(null_mut());
         // Free functions accept NULL.
@@ -343,7 +361,7 @@ fn wrong_sizes_give_size_mismatch_and_change_nothing() {
         let bad_faces = [[0u32, 1, 99]];
         let s = hood_garment_new(sc.rest.as_ptr().cast(), 3, bad_faces.as_ptr().cast(), 1, null(), 0, null(), &mut g);
         assert_eq!(s, HOOD_ERR_INDEX_OUT_OF_RANGE);
-        let mats = [hood_material { density: 0.2, mu: 2e4, lambda: 4e4, bending: 1e-5 }; 2];
+        let mats = [material(0.2, 2e4, 4e4, 1e-5); 2];
         let s = hood_garment_new(
             sc.rest.as_ptr().cast(),
             n,
@@ -712,7 +730,7 @@ fn executor_callback_runs_the_step_and_misuse_is_caught() {
     let n = sc.rest.len();
     let (a, b) = (sc.sim(l.model), sc.sim(l.model));
     let good = TestExec::new(0);
-    let exec = hood_executor { user: &good as *const TestExec as *mut _, parallelism: 3, run: Some(test_run) };
+    let exec = executor(&good as *const TestExec as *mut _, 3, Some(test_run));
     // SAFETY: `good` outlives its use by `b` (restored to NULL below).
     assert_eq!(unsafe { hood_sim_set_executor(b, &exec) }, HOOD_OK);
     let mut out_a = vec![[0.0f32; 3]; n];
@@ -725,7 +743,7 @@ fn executor_callback_runs_the_step_and_misuse_is_caught() {
     assert_eq!(out_a, out_b, "task order changed the result");
     for mode in [1, 2, 3] {
         let bad = TestExec::new(mode);
-        let exec = hood_executor { user: &bad as *const TestExec as *mut _, parallelism: 3, run: Some(test_run) };
+        let exec = executor(&bad as *const TestExec as *mut _, 3, Some(test_run));
         let before = positions(b, n);
         let mut sentinel = vec![[5.0f32; 3]; n];
         // SAFETY: `bad` outlives its use (replaced below).
@@ -855,7 +873,7 @@ fn a_sim_in_use_on_another_thread_is_busy_for_step_and_free() {
     let n = sc.rest.len();
     let sim = sc.sim(l.model);
     let exec = Box::leak(Box::new(TestExec::new(4)));
-    let raw = hood_executor { user: exec as *const TestExec as *mut _, parallelism: 2, run: Some(test_run) };
+    let raw = executor(exec as *const TestExec as *mut _, 2, Some(test_run));
     // SAFETY: `exec` is leaked, so it outlives the sim.
     assert_eq!(unsafe { hood_sim_set_executor(sim, &raw) }, HOOD_OK);
     let p = SendPtr(sim);
@@ -962,6 +980,7 @@ fn an_inside_out_body_is_refused_and_a_coarse_one_reported() {
     // A finer body of the same shape: not coarse.
     let (fine, fine_faces) = hood::body::shapes::ellipsoid(40, 64, [0.25, 0.3, 0.25], [0.0; 3]);
     let bd = hood_body_desc {
+        struct_size: size_of_u32::<hood_body_desc>(),
         positions: fine.as_ptr().cast(),
         n_vertices: fine.len(),
         indices: fine_faces.as_ptr().cast(),
@@ -978,4 +997,233 @@ fn an_inside_out_body_is_refused_and_a_coarse_one_reported() {
         assert_eq!(hood_sim_free(out), HOOD_OK);
         assert_eq!(hood_garment_free(g), HOOD_OK);
     }
+}
+
+/// A struct as a caller built against a newer header (whose struct has grown by 16 bytes) passes
+/// it: the current struct, then bytes this library does not know.
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct Grown<T> {
+    known: T,
+    tail: [u8; 16],
+}
+
+/// `v` with its leading `struct_size` set to `size` and a zero tail.
+fn grown<T: Copy>(v: T, size: usize) -> Grown<T> {
+    let mut g = Grown { known: v, tail: [0; 16] };
+    // SAFETY: every struct given here is one of the header's, which start with `uint32_t struct_size`.
+    unsafe { (&mut g.known as *mut T).cast::<u32>().write(size as u32) };
+    g
+}
+
+/// The struct_size rule on one kind of struct: `call` passes the struct to the library and returns
+/// the status (it checks itself that a refused call wrote no out-parameter). Sizes too small,
+/// absurd or misaligned are refused without reading past the struct; a larger size is accepted
+/// with a zero tail and refused with any nonzero byte in it; bytes past struct_size are not read.
+fn check_struct_size_rule<T: Copy>(v: T, mut call: impl FnMut(*const T) -> hood_status) {
+    let name = std::any::type_name::<T>();
+    let (size, align) = (size_of::<T>(), align_of::<T>());
+    assert_eq!(call(&v), HOOD_OK, "{name}: the current size: {}", last_error());
+    // u32::MAX and 4104 are larger than the 16 spare bytes: the library must not scan them.
+    for bad in [0, 4, size - 1, size - align, size + 1, size + align / 2, 4096 + align, u32::MAX as usize] {
+        let g = grown(v, bad);
+        assert_eq!(call(&g.known), HOOD_ERR_STRUCT_SIZE, "{name}: struct_size {bad}");
+        let e = last_error();
+        assert!(e.contains("struct_size") && e.contains("another hood.h"), "{e}");
+    }
+    let g = grown(v, size + 16);
+    assert_eq!(call(&g.known), HOOD_OK, "{name}: a zero tail: {}", last_error());
+    for k in [0, 7, 15] {
+        let mut g = grown(v, size + 16);
+        g.tail[k] = 1;
+        assert_eq!(call(&g.known), HOOD_ERR_STRUCT_SIZE, "{name}: tail byte {k}");
+        assert!(last_error().contains(&format!("byte {} is not zero", size + k)), "{}", last_error());
+    }
+    // struct_size covers half the tail: the other half is not the struct's.
+    let mut g = grown(v, size + 8);
+    g.tail[8..].fill(0xff);
+    assert_eq!(call(&g.known), HOOD_OK, "{name}: bytes past struct_size were read: {}", last_error());
+}
+
+#[test]
+fn sim_config_and_body_struct_sizes_are_checked() {
+    let l = load(8, 15);
+    let sc = scene(5);
+    let g = sc.garment();
+    let bd = sc.body_desc();
+    // SAFETY: writable out-parameter.
+    let cfg = unsafe {
+        let mut cfg: hood_sim_config = std::mem::zeroed();
+        hood_sim_config_default(&mut cfg);
+        cfg
+    };
+    assert_eq!(cfg.struct_size as usize, size_of::<hood_sim_config>(), "hood_sim_config_default sets struct_size");
+    let dangling = std::ptr::dangling_mut::<hood_sim>();
+    // Creates a sim (freed at once); a refusal must leave `out` alone.
+    let new_sim = |body: *const hood_body_desc, config: *const hood_sim_config| {
+        let mut out = dangling;
+        // SAFETY: live handles; the structs hold the bytes their struct_size states, or are
+        // refused before the library reads past them.
+        let s = unsafe { hood_sim_new(l.model, g, body, config, &mut out) };
+        if s == HOOD_OK {
+            // SAFETY: the new sim.
+            assert_eq!(unsafe { hood_sim_free(out) }, HOOD_OK);
+        } else {
+            assert_eq!(out, dangling, "out written on error");
+        }
+        s
+    };
+    check_struct_size_rule(cfg, |c| new_sim(&bd, c));
+    check_struct_size_rule(bd, |b| new_sim(b, &cfg));
+    // SAFETY: live handles.
+    unsafe {
+        assert_eq!(hood_garment_free(g), HOOD_OK);
+        // No refused creation left the model counted as in use.
+        assert_eq!(hood_model_free(l.model), HOOD_OK, "{}", last_error());
+    }
+}
+
+#[test]
+fn executor_struct_size_is_checked_and_a_refused_one_changes_nothing() {
+    let l = load(8, 16);
+    let sc = scene(6);
+    let n = sc.rest.len();
+    let sim = sc.sim(l.model);
+    let (installed, other) = (TestExec::new(0), TestExec::new(0));
+    let calls = |e: &TestExec| e.calls.load(std::sync::atomic::Ordering::SeqCst);
+    // SAFETY: `installed` outlives its use (the sim is freed below).
+    assert_eq!(
+        unsafe { hood_sim_set_executor(sim, &executor(&installed as *const _ as *mut _, 2, Some(test_run))) },
+        HOOD_OK
+    );
+    let mut out = vec![[0.0f32; 3]; n];
+    let mut t = 0;
+    check_struct_size_rule(executor(&other as *const _ as *mut _, 2, Some(test_run)), |e| {
+        let before = (calls(&installed), calls(&other));
+        // SAFETY: `e` holds the bytes its struct_size states, or is refused before more are read;
+        // `other` outlives the sim.
+        let s = unsafe { hood_sim_set_executor(sim, e) };
+        t += 1;
+        assert_eq!(step(sim, &sc.body_at(t, [0.0; 3]), &mut out), HOOD_OK, "{}", last_error());
+        let after = (calls(&installed), calls(&other));
+        if s == HOOD_OK {
+            assert!(after.1 > before.1 && after.0 == before.0, "the new executor did not run the step");
+            // SAFETY: as above.
+            assert_eq!(
+                unsafe { hood_sim_set_executor(sim, &executor(&installed as *const _ as *mut _, 2, Some(test_run))) },
+                HOOD_OK
+            );
+        } else {
+            assert!(after.0 > before.0 && after.1 == before.1, "a refused executor replaced the installed one");
+        }
+        s
+    });
+    // SAFETY: a live sim.
+    assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+}
+
+#[test]
+fn material_arrays_with_a_larger_stride_give_the_same_sim() {
+    let l = load(8, 17);
+    let sc = scene(6);
+    let n = sc.rest.len();
+    // Per-vertex materials that differ from the default, so that misread ones would show.
+    let mats: Vec<hood_material> =
+        (0..n).map(|i| material(0.12 + 0.02 * (i % 5) as f32, 1.5e4 + 1e3 * (i % 3) as f32, 3e4, 2e-6)).collect();
+    let big = size_of::<Grown<hood_material>>();
+    let wide: Vec<Grown<hood_material>> = mats.iter().map(|m| grown(*m, big)).collect();
+    let dangling = std::ptr::dangling_mut::<hood_garment>();
+    let garment = |p: *const hood_material, count: usize| {
+        let mut g = dangling;
+        // SAFETY: `count` elements of the struct_size they carry (or refused before more is read).
+        let s = unsafe {
+            hood_garment_new(
+                sc.rest.as_ptr().cast(),
+                n,
+                sc.faces.as_ptr().cast(),
+                sc.faces.len(),
+                p,
+                count,
+                sc.pinned.as_ptr(),
+                &mut g,
+            )
+        };
+        if s != HOOD_OK {
+            assert_eq!(g, dangling, "out written on error");
+        }
+        (s, g)
+    };
+    // Steps a sim of the garment (freed) and returns its positions after 3 frames.
+    let run = |g: *mut hood_garment| {
+        let bd = sc.body_desc();
+        let mut sim = null_mut();
+        // SAFETY: live handles.
+        unsafe {
+            assert_eq!(hood_sim_new(l.model, g, &bd, null(), &mut sim), HOOD_OK, "{}", last_error());
+            assert_eq!(hood_garment_free(g), HOOD_OK);
+        }
+        let mut out = vec![[0.0f32; 3]; n];
+        for t in 1..=3 {
+            assert_eq!(step(sim, &sc.body_at(t, [0.0; 3]), &mut out), HOOD_OK);
+        }
+        // SAFETY: a live sim.
+        assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+        out
+    };
+    let (s, g) = garment(mats.as_ptr(), n);
+    assert_eq!(s, HOOD_OK, "{}", last_error());
+    let normal = run(g);
+    let (s, g) = garment(wide.as_ptr().cast(), n);
+    assert_eq!(s, HOOD_OK, "{}", last_error());
+    assert_eq!(run(g), normal, "the wider stride gave another sim");
+    assert_ne!(run(sc.garment()), normal, "the materials made no difference: the test would not see misreads");
+    // One material for all, in either size.
+    let (s, g) = garment(mats.as_ptr(), 1);
+    assert_eq!(s, HOOD_OK, "{}", last_error());
+    let one = run(g);
+    let (s, g) = garment(wide.as_ptr().cast(), 1);
+    assert_eq!(s, HOOD_OK, "{}", last_error());
+    assert_eq!(run(g), one);
+
+    // A nonzero byte in one element's tail.
+    let mut bad = wide.clone();
+    bad[3].tail[2] = 1;
+    assert_eq!(garment(bad.as_ptr().cast(), n).0, HOOD_ERR_STRUCT_SIZE);
+    assert!(last_error().contains("hood_material[3]"), "{}", last_error());
+    // An element whose struct_size differs from the first's (even a plausible one).
+    for other in [size_of::<hood_material>(), 4096] {
+        let mut bad = wide.clone();
+        bad[5] = grown(bad[5].known, other);
+        assert_eq!(garment(bad.as_ptr().cast(), n).0, HOOD_ERR_STRUCT_SIZE, "{other}");
+        assert!(
+            last_error().contains("hood_material[5]") && last_error().contains("every element"),
+            "{}",
+            last_error()
+        );
+    }
+    let mut bad = mats.clone();
+    bad[n - 1].struct_size = big as u32;
+    assert_eq!(garment(bad.as_ptr(), n).0, HOOD_ERR_STRUCT_SIZE);
+    // The first element's struct_size one too small (the stride of a caller's older struct).
+    let mut bad = mats.clone();
+    bad.iter_mut().for_each(|m| m.struct_size -= 1);
+    assert_eq!(garment(bad.as_ptr(), n).0, HOOD_ERR_STRUCT_SIZE);
+    assert!(last_error().contains("hood_material[0]"), "{}", last_error());
+}
+
+#[test]
+fn status_string_is_static_and_leaves_the_last_error() {
+    // SAFETY: a freed (never created) handle, refused without being dereferenced.
+    assert_eq!(unsafe { hood_sim_free(std::ptr::dangling_mut::<hood_sim>()) }, HOOD_ERR_INVALID_HANDLE);
+    let e = last_error();
+    let p = hood_status_string(HOOD_ERR_BUSY);
+    // SAFETY: static NUL-terminated strings.
+    let text = |p| unsafe { CStr::from_ptr(p) }.to_str().unwrap();
+    assert_eq!(text(p), "HOOD_ERR_BUSY: the sim is in use by a call on another thread");
+    assert_eq!(text(hood_status_string(HOOD_ERR_STRUCT_SIZE)).split(':').next(), Some("HOOD_ERR_STRUCT_SIZE"));
+    assert_eq!(text(hood_status_string(107)), "unknown status");
+    assert_eq!(last_error(), e, "hood_status_string changed the last error");
+    // Still valid after other calls, and the same storage.
+    assert_eq!(hood_status_string(HOOD_ERR_BUSY), p);
+    assert_eq!(text(p), "HOOD_ERR_BUSY: the sim is in use by a call on another thread");
 }

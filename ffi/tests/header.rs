@@ -2,7 +2,9 @@
 //! the prototypes (names and C types) parsed from the header equal those derived from the
 //! `#[no_mangle] extern "C"` functions in `src/lib.rs`, which equal the symbols the shared library
 //! exports; a generated C++ file then checks every function's type, every constant's value and
-//! every struct's layout with the compiler.
+//! every struct's layout with the compiler. The linkage and calling-convention macros are checked
+//! by what they expand to and, on a 32-bit x86 build whose default convention is stdcall, by the
+//! compiler; every status code's `hood_status_string` against the header's comment on it.
 
 mod common;
 
@@ -16,8 +18,11 @@ const SOURCE: &str = include_str!("../src/lib.rs");
 /// A C type as tokens (`const float *` -> ["const", "float", "*"]).
 type CType = Vec<String>;
 
+/// The linkage and calling-convention macros: not part of a C type.
+const MACROS: [&str; 2] = ["HOOD_API", "HOOD_CALL"];
+
 fn c_tokens(s: &str) -> CType {
-    s.replace('*', " * ").split_whitespace().map(str::to_string).collect()
+    s.replace('*', " * ").split_whitespace().filter(|t| !MACROS.contains(t)).map(str::to_string).collect()
 }
 
 fn strip_c_comments(s: &str) -> String {
@@ -32,7 +37,9 @@ fn strip_c_comments(s: &str) -> String {
     out.lines().map(|l| l.split("//").next().unwrap_or("")).collect::<Vec<_>>().join("\n")
 }
 
-/// Function prototypes of the header: name -> (return type, parameter types).
+/// Function prototypes of the header: name -> (return type, parameter types). Every one must
+/// start with `HOOD_API` and have `HOOD_CALL` just before its name, and every function pointer
+/// declarator must be `(HOOD_CALL *`.
 fn header_prototypes() -> BTreeMap<String, (CType, Vec<CType>)> {
     let text = strip_c_comments(HEADER);
     // Drop preprocessor lines and the C++ guard's braces, then struct bodies.
@@ -50,6 +57,10 @@ fn header_prototypes() -> BTreeMap<String, (CType, Vec<CType>)> {
             _ => {}
         }
     }
+    for line in &lines {
+        let l = line.split_whitespace().collect::<Vec<_>>().join(" ");
+        assert!(!l.contains("(*") && !l.contains("( *"), "a function pointer without HOOD_CALL: `{}`", line.trim());
+    }
     let mut out = BTreeMap::new();
     for decl in flat.split(';') {
         let decl = decl.split_whitespace().collect::<Vec<_>>().join(" ");
@@ -58,6 +69,11 @@ fn header_prototypes() -> BTreeMap<String, (CType, Vec<CType>)> {
         }
         let open = decl.find('(').unwrap();
         let close = decl.rfind(')').unwrap();
+        let raw: Vec<&str> = decl[..open].split_whitespace().collect();
+        assert!(
+            raw.first() == Some(&"HOOD_API") && raw.len() >= 3 && raw[raw.len() - 2].ends_with("HOOD_CALL"),
+            "`{decl}`: a function declaration is `HOOD_API <type> HOOD_CALL <name>(...)`"
+        );
         let head = c_tokens(&decl[..open]);
         let (name, ret) = head.split_last().unwrap();
         let params: Vec<CType> = decl[open + 1..close]
@@ -199,11 +215,10 @@ macro_rules! layout {
     };
 }
 
-/// Compiles (C++17, -Werror) a file asserting every function's exact type, every constant's
-/// value and every struct's size, alignment and field offsets, all taken from the Rust side.
-#[test]
-fn compiler_checks_types_constants_and_layouts() {
-    let consts = constants![
+/// Every constant of the Rust side and the header, with its Rust value (the tests below check
+/// that no constant is missing from it).
+fn checked_constants() -> Vec<(&'static str, u64)> {
+    constants![
         HOOD_OK,
         HOOD_ERR_INDEX_OUT_OF_RANGE,
         HOOD_ERR_NON_FINITE,
@@ -226,6 +241,7 @@ fn compiler_checks_types_constants_and_layouts() {
         HOOD_ERR_PANIC,
         HOOD_ERR_BAD_POINTER,
         HOOD_ERR_BUSY,
+        HOOD_ERR_STRUCT_SIZE,
         HOOD_MODEL_ALIGN,
         HOOD_EFFECT_BODY_COLLISION,
         HOOD_EFFECT_PINNING,
@@ -241,7 +257,14 @@ fn compiler_checks_types_constants_and_layouts() {
         HOOD_VERSION_MAJOR,
         HOOD_VERSION_MINOR,
         HOOD_VERSION_PATCH,
-    ];
+    ]
+}
+
+/// Compiles (C++17, -Werror) a file asserting every function's exact type, every constant's
+/// value and every struct's size, alignment and field offsets, all taken from the Rust side.
+#[test]
+fn compiler_checks_types_constants_and_layouts() {
+    let consts = checked_constants();
     // Every HOOD_ constant of the Rust side and every numeric #define of the header is listed.
     let listed: std::collections::BTreeSet<&str> = consts.iter().map(|c| c.0).collect();
     let rust_names: std::collections::BTreeSet<&str> = SOURCE
@@ -279,10 +302,11 @@ fn compiler_checks_types_constants_and_layouts() {
             c_spelling(&ret)
         ));
     }
-    layout!(cpp, hood_material { density, mu, lambda, bending });
+    layout!(cpp, hood_material { struct_size, density, mu, lambda, bending });
     layout!(
         cpp,
         hood_sim_config {
+            struct_size,
             effects,
             precision,
             threads,
@@ -295,10 +319,10 @@ fn compiler_checks_types_constants_and_layouts() {
             solver_iterations
         }
     );
-    layout!(cpp, hood_body_desc { positions, n_vertices, indices, n_faces, omitted });
+    layout!(cpp, hood_body_desc { struct_size, positions, n_vertices, indices, n_faces, omitted });
     layout!(cpp, hood_refinement { iterations, energy_before, energy_after });
     layout!(cpp, hood_body_survey { volume, median_edge, longest_edge, too_coarse });
-    layout!(cpp, hood_executor { user, parallelism, run });
+    layout!(cpp, hood_executor { struct_size, user, parallelism, run });
     cpp.push_str("int main() { return 0; }\n");
 
     let dir = scratch("header");
@@ -330,4 +354,133 @@ fn header_is_strict_c99_and_cpp() {
             .unwrap();
         assert!(o.status.success(), "{cc}: {}", String::from_utf8_lossy(&o.stderr));
     }
+}
+
+/// The status codes' `#define` lines: (name, value, the comment stating the meaning).
+fn header_status_codes() -> Vec<(String, u32, String)> {
+    HEADER
+        .lines()
+        .filter_map(|l| l.strip_prefix("#define "))
+        .filter(|l| l.starts_with("HOOD_OK ") || l.starts_with("HOOD_ERR_"))
+        .map(|l| {
+            let mut w = l.split_whitespace();
+            let (name, value) = (w.next().unwrap(), w.next().unwrap());
+            let comment = l.split_once("/*").and_then(|(_, c)| c.split_once("*/")).map(|(c, _)| c.trim());
+            let comment = comment.unwrap_or_else(|| panic!("{name}: no comment stating its meaning"));
+            (name.to_string(), value.trim_end_matches('u').parse().unwrap(), comment.to_string())
+        })
+        .collect()
+}
+
+fn status_string(code: u32) -> String {
+    // SAFETY: a static NUL-terminated string for any code.
+    unsafe { std::ffi::CStr::from_ptr(hood_ffi::hood_status_string(code)) }.to_str().unwrap().to_string()
+}
+
+/// Every status code's string is "NAME: meaning" as the header's comment on it states it (so all
+/// are distinct); any other code gives "unknown status".
+#[test]
+fn status_strings_match_the_header() {
+    let codes = header_status_codes();
+    let listed: Vec<(&str, u64)> =
+        checked_constants().into_iter().filter(|(n, _)| *n == "HOOD_OK" || n.starts_with("HOOD_ERR_")).collect();
+    assert_eq!(codes.len(), listed.len(), "status codes of the header vs the checked list");
+    let mut strings = std::collections::BTreeSet::new();
+    for (name, value, meaning) in &codes {
+        assert!(listed.contains(&(name.as_str(), *value as u64)), "{name} = {value} is not in the checked list");
+        let s = status_string(*value);
+        assert_eq!(s, format!("{name}: {meaning}"), "hood_status_string({value})");
+        assert!(strings.insert(s), "{name}: its string is not distinct");
+    }
+    let known: Vec<u32> = codes.iter().map(|c| c.1).collect();
+    for code in (0..=1000).chain([4096, u32::MAX - 1, u32::MAX]).filter(|c| !known.contains(c)) {
+        assert_eq!(status_string(code), "unknown status", "code {code}");
+    }
+}
+
+/// What `HOOD_API` and `HOOD_CALL` expand to for a target (the defines that mark it).
+fn macro_expansion(defines: &[&str]) -> String {
+    let dir = scratch("macros");
+    let src = dir.join("macros.c");
+    std::fs::write(&src, "#include \"hood.h\"\nAPI=HOOD_API CALL=HOOD_CALL\n").unwrap();
+    let o = Command::new("cc")
+        .args(["-E", "-P", "-ffreestanding", "-I"])
+        .arg(include_dir())
+        .args(defines)
+        .arg(&src)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    let line = out.lines().rev().find(|l| l.starts_with("API=")).unwrap_or_else(|| panic!("{out}"));
+    line.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// The linkage and calling-convention macros for each kind of target (the Windows ones emulated by
+/// their predefined macros).
+#[test]
+fn linkage_and_calling_convention_macros_expand_per_target() {
+    let cases: [(&[&str], &str); 6] = [
+        (&[], "API=__attribute__((visibility(\"default\"))) CALL="),
+        (&["-D_WIN32"], "API= CALL=__cdecl"),
+        (&["-D_WIN32", "-DHOOD_SHARED"], "API=__declspec(dllimport) CALL=__cdecl"),
+        (&["-D_WIN32", "-D_WIN64"], "API= CALL="),
+        (&["-D_WIN32", "-D_WIN64", "-DHOOD_SHARED"], "API=__declspec(dllimport) CALL="),
+        (&["-DHOOD_API=", "-DHOOD_SHARED"], "API= CALL="),
+    ];
+    for (defines, want) in cases {
+        assert_eq!(macro_expansion(defines), want, "{defines:?}");
+    }
+}
+
+/// On 32-bit x86 with stdcall as the compiler's default (`-mrtd`, as MSVC's /Gz), and `_WIN32`
+/// defined so that `HOOD_CALL` is `__cdecl`, every function and function pointer type of the
+/// header is cdecl: the C compiler refuses to initialise a cdecl pointer from anything else.
+/// Skipped without a compiler that builds 32-bit x86 code.
+#[test]
+fn hood_call_makes_every_function_and_callback_cdecl() {
+    let dir = scratch("cdecl");
+    let flags = [
+        "-m32",
+        "-mrtd",
+        "-ffreestanding",
+        "-std=c99",
+        "-Wall",
+        "-Wextra",
+        "-Werror",
+        "-fsyntax-only",
+        "-D_WIN32",
+        "-D__cdecl=__attribute__((cdecl))",
+    ];
+    let compiles = |name: &str, text: &str| {
+        let src = dir.join(name);
+        std::fs::write(&src, text).unwrap();
+        let o = Command::new("cc").args(flags).arg("-I").arg(include_dir()).arg(&src).output().unwrap();
+        (o.status.success(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let probe = "#include <stdint.h>\nuint32_t (__cdecl *p)(void);\n";
+    if !compiles("probe.c", probe).0 {
+        println!("hood_call_makes_every_function_and_callback_cdecl: skipped, cc cannot build 32-bit x86");
+        return;
+    }
+    // The check can fail: a function without the convention is refused under these flags.
+    let control = "#include <stdint.h>\nuint32_t f(void);\nuint32_t (__cdecl *p)(void) = f;\n";
+    assert!(!compiles("control.c", control).0, "-mrtd did not make stdcall the default");
+    let mut c = String::from("#include \"hood.h\"\n");
+    for (name, (ret, params)) in rust_exports() {
+        let ps: Vec<String> = params.iter().map(c_spelling).collect();
+        let ps = if ps.is_empty() { "void".to_string() } else { ps.join(", ") };
+        c.push_str(&format!("{} (__cdecl *p_{name})({ps}) = {name};\n", c_spelling(&ret)));
+    }
+    c.push_str(
+        "void check_callbacks(hood_task_fn task, const hood_executor *e);\n\
+         void check_callbacks(hood_task_fn task, const hood_executor *e) {\n\
+         \x20   void (__cdecl *t)(void *, uint32_t) = task;\n\
+         \x20   void (__cdecl *r)(void *, uint32_t, hood_task_fn, void *) = e->run;\n\
+         \x20   (void)t;\n\
+         \x20   (void)r;\n\
+         }\n",
+    );
+    let (ok, stderr) = compiles("cdecl.c", &c);
+    assert!(ok, "{stderr}\n{c}");
 }
