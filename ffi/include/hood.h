@@ -98,7 +98,7 @@ extern "C" {
 /* ---- Version ----------------------------------------------------------------------------- */
 
 #define HOOD_VERSION_MAJOR 0
-#define HOOD_VERSION_MINOR 1
+#define HOOD_VERSION_MINOR 2
 #define HOOD_VERSION_PATCH 0
 /* The version as one number: (major << 16) | (minor << 8) | patch. */
 #define HOOD_MAKE_VERSION(major, minor, patch) (((uint32_t)(major) << 16) | ((uint32_t)(minor) << 8) | (uint32_t)(patch))
