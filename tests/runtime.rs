@@ -591,3 +591,77 @@ fn runtime_refuses_an_inside_out_body_and_surveys_a_coarse_one() {
         .unwrap();
     assert!(sim.body_survey().unwrap().too_coarse_for(hood::sim::BODY_EDGE_RADIUS));
 }
+
+/// A saved state restores everything the next steps depend on: a fresh sim that loads it
+/// continues bitwise as the saving one, with the speed limit's carry (a body moving faster than
+/// the limit), the sleeping count and pin targets in play (each left out makes the continuation
+/// diverge: a sim given only `set_state` does); damaged or
+/// foreign bytes are refused and change nothing.
+#[test]
+fn runtime_saved_state_continues_bitwise_and_bad_bytes_change_nothing() {
+    let scene = Scene::new(8, 8);
+    let bytes = random_model(16, 7, false);
+    let model = bytes.model().unwrap();
+    let cfg = SimConfig {
+        normals: true,
+        // A generous "at rest" (10 m/frame) so that sleeping counts frames in both cases.
+        sleeping: Some(hood::sim::Sleeping { frames: 4, threshold: 10.0 }),
+        speed_limit: Some(0.001),
+        ..SimConfig::default()
+    };
+    let pin_targets = |t: usize| -> Vec<[f32; 3]> {
+        scene.garment.rest().iter().map(|p| [p[0] + 0.002 * t as f32, p[1], p[2]]).collect()
+    };
+    // Moving throughout (the carry), or still from frame 5 to 11 (sleeping counts up).
+    for still in [false, true] {
+        let body = |t: usize| if still && (5..12).contains(&t) { scene.body_at(5) } else { scene.body_at(t) };
+        let mut a = scene.sim(&model, cfg).unwrap();
+        for t in 1..8 {
+            a.set_pin_targets(&pin_targets(t)).unwrap();
+            a.step(&body(t)).unwrap();
+        }
+        let mut saved = vec![0u8; a.saved_state_len()];
+        assert_eq!(a.save_state(&mut saved).unwrap(), saved.len());
+        let go_on = |sim: &mut Sim<'_>| -> Vec<Vec<[f32; 3]>> {
+            (8..16)
+                .map(|t| {
+                    sim.step(&body(t)).unwrap();
+                    sim.positions().to_vec()
+                })
+                .collect()
+        };
+        let mut b = scene.sim(&model, cfg).unwrap();
+        b.load_state(&saved).unwrap();
+        assert_eq!(b.state(), a.state());
+        assert_eq!(b.normals(), a.normals());
+        // A sim given only the state (`set_state`) forgets the carry and the sleeping count.
+        let mut forgetful = scene.sim(&model, cfg).unwrap();
+        forgetful.set_state(a.state()).unwrap();
+        forgetful.set_pin_targets(&pin_targets(7)).unwrap();
+        let expected = go_on(&mut a);
+        assert!(go_on(&mut b) == expected, "the loaded sim diverges (still: {still})");
+        assert!(go_on(&mut forgetful) != expected, "the case does not exercise the saved extras (still: {still})");
+    }
+    // Damaged bytes: every byte of the header and some of the arrays flipped in turn; truncated;
+    // another garment's state.
+    let a = scene.sim(&model, cfg).unwrap();
+    let mut saved = vec![0u8; a.saved_state_len()];
+    a.save_state(&mut saved).unwrap();
+    let mut c = scene.sim(&model, cfg).unwrap();
+    c.step(&scene.body_at(1)).unwrap();
+    let before = c.state().clone();
+    for i in (0..64).chain((64..saved.len()).step_by(97)) {
+        let mut bad = saved.clone();
+        bad[i] ^= 0x10;
+        assert!(c.load_state(&bad).is_err(), "byte {i} flipped was accepted");
+        assert_eq!(c.state(), &before);
+    }
+    assert!(matches!(c.load_state(&saved[..saved.len() - 1]).unwrap_err(), Error::CorruptData { .. }));
+    let other = Scene::new(6, 6);
+    let d = other.sim(&model, cfg).unwrap();
+    let mut small = vec![0u8; d.saved_state_len()];
+    d.save_state(&mut small).unwrap();
+    assert!(matches!(c.load_state(&small).unwrap_err(), Error::SizeMismatch { .. }));
+    assert!(matches!(d.save_state(&mut [0u8; 8]).unwrap_err(), Error::SizeMismatch { .. }));
+    assert_eq!(c.state(), &before);
+}

@@ -326,6 +326,21 @@ HOOD_API hood_status HOOD_CALL hood_sim_set_pin_targets(hood_sim *sim, const flo
 HOOD_API hood_status HOOD_CALL hood_sim_reset(hood_sim *sim, const float *positions, size_t n_vertices,
                                               const float *body_positions, size_t n_body_vertices);
 
+/* The whole state between steps as bytes, for save games, rollback netcode and LOD swaps:
+ * garment positions and velocities, pin targets, the body's previous and current frames, whether
+ * the start-up step has run, the sleeping count and the speed limit's carry (a versioned,
+ * little-endian layout with a CRC-32; the same bytes on every platform). A sim of the same
+ * garment and body that loads them continues bitwise as the saving sim would have (the
+ * configuration is the loading sim's own). hood_sim_state_size gives the exact byte count;
+ * hood_sim_save_state needs exactly that many bytes (else HOOD_ERR_SIZE_MISMATCH).
+ * hood_sim_load_state refuses bytes that are not a saved state of this format, fail their
+ * checksum or are truncated (HOOD_ERR_CORRUPT_DATA), come from another garment or body
+ * (HOOD_ERR_SIZE_MISMATCH) or hold a non-finite value (HOOD_ERR_NON_FINITE), and then changes
+ * nothing. */
+HOOD_API hood_status HOOD_CALL hood_sim_state_size(const hood_sim *sim, size_t *out);
+HOOD_API hood_status HOOD_CALL hood_sim_save_state(const hood_sim *sim, uint8_t *out, size_t len);
+HOOD_API hood_status HOOD_CALL hood_sim_load_state(hood_sim *sim, const uint8_t *bytes, size_t len);
+
 /* Moves the garment rigidly without simulating (a cut, a respawn, a character teleported):
  * every garment position and pin target p becomes R p + t, every velocity v becomes R v, so the
  * garment keeps its shape and motion relative to the body. `rotation`: 9 floats, row-major 3x3,

@@ -1431,6 +1431,57 @@ pub unsafe extern "C" fn hood_sim_reset(
     })
 }
 
+/// Bytes of the sim's saved state (see the header).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `out` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_state_size(sim: *const hood_sim, out: *mut usize) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_ref`.
+        let s = unsafe { sim_ref(sim)? };
+        require(out, "out")?;
+        // SAFETY: `out` non-null.
+        unsafe { write_out(out, s.sim.saved_state_len()) };
+        Ok(())
+    })
+}
+
+/// Saves the sim's whole state into `out` (see the header).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `out` holds `len` writable bytes.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_save_state(sim: *const hood_sim, out: *mut u8, len: usize) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_ref`.
+        let s = unsafe { sim_ref(sim)? };
+        require(out, "out")?;
+        expect_len("saved state buffer", s.sim.saved_state_len(), len)?;
+        // SAFETY: `len` writable bytes (caller).
+        let buf = unsafe { slice_mut(out, len, "out")? };
+        s.sim.save_state(buf)?;
+        Ok(())
+    })
+}
+
+/// Restores a saved state (see the header).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `bytes` holds `len` readable bytes.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_load_state(sim: *mut hood_sim, bytes: *const u8, len: usize) -> hood_status {
+    guard(|| {
+        // SAFETY: checked by `sim_mut`.
+        let mut s = unsafe { sim_mut(sim)? };
+        require(bytes, "bytes")?;
+        // SAFETY: `len` readable bytes (caller).
+        let b = unsafe { slice(bytes, len, "bytes")? };
+        s.sim.load_state(b)?;
+        Ok(())
+    })
+}
+
 fn check_rotation(r: &[f32; 9]) -> Result<()> {
     if let Some(i) = r.iter().position(|v| !v.is_finite()) {
         return Err(Error::NonFinite { what: "rotation entry", index: i }.into());

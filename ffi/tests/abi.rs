@@ -1227,3 +1227,51 @@ fn status_string_is_static_and_leaves_the_last_error() {
     assert_eq!(hood_status_string(HOOD_ERR_BUSY), p);
     assert_eq!(text(p), "HOOD_ERR_BUSY: the sim is in use by a call on another thread");
 }
+
+#[test]
+fn saved_state_round_trips_bitwise_and_damaged_bytes_change_nothing() {
+    let l = load(8, 7);
+    let sc = scene(6);
+    let n = sc.rest.len();
+    let (a, b) = (sc.sim(l.model), sc.sim(l.model));
+    let mut out_a = vec![[0.0f32; 3]; n];
+    let mut out_b = vec![[0.0f32; 3]; n];
+    for t in 1..=5 {
+        assert_eq!(step(a, &sc.body_at(t, [0.0; 3]), &mut out_a), HOOD_OK);
+    }
+    let mut len = 0usize;
+    // SAFETY: live handle, writable out.
+    assert_eq!(unsafe { hood_sim_state_size(a, &mut len) }, HOOD_OK);
+    let mut saved = vec![0u8; len];
+    // SAFETY: `len` writable bytes; a wrong length is refused.
+    unsafe {
+        assert_eq!(hood_sim_save_state(a, saved.as_mut_ptr(), len - 1), HOOD_ERR_SIZE_MISMATCH);
+        assert_eq!(hood_sim_save_state(a, saved.as_mut_ptr(), len), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_load_state(b, saved.as_ptr(), len), HOOD_OK, "{}", last_error());
+    }
+    assert_eq!(positions(b, n), positions(a, n));
+    assert_eq!(velocities(b, n), velocities(a, n));
+    for t in 6..=9 {
+        assert_eq!(step(a, &sc.body_at(t, [0.0; 3]), &mut out_a), HOOD_OK);
+        assert_eq!(step(b, &sc.body_at(t, [0.0; 3]), &mut out_b), HOOD_OK);
+        assert_eq!(out_a, out_b, "frame {t}");
+    }
+    // A damaged copy: refused, the sim unchanged.
+    let before = (positions(b, n), velocities(b, n));
+    let mut bad = saved.clone();
+    bad[len / 2] ^= 1;
+    // SAFETY: `len` readable bytes.
+    assert_eq!(unsafe { hood_sim_load_state(b, bad.as_ptr(), len) }, HOOD_ERR_CORRUPT_DATA);
+    assert!(last_error().contains("checksum"), "{}", last_error());
+    // SAFETY: as above; NULL bytes give a status.
+    unsafe {
+        assert_eq!(hood_sim_load_state(b, saved.as_ptr(), len - 3), HOOD_ERR_CORRUPT_DATA);
+        assert_eq!(hood_sim_load_state(b, null(), len), HOOD_ERR_NULL_POINTER);
+    }
+    assert_eq!((positions(b, n), velocities(b, n)), before);
+    // SAFETY: live sims.
+    unsafe {
+        assert_eq!(hood_sim_free(a), HOOD_OK);
+        assert_eq!(hood_sim_free(b), HOOD_OK);
+    }
+}

@@ -14,6 +14,7 @@ pub mod network;
 pub(crate) mod par;
 mod projection;
 mod refine;
+mod saved;
 
 use crate::body::rigid::{best_rigid_motion, RigidMotion};
 use crate::body::{BodyMesh, BodySurvey, Nearest, PointGrid};
@@ -39,6 +40,7 @@ use projection::Projection;
 pub use projection::{DEFAULT_PROJECTION_MARGIN, PROJECTION_REACH};
 use refine::{RefineBody, RefineInput, Refiner};
 pub use refine::{DEFAULT_REFINE_ITERATIONS, MAX_REFINE_ITERATIONS, REFINE_COLLISION_WEIGHT};
+pub use saved::{STATE_MAGIC, STATE_VERSION};
 
 /// Default teleport threshold, metres per frame: a fast run moves a hand about 0.35 m per
 /// frame; a jump of the whole body by a metre, or a 180° turn in one frame, moves far more.
