@@ -244,6 +244,13 @@ typedef struct hood_sim_config {
  * sizeof(hood_sim_config) bytes, struct_size included (set to that size). A NULL `out` is ignored
  * (only hood_last_error records it). */
 HOOD_API void HOOD_CALL hood_sim_config_default(hood_sim_config *out);
+/* The same defaults for code that may run with a newer library than its header:
+ * hood_sim_config_init(&cfg, sizeof cfg) writes exactly the caller's struct_size bytes (the
+ * fields the library knows, zeros after them) and sets struct_size, where
+ * hood_sim_config_default writes the library's own sizeof(hood_sim_config). A struct_size the
+ * library cannot serve (smaller than its struct, over 4096, or misaligned) gives
+ * HOOD_ERR_STRUCT_SIZE and writes nothing. */
+HOOD_API hood_status HOOD_CALL hood_sim_config_init(hood_sim_config *out, size_t struct_size);
 
 /* The body of a scene. `positions`: 3 * n_vertices floats, the body at the first frame (m).
  * `indices`: 3 * n_faces. `omitted` (optional, NULL for none): n_vertices flags, nonzero = the

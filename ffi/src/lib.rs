@@ -450,14 +450,8 @@ unsafe fn read_extensible<T: Extensible>(
             return refuse(format!("every element must carry the first element's struct_size, {stride}"));
         }
     }
-    if size < size_of::<T>() {
-        return refuse("smaller than this library's struct (an older header)".into());
-    }
-    if size > MAX_STRUCT_SIZE {
-        return refuse(format!("larger than {MAX_STRUCT_SIZE} bytes"));
-    }
-    if !size.is_multiple_of(align_of::<T>()) {
-        return refuse(format!("not a multiple of the struct's alignment, {}", align_of::<T>()));
+    if let Some(why) = size_problem::<T>(size) {
+        return refuse(why);
     }
     // SAFETY: `size` bytes are readable (caller) and `size_of::<T>() <= size`, so the tail
     // `size_of::<T>()..size` is inside them.
@@ -472,6 +466,19 @@ unsafe fn read_extensible<T: Extensible>(
     // SAFETY: aligned, and at least `size_of::<T>()` readable bytes; any bytes are a valid `T`
     // (`Extensible`).
     Ok((unsafe { p.read() }, size))
+}
+
+/// Why `size` cannot be a `struct_size` of `T` (see [`read_extensible`]), or `None`.
+fn size_problem<T: Extensible>(size: usize) -> Option<String> {
+    if size < size_of::<T>() {
+        Some("smaller than this library's struct (an older header)".into())
+    } else if size > MAX_STRUCT_SIZE {
+        Some(format!("larger than {MAX_STRUCT_SIZE} bytes"))
+    } else if !size.is_multiple_of(align_of::<T>()) {
+        Some(format!("not a multiple of the struct's alignment, {}", align_of::<T>()))
+    } else {
+        None
+    }
 }
 
 /// One extensible struct (see [`read_extensible`]).
@@ -869,6 +876,38 @@ impl Drop for hood_sim {
     }
 }
 
+/// The library's defaults, with `struct_size` this library's `sizeof(hood_sim_config)`.
+fn default_config() -> hood_sim_config {
+    let d = SimConfig::default();
+    let s = Sleeping::default();
+    let flag = |on: bool, f: u32| if on { f } else { 0 };
+    let effects = flag(d.body_collision, HOOD_EFFECT_BODY_COLLISION)
+        | flag(d.pinning, HOOD_EFFECT_PINNING)
+        | flag(d.normals, HOOD_EFFECT_NORMALS)
+        | flag(d.sleeping.is_some(), HOOD_EFFECT_SLEEPING)
+        | flag(d.startup, HOOD_EFFECT_STARTUP)
+        | flag(d.teleport.is_some(), HOOD_EFFECT_AUTO_TELEPORT)
+        | flag(d.speed_limit.is_some(), HOOD_EFFECT_SPEED_LIMIT)
+        | flag(d.projection.is_some(), HOOD_EFFECT_COLLISION_PROJECTION)
+        | flag(d.refine.is_some(), HOOD_EFFECT_REFINE);
+    hood_sim_config {
+        struct_size: struct_size::<hood_sim_config>(),
+        effects,
+        precision: HOOD_PRECISION_F32,
+        threads: d.threads as u32,
+        sleep_frames: s.frames,
+        sleep_threshold: s.threshold,
+        teleport_threshold: d.teleport.unwrap_or(hood::sim::DEFAULT_TELEPORT),
+        speed_limit: d.speed_limit.unwrap_or(hood::sim::DEFAULT_SPEED_LIMIT),
+        projection_margin: d.projection.unwrap_or(hood::sim::DEFAULT_PROJECTION_MARGIN),
+        refine_iterations: d.refine.unwrap_or(hood::sim::DEFAULT_REFINE_ITERATIONS),
+        solver_iterations: match d.step {
+            StepMode::Network => 0,
+            StepMode::Solver { iterations } => iterations,
+        },
+    }
+}
+
 /// The defaults, with `struct_size` set to this library's `sizeof(hood_sim_config)`.
 ///
 /// # Safety
@@ -878,38 +917,38 @@ pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
     // No status to return: a (never expected) panic just leaves `out` unwritten.
     let _ = guard(|| {
         require(out, "out")?;
-        let d = SimConfig::default();
-        let s = Sleeping::default();
-        let flag = |on: bool, f: u32| if on { f } else { 0 };
-        let effects = flag(d.body_collision, HOOD_EFFECT_BODY_COLLISION)
-            | flag(d.pinning, HOOD_EFFECT_PINNING)
-            | flag(d.normals, HOOD_EFFECT_NORMALS)
-            | flag(d.sleeping.is_some(), HOOD_EFFECT_SLEEPING)
-            | flag(d.startup, HOOD_EFFECT_STARTUP)
-            | flag(d.teleport.is_some(), HOOD_EFFECT_AUTO_TELEPORT)
-            | flag(d.speed_limit.is_some(), HOOD_EFFECT_SPEED_LIMIT)
-            | flag(d.projection.is_some(), HOOD_EFFECT_COLLISION_PROJECTION)
-            | flag(d.refine.is_some(), HOOD_EFFECT_REFINE);
-        let c = hood_sim_config {
-            struct_size: struct_size::<hood_sim_config>(),
-            effects,
-            precision: HOOD_PRECISION_F32,
-            threads: d.threads as u32,
-            sleep_frames: s.frames,
-            sleep_threshold: s.threshold,
-            teleport_threshold: d.teleport.unwrap_or(hood::sim::DEFAULT_TELEPORT),
-            speed_limit: d.speed_limit.unwrap_or(hood::sim::DEFAULT_SPEED_LIMIT),
-            projection_margin: d.projection.unwrap_or(hood::sim::DEFAULT_PROJECTION_MARGIN),
-            refine_iterations: d.refine.unwrap_or(hood::sim::DEFAULT_REFINE_ITERATIONS),
-            solver_iterations: match d.step {
-                StepMode::Network => 0,
-                StepMode::Solver { iterations } => iterations,
-            },
-        };
         // SAFETY: non-null; writable by the caller's promise.
-        unsafe { write_out(out, c) };
+        unsafe { write_out(out, default_config()) };
         Ok(())
     });
+}
+
+/// The defaults into a caller's config of `struct_size` bytes (see the header): the fields this
+/// library knows, then zeros up to `struct_size`, and `struct_size` itself.
+///
+/// # Safety
+/// `out` is NULL or points to `struct_size` writable bytes.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_config_init(out: *mut hood_sim_config, struct_size: usize) -> hood_status {
+    guard(|| {
+        require(out, "out")?;
+        aligned(out, "out")?;
+        if let Some(why) = size_problem::<hood_sim_config>(struct_size) {
+            return Err(Failure::StructSize(format!(
+                "hood_sim_config_init: struct_size {struct_size} is {why}; sizeof(hood_sim_config) is {} in this library",
+                size_of::<hood_sim_config>()
+            )));
+        }
+        let c = hood_sim_config { struct_size: struct_size as u32, ..default_config() };
+        let known = size_of::<hood_sim_config>();
+        // SAFETY: `struct_size >= known` writable bytes (caller), aligned: the known prefix, then
+        // the tail up to `struct_size` zeroed (a newer header's fields, "unset").
+        unsafe {
+            write_out(out, c);
+            std::ptr::write_bytes(out.cast::<u8>().add(known), 0, struct_size - known);
+        }
+        Ok(())
+    })
 }
 
 fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {

@@ -1275,3 +1275,50 @@ fn saved_state_round_trips_bitwise_and_damaged_bytes_change_nothing() {
         assert_eq!(hood_sim_free(b), HOOD_OK);
     }
 }
+
+#[test]
+fn config_init_writes_the_callers_size_and_refuses_what_it_cannot_serve() {
+    let mut def = hood_sim_config_default_value();
+    // A caller built against a newer header: 16 more bytes, which init zeroes.
+    #[repr(C)]
+    #[derive(Clone, Copy)]
+    struct Newer {
+        cfg: hood_sim_config,
+        extra: [u32; 4],
+    }
+    let mut newer = Newer { cfg: def, extra: [0xDEAD_BEEF; 4] };
+    let size = std::mem::size_of::<Newer>();
+    // SAFETY: `size` writable bytes.
+    assert_eq!(unsafe { hood_sim_config_init(&mut newer.cfg, size) }, HOOD_OK, "{}", last_error());
+    assert_eq!(newer.extra, [0; 4]);
+    assert_eq!(newer.cfg.struct_size as usize, size);
+    let same = hood_sim_config { struct_size: newer.cfg.struct_size, ..def };
+    assert_eq!(newer.cfg, same);
+    // Too small, too large, misaligned: refused, nothing written.
+    for bad in [std::mem::size_of::<hood_sim_config>() - 4, 8192, std::mem::size_of::<hood_sim_config>() + 2] {
+        let mut c = Newer { cfg: def, extra: [7; 4] };
+        c.cfg.effects = 12345;
+        // SAFETY: at least `size` writable bytes; refused sizes write nothing.
+        let s = unsafe { hood_sim_config_init(&mut c.cfg, bad) };
+        assert_eq!(s, HOOD_ERR_STRUCT_SIZE, "size {bad}");
+        assert_eq!((c.cfg.effects, c.extra), (12345, [7; 4]), "size {bad}");
+    }
+    // The current size: identical to hood_sim_config_default.
+    let mut cur = def;
+    cur.effects = 0;
+    // SAFETY: a whole struct.
+    assert_eq!(unsafe { hood_sim_config_init(&mut cur, std::mem::size_of::<hood_sim_config>()) }, HOOD_OK);
+    def.struct_size = std::mem::size_of::<hood_sim_config>() as u32;
+    assert_eq!(cur, def);
+    // SAFETY: NULL gives a status.
+    assert_eq!(unsafe { hood_sim_config_init(null_mut(), 64) }, HOOD_ERR_NULL_POINTER);
+}
+
+fn hood_sim_config_default_value() -> hood_sim_config {
+    let mut c = std::mem::MaybeUninit::<hood_sim_config>::zeroed();
+    // SAFETY: writable.
+    unsafe {
+        hood_sim_config_default(c.as_mut_ptr());
+        c.assume_init()
+    }
+}
