@@ -109,12 +109,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn png_checksums_match_known_values() {
-        assert_eq!(crc32(b"123456789"), 0xCBF4_3926);
-        assert_eq!(crc32(b"IEND"), 0xAE42_6082);
-    }
-
-    #[test]
     fn png_encodes_a_small_image() {
         let mut im = Image::new(3, 2, [10, 20, 30]);
         im.rgb[0] = 255;
