@@ -99,7 +99,11 @@ impl Dataset {
     /// Plays every scene's reference rollout: from the skinned garment at rest at frame 0, every
     /// frame one implicit step of the training objective at the final collision weight (f64
     /// L-BFGS, [`REFERENCE_ITERATIONS`] iterations at most), default material, pinned vertices at
-    /// their targets; a rollout that turns non-finite keeps its frames up to there. With
+    /// their targets; a rollout that turns non-finite keeps its frames up to there, and one that
+    /// loses the garment ([`crate::eval::OffBody`]: [`crate::eval::LOST_PERCENT`] or more of its
+    /// worn vertices off the body) keeps its frames before that one, so that no sample starts
+    /// from a garment the solver has thrown off (on fast arm swings and inversions the implicit
+    /// step of the objective can lose a loose top). With
     /// `cache`, each scene's states are read from `cache/<scene>.bin` when there (and of the
     /// scene's size), else computed and written there. `progress(scene, done, of)` is told
     /// about every frame computed.
@@ -119,7 +123,8 @@ impl Dataset {
         for (scene, name) in self.scenes.iter().zip(&self.names) {
             let n = scene.garment.n_vertices();
             let file = cache.map(|dir| dir.join(std::format!("{}.bin", name.replace(['/', ' '], "_"))));
-            if let Some(states) = file.as_deref().and_then(|f| read_states(f, n)) {
+            if let Some(mut states) = file.as_deref().and_then(|f| read_states(f, n)) {
+                truncate_at_loss(scene, &mut states)?;
                 self.reference.push(states);
                 continue;
             }
@@ -139,6 +144,7 @@ impl Dataset {
             if let Some(f) = &file {
                 write_states(f, &states)?;
             }
+            truncate_at_loss(scene, &mut states)?;
             self.reference.push(states);
         }
         Ok(())
@@ -171,6 +177,22 @@ impl Dataset {
 
 /// Garment positions (m), one per vertex.
 pub type Positions = Vec<[f32; 3]>;
+
+/// Drops the states of `scene`'s reference rollout from the first frame whose garment is lost
+/// (the cache keeps the whole rollout: the rule may change, the solve need not be redone).
+fn truncate_at_loss(scene: &Scene, states: &mut Vec<Positions>) -> Result<()> {
+    use crate::eval::{OffBody, LOST_PERCENT};
+    let Some(mut metric) = OffBody::new(scene)? else { return Ok(()) };
+    let lost = (0..states.len()).find_map(|t| match metric.measure(scene, t, &states[t]) {
+        Ok(f) if f.off_percent < LOST_PERCENT => None,
+        Ok(_) => Some(Ok(t)),
+        Err(e) => Some(Err(e)),
+    });
+    if let Some(t) = lost {
+        states.truncate(t?);
+    }
+    Ok(())
+}
 
 /// L-BFGS iterations per frame of the reference rollouts (the accuracy/time report puts 100
 /// iterations within about 0.002 of the converged step's gap).
@@ -208,4 +230,28 @@ fn write_states(path: &Path, states: &[Vec<[f32; 3]>]) -> Result<()> {
         std::fs::create_dir_all(dir).map_err(io)?;
     }
     crate::io::write_atomic(path, &bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{GarmentKind, MotionKind};
+
+    /// A reference rollout keeps its frames up to the one that loses the garment, and all of
+    /// them while the garment stays on.
+    #[test]
+    fn reference_states_end_where_the_garment_is_lost() {
+        let m = Mannequin::new();
+        let s = scene::procedural(&m, GarmentKind::Skirt, 300, MotionKind::Walk, 0.5).unwrap();
+        let worn: Vec<Positions> = (0..s.n_frames()).map(|f| s.initial_garment(f).unwrap()).collect();
+        let mut kept = worn.clone();
+        truncate_at_loss(&s, &mut kept).unwrap();
+        assert_eq!(kept.len(), worn.len());
+        let mut lost = worn.clone();
+        for p in lost[7].iter_mut() {
+            p[1] -= 1.0; // a metre down: fallen to the floor
+        }
+        truncate_at_loss(&s, &mut lost).unwrap();
+        assert_eq!(lost.len(), 7);
+    }
 }

@@ -303,6 +303,11 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
                 eprint!("\rreference rollout of {name:<32} frame {done}/{of}   ");
             }
         })?;
+        for ((states, scene), name) in t.data.reference.iter().zip(&t.data.scenes).zip(&t.data.names) {
+            if states.len() < scene.n_frames() {
+                eprintln!("\rreference rollout of {name}: states up to frame {} (the garment is lost or the step fails after)", states.len());
+            }
+        }
         let frames: usize = t.data.reference.iter().map(|r| r.len()).sum();
         eprintln!(
             "\rreference states: {frames} frames over {} scenes ({:.0} s); {} of fresh samples start from one{:20}",
