@@ -66,6 +66,7 @@ fn step_every_effect_precision_and_thread_count() {
                             (2, StepMode::Network),
                             (1, StepMode::Solver { iterations: 4 }),
                             (2, StepMode::Solver { iterations: 4 }),
+                            (1, StepMode::SolverBudget { micros: 1_000_000, max_iterations: 4 }),
                         ] {
                             let network = step == StepMode::Network;
                             let cfg = SimConfig {

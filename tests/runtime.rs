@@ -547,6 +547,50 @@ fn runtime_solver_step_mode_is_the_implicit_step_without_the_network() {
     assert!(matches!(err, Some(Error::UnsupportedEffect { .. })), "{err:?}");
 }
 
+/// The solver step mode within a time budget stops its solve when the sim's clock passes the
+/// budget (here a clock that moves 1 ms each time it is read: 3 iterations fit in 2.5 ms) and
+/// is then the fixed-count solver step of as many iterations, bitwise; a clock that stands
+/// still leaves the iteration cap; a zero budget is refused.
+#[test]
+fn runtime_solver_budget_ends_each_solve_on_the_clock() {
+    use hood::sim::{Clock, StepMode};
+    use std::sync::atomic::{AtomicU64, Ordering};
+    struct Ticking(AtomicU64, u64);
+    impl Clock for Ticking {
+        fn now_ns(&self) -> u64 {
+            self.0.fetch_add(self.1, Ordering::SeqCst)
+        }
+    }
+    let scene = Scene::new(12, 12);
+    let b0 = scene.body_at(0);
+    let bytes = random_model(16, 1, false);
+    let model = bytes.model().unwrap();
+    let run = |step: StepMode, tick_ns: Option<u64>| {
+        let cfg = SimConfig { step, ..SimConfig::default() };
+        let mut sim =
+            Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap();
+        if let Some(tick) = tick_ns {
+            sim.set_clock(Box::new(Ticking(AtomicU64::new(0), tick)));
+        }
+        let mut iterations = Vec::new();
+        for t in 1..=8 {
+            sim.step(&scene.body_at(t)).unwrap();
+            iterations.push(sim.last_refinement().unwrap().iterations);
+        }
+        (iterations, sim.positions().to_vec())
+    };
+    let budget = StepMode::SolverBudget { micros: 2500, max_iterations: 50 };
+    let (its, x) = run(budget, Some(1_000_000));
+    assert_eq!(its, vec![3; 8], "iterations per step within 2.5 ms of a 1 ms clock");
+    assert_eq!(x, run(StepMode::Solver { iterations: 3 }, None).1, "the budgeted step differs from 3 iterations");
+    let (its, x) = run(budget, Some(0));
+    assert!(its.iter().all(|&k| k > 3 && k <= 50), "{its:?}");
+    assert_eq!(x, run(StepMode::Solver { iterations: 50 }, None).1, "a stopped clock differs from the cap");
+    let cfg = SimConfig { step: StepMode::SolverBudget { micros: 0, max_iterations: 5 }, ..SimConfig::default() };
+    let err = Sim::new(&model, &scene.garment, None, cfg).err();
+    assert!(matches!(err, Some(Error::OutOfRange { .. })), "{err:?}");
+}
+
 /// The shipped model files carry their checksum: a single flipped bit anywhere (here at 400
 /// positions spread over each file, header included) is refused at load.
 #[test]

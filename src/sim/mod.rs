@@ -7,6 +7,7 @@
 //!
 //! Units: metres; one step is one frame at the model's 30 Hz (velocities are m/frame).
 
+mod clock;
 pub mod driver;
 pub mod exec;
 pub mod graph;
@@ -29,6 +30,9 @@ use crate::model::spec::EdgeKey;
 use alloc::boxed::Box;
 use alloc::vec;
 use alloc::vec::Vec;
+pub use clock::Clock;
+#[cfg(feature = "std")]
+pub use clock::StdClock;
 pub use driver::FixedStep;
 #[cfg(feature = "std")]
 pub use exec::ThreadPool;
@@ -71,6 +75,17 @@ pub enum StepMode {
     Solver {
         /// L-BFGS iterations per step.
         iterations: u32,
+    },
+    /// As [`StepMode::Solver`], ending each step's solve once `micros` microseconds of wall time
+    /// have passed since it began (after at least one iteration) or after `max_iterations`
+    /// (1 ..= [`MAX_REFINE_ITERATIONS`]), whichever comes first: the step that fits a frame's
+    /// time budget. The result then depends on the machine and its load (not bitwise
+    /// reproducible). Reads the sim's clock ([`Sim::set_clock`]; with `std` one is there).
+    SolverBudget {
+        /// Wall time of one step's solve, µs (at least 1).
+        micros: u32,
+        /// L-BFGS iterations per step at most.
+        max_iterations: u32,
     },
 }
 
@@ -234,6 +249,8 @@ pub struct Sim<'m> {
     rest_frames: u32,
     ws: Workspace,
     exec: Box<dyn Executor + 'm>,
+    /// The clock of [`StepMode::SolverBudget`].
+    clock: Option<Box<dyn Clock + 'm>>,
     last_body: (usize, usize),
     /// The speed limit's carry of the last step, m (zero: none).
     last_carry: [f32; 3],
@@ -344,17 +361,25 @@ impl<'m> Sim<'m> {
             }
             _ => None,
         };
-        let iterations = match (cfg.step, cfg.refine) {
-            (StepMode::Solver { .. }, Some(_)) => {
+        let (iterations, budget_ns) = match (cfg.step, cfg.refine) {
+            (StepMode::Solver { .. } | StepMode::SolverBudget { .. }, Some(_)) => {
                 return Err(Error::UnsupportedEffect {
                     effect: "refine with the solver step mode (set the solver's iterations instead)",
                 })
             }
-            (StepMode::Solver { iterations }, None) => Some(iterations),
-            (StepMode::Network, refine) => refine,
+            (StepMode::Solver { iterations }, None) => (Some(iterations), None),
+            (StepMode::SolverBudget { micros: 0, .. }, None) => {
+                return Err(Error::OutOfRange { what: "solver time budget (at least 1 us)", index: 0 })
+            }
+            (StepMode::SolverBudget { micros, max_iterations }, None) => {
+                (Some(max_iterations), Some(u64::from(micros) * 1000))
+            }
+            (StepMode::Network, refine) => (refine, None),
         };
         let refiner = match iterations {
-            Some(iterations) => Some(Refiner::new(garment, body_state.as_ref().map(|b| &b.mesh), iterations)?),
+            Some(iterations) => {
+                Some(Refiner::new(garment, body_state.as_ref().map(|b| &b.mesh), iterations, budget_ns)?)
+            }
             None => None,
         };
         let max_active = body_state.as_ref().map_or(0, |b| b.active.len());
@@ -396,6 +421,7 @@ impl<'m> Sim<'m> {
             rest_frames: 0,
             ws,
             exec: default_executor(cfg.threads),
+            clock: clock::default_clock(),
             last_body: (0, 0),
             last_carry: [0.0; 3],
         })
@@ -411,6 +437,12 @@ impl<'m> Sim<'m> {
     pub fn set_executor(&mut self, exec: Box<dyn Executor + 'm>) {
         self.ws.set_tasks(exec.parallelism(), &self.graph);
         self.exec = exec;
+    }
+
+    /// Plugs in the clock that [`StepMode::SolverBudget`] reads (an engine's frame timer; with
+    /// `std` a sim starts with [`StdClock`]).
+    pub fn set_clock(&mut self, clock: Box<dyn Clock + 'm>) {
+        self.clock = Some(clock);
     }
 
     /// Useful floating-point operations of the network's matrix products in the last network
@@ -702,7 +734,7 @@ impl<'m> Sim<'m> {
         }
         match self.cfg.step {
             StepMode::Network => self.predict(body_next, carry, last, dt, observer)?,
-            StepMode::Solver { .. } => {
+            StepMode::Solver { .. } | StepMode::SolverBudget { .. } => {
                 // The coasting guess, which the solver below refines into the implicit step.
                 for i in 0..n {
                     let v = if self.pinned[i] { [0.0; 3] } else { self.state.velocity[i] };
@@ -733,7 +765,7 @@ impl<'m> Sim<'m> {
                 pinned: &self.pinned,
                 body: self.body.as_ref().map(|b| RefineBody { mesh: &b.mesh, now, next: body_next.unwrap_or(now) }),
             };
-            r.apply(&input, &mut self.new_pos, &mut self.new_vel)?;
+            r.apply(&input, self.clock.as_deref(), &mut self.new_pos, &mut self.new_vel)?;
         }
         if let Some(b) = &mut self.body {
             if let Some(proj) = &mut b.projection {

@@ -8,6 +8,7 @@
 //! [`crate::solve`] over the free vertices; pinned vertices stay at their targets. The refined
 //! move is added to the velocity too, so the next step starts from the refined state.
 
+use super::clock::Clock;
 use crate::body::{BodyMesh, PointGrid};
 use crate::error::{Error, Result};
 use crate::math::finite3;
@@ -109,15 +110,25 @@ pub(super) struct Refiner {
     last: Option<LbfgsReport>,
     /// The report of a refinement whose step has not been committed yet.
     pending: Option<LbfgsReport>,
+    /// Wall time of one refinement, ns (`None`: the iteration count alone ends it).
+    budget_ns: Option<u64>,
 }
 
 impl Refiner {
     /// `iterations` L-BFGS iterations per step for `garment` (its materials), with contact
     /// terms against `mesh` when the scene has a body.
     ///
+    /// With `budget_ns`, a refinement also ends once that much wall time has passed since it
+    /// began (after at least one iteration), by the clock [`apply`](Self::apply) is given.
+    ///
     /// # Errors
     /// [`Error::OutOfRange`] for 0 or more than [`MAX_REFINE_ITERATIONS`] iterations.
-    pub(super) fn new(garment: &Garment, mesh: Option<&BodyMesh>, iterations: u32) -> Result<Refiner> {
+    pub(super) fn new(
+        garment: &Garment,
+        mesh: Option<&BodyMesh>,
+        iterations: u32,
+        budget_ns: Option<u64>,
+    ) -> Result<Refiner> {
         if !(1..=MAX_REFINE_ITERATIONS).contains(&iterations) {
             return Err(Error::OutOfRange { what: "refinement iterations (1 ..= 1000)", index: iterations as usize });
         }
@@ -143,6 +154,7 @@ impl Refiner {
             next_at,
             last: None,
             pending: None,
+            budget_ns,
         })
     }
 
@@ -158,19 +170,28 @@ impl Refiner {
     }
 
     /// Refines the prediction `new_pos` (m, world, pinned vertices at their targets) in place and
-    /// adds each vertex's move to `new_vel`. Allocates nothing.
+    /// adds each vertex's move to `new_vel`; a time budget reads `clock`. Allocates nothing.
     ///
     /// # Errors
     /// [`Error::NonFinite`] when the refined positions are not finite; errors of the objective
-    /// (none for the buffers of [`new`](Self::new)). Nothing is written on error but `new_pos`,
-    /// which the caller discards.
+    /// (none for the buffers of [`new`](Self::new)); [`Error::UnsupportedEffect`] for a time
+    /// budget without a clock. Nothing is written on error but `new_pos`, which the caller
+    /// discards.
     pub(super) fn apply(
         &mut self,
         input: &RefineInput<'_>,
+        clock: Option<&dyn Clock>,
         new_pos: &mut [[f32; 3]],
         new_vel: &mut [[f32; 3]],
     ) -> Result<()> {
         self.pending = None;
+        let deadline = match (self.budget_ns, clock) {
+            (None, _) => None,
+            (Some(b), Some(c)) => Some((c, c.now_ns().saturating_add(b))),
+            (Some(_), None) => {
+                return Err(Error::UnsupportedEffect { effect: "solver time budget without a clock (Sim::set_clock)" })
+            }
+        };
         let c = input.carry;
         for (o, v) in self.coast.iter_mut().zip(input.velocity) {
             *o = [v[0] + c[0], v[1] + c[1], v[2] + c[2]];
@@ -208,7 +229,16 @@ impl Refiner {
             pinned: input.pinned,
             targets: &self.predicted,
         };
-        let report = self.solver.refine(&self.cloth, &self.objective, &state, body.as_ref(), &self.params, new_pos)?;
+        let mut stop = || deadline.is_some_and(|(c, at)| c.now_ns() >= at);
+        let report = self.solver.refine_until(
+            &self.cloth,
+            &self.objective,
+            &state,
+            body.as_ref(),
+            &self.params,
+            new_pos,
+            &mut stop,
+        )?;
         if let Some(i) = new_pos.iter().position(|p| !finite3(*p)) {
             return Err(Error::NonFinite { what: "refined garment vertex", index: i });
         }

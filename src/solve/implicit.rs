@@ -124,6 +124,26 @@ impl<T: Real> ImplicitStep<T> {
         params: &LbfgsParams,
         x: &mut [[T; 3]],
     ) -> Result<LbfgsReport> {
+        self.refine_until(cloth, objective, state, body, params, x, &mut || false)
+    }
+
+    /// As [`ImplicitStep::refine`], also stopping when `stop()` says so (asked before every
+    /// iteration after the first, [`Lbfgs::minimize_until`](crate::solve::Lbfgs::minimize_until)):
+    /// the solve of a time budget. Allocates nothing.
+    ///
+    /// # Errors
+    /// As [`ImplicitStep::step`].
+    #[allow(clippy::too_many_arguments)] // the solve's inputs and its stop rule
+    pub fn refine_until(
+        &mut self,
+        cloth: &Cloth<T>,
+        objective: &Objective,
+        state: &StepState<'_, T>,
+        body: Option<&StepBody<'_, T>>,
+        params: &LbfgsParams,
+        x: &mut [[T; 3]],
+        stop: &mut dyn FnMut() -> bool,
+    ) -> Result<LbfgsReport> {
         let n = cloth.n_vertices();
         check_len("implicit step workspace", self.lbfgs.n_vertices(), n)?;
         check_len("positions", x.len(), n)?;
@@ -159,7 +179,7 @@ impl<T: Real> ImplicitStep<T> {
         let mut scratch = Contacts { near_cur, near_a, near_b, near_hint, x32 };
         let friction_b = prepare_contacts(objective, state, body, &mut scratch);
         let next = body.map(|b| b.next);
-        lbfgs.minimize(x, params, |y, grad| {
+        let f = |y: &[[T; 3]], grad: &mut [[T; 3]]| {
             let t = eval_terms(cloth, objective, state, next, friction_b, &mut scratch, y, Some(&mut *grad))?;
             for (g, &p) in grad.iter_mut().zip(pinned) {
                 if p {
@@ -167,7 +187,8 @@ impl<T: Real> ImplicitStep<T> {
                 }
             }
             Ok(t.total())
-        })
+        };
+        lbfgs.minimize_until(x, params, f, stop)
     }
 
     /// The objective's terms at `x` under the same rules as [`ImplicitStep::step`] (collision

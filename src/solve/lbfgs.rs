@@ -50,6 +50,8 @@ pub enum Termination {
     RelativeDecrease,
     /// `max_iterations` reached.
     MaxIterations,
+    /// The caller's stop rule said stop (a time budget, see [`Lbfgs::minimize_until`]).
+    Stopped,
     /// No step along the search direction decreased the objective (at numerical precision).
     LineSearch,
 }
@@ -184,7 +186,23 @@ impl<T: Real> Lbfgs<T> {
         &mut self,
         x: &mut [[T; 3]],
         params: &LbfgsParams,
+        f: impl FnMut(&[[T; 3]], &mut [[T; 3]]) -> Result<T>,
+    ) -> Result<LbfgsReport> {
+        self.minimize_until(x, params, f, &mut || false)
+    }
+
+    /// As [`Lbfgs::minimize`], also stopping ([`Termination::Stopped`]) when `stop()` says so,
+    /// asked before every iteration after the first (so at least one is taken): a time budget
+    /// reads a clock there. Allocates nothing.
+    ///
+    /// # Errors
+    /// As [`Lbfgs::minimize`].
+    pub fn minimize_until(
+        &mut self,
+        x: &mut [[T; 3]],
+        params: &LbfgsParams,
         mut f: impl FnMut(&[[T; 3]], &mut [[T; 3]]) -> Result<T>,
+        stop: &mut dyn FnMut() -> bool,
     ) -> Result<LbfgsReport> {
         if x.len() != self.n {
             return Err(Error::SizeMismatch { what: "L-BFGS unknowns", expected: self.n, got: x.len() });
@@ -206,6 +224,9 @@ impl<T: Real> Lbfgs<T> {
             }
             if iterations >= params.max_iterations {
                 break Termination::MaxIterations;
+            }
+            if iterations > 0 && stop() {
+                break Termination::Stopped;
             }
             // Two-loop recursion: d = -H g.
             self.d.copy_from_slice(&self.g);

@@ -13,7 +13,7 @@ use hood::model::spec::format_schedule;
 use hood::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
 use hood::rig::procedural::Mannequin;
 use hood::scene::{procedural, GarmentKind, MotionKind};
-use hood::sim::{Precision, SimConfig, StepMode};
+use hood::sim::{Precision, SimConfig, StepMode, MAX_REFINE_ITERATIONS};
 use hood::solve::LbfgsParams;
 use hood::{Error, Result};
 use std::fmt::Write as _;
@@ -52,6 +52,11 @@ pub struct ReportArgs {
     /// implicit solver of `--iterations`.
     #[arg(long, value_delimiter = ',')]
     solver: Vec<u32>,
+    /// The runtime's solver step mode within a time budget (`StepMode::SolverBudget`): each
+    /// step's solve ends after this many milliseconds (comma-separated, e.g. `5,15,40`), or
+    /// after 1,000 iterations.
+    #[arg(long, value_delimiter = ',')]
+    solver_budget: Vec<f64>,
     /// Threads of the runtime's step (network, refinement and solver step mode).
     #[arg(long, default_value_t = 1)]
     threads: usize,
@@ -214,6 +219,12 @@ pub fn report(a: ReportArgs) -> Result<()> {
                 let cfg = SimConfig { threads: a.threads.max(1), step, ..SimConfig::default() };
                 variants.push((format!("solver step f32 {k} it."), Method::Network { model, cfg }));
             }
+            for &ms in &a.solver_budget {
+                let micros = (ms * 1e3).round().clamp(1.0, u32::MAX as f64) as u32;
+                let step = StepMode::SolverBudget { micros, max_iterations: MAX_REFINE_ITERATIONS };
+                let cfg = SimConfig { threads: a.threads.max(1), step, ..SimConfig::default() };
+                variants.push((format!("solver step f32 within {ms} ms"), Method::Network { model, cfg }));
+            }
         }
         for &k in &a.iterations {
             let solver = LbfgsParams { max_iterations: k.max(1), ..converged_solver() };
@@ -304,6 +315,14 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
              `SimConfig::refine`): every network step is refined by k L-BFGS iterations of the training-form \
              objective in f32, started from the network's prediction, and the rollout goes on from the refined \
              positions; ms/step includes both.\n"
+        );
+    }
+    if !a.solver_budget.is_empty() {
+        let _ = writeln!(
+            s,
+            "\"solver step f32 within t ms\" rows are the solver step mode with a time budget \
+             (`StepMode::SolverBudget`): each step's L-BFGS stops once t ms have passed since its solve began \
+             (after at least one iteration), so their figures depend on the machine that ran the report.\n"
         );
     }
     if !a.solver.is_empty() {

@@ -92,6 +92,10 @@ pub struct SimulateArgs {
     /// this many L-BFGS iterations from the coasting guess (0: the network steps).
     #[arg(long, default_value_t = 0)]
     solver: u32,
+    /// With `--solver K`: end each step's solve after this many microseconds of wall time too
+    /// (`StepMode::SolverBudget`, at most K iterations; 0: no budget).
+    #[arg(long, default_value_t = 0)]
+    solver_budget_us: u32,
     /// Objective of the printed figures and of the gap.
     #[arg(long, value_enum, default_value_t = ObjectiveArg::Evaluation)]
     objective: ObjectiveArg,
@@ -203,11 +207,13 @@ pub fn named_scene(
     Ok((Box::new(s), name))
 }
 
-/// The step mode of `--solver K`: the network for 0, else the solver with K iterations.
-pub fn step_mode(solver: u32) -> StepMode {
-    match solver {
-        0 => StepMode::Network,
-        iterations => StepMode::Solver { iterations },
+/// The step mode of `--solver K` (and `--solver-budget-us B`): the network for K = 0, else the
+/// solver with K iterations (within B µs when B > 0).
+pub fn step_mode(solver: u32, budget_us: u32) -> StepMode {
+    match (solver, budget_us) {
+        (0, _) => StepMode::Network,
+        (iterations, 0) => StepMode::Solver { iterations },
+        (max_iterations, micros) => StepMode::SolverBudget { micros, max_iterations },
     }
 }
 
@@ -297,7 +303,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         precision,
         projection: a.projection,
         refine: (a.refine > 0).then_some(a.refine),
-        step: step_mode(a.solver),
+        step: step_mode(a.solver, a.solver_budget_us),
         ..SimConfig::default()
     };
     let faces = anim.garment().faces().to_vec();

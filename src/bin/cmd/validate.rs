@@ -211,7 +211,7 @@ fn validate_one(model: &Model<'_>, scene: &SceneSpec, a: &ValidateArgs, strip: &
         precision: parse_precision(&a.precision)?,
         projection: a.projection,
         refine: (a.refine > 0).then_some(a.refine),
-        step: step_mode(a.solver),
+        step: step_mode(a.solver, 0),
         ..SimConfig::default()
     };
     let own = rollout(model, &*anim, frames, cfg, &opts)?;
