@@ -903,7 +903,7 @@ fn default_config() -> hood_sim_config {
         refine_iterations: d.refine.unwrap_or(hood::sim::DEFAULT_REFINE_ITERATIONS),
         solver_iterations: match d.step {
             StepMode::Network => 0,
-            StepMode::Solver { iterations } => iterations,
+            StepMode::Solver { iterations } | StepMode::SolverBudget { max_iterations: iterations, .. } => iterations,
         },
     }
 }
