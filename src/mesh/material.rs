@@ -35,6 +35,25 @@ impl Default for Material {
 }
 
 impl Material {
+    /// Names of [`Material::preset`]: the default and, for stretching (Lamé mu and lambda
+    /// together) and bending separately, each end of the training ranges.
+    pub const PRESETS: [&'static str; 5] = ["default", "soft-stretch", "stiff-stretch", "soft-bend", "stiff-bend"];
+
+    /// A named material: `default` ([`Material::default`]), `soft-stretch` / `stiff-stretch`
+    /// (mu and lambda at the low / high end of their training ranges, the rest default),
+    /// `soft-bend` / `stiff-bend` (bending stiffness at either end). `None` for other names.
+    pub fn preset(name: &str) -> Option<Material> {
+        let d = Material::default();
+        Some(match name {
+            "default" => d,
+            "soft-stretch" => Material { mu: ranges::MU.0, lambda: ranges::LAMBDA.0, ..d },
+            "stiff-stretch" => Material { mu: ranges::MU.1, lambda: ranges::LAMBDA.1, ..d },
+            "soft-bend" => Material { bending: ranges::BENDING.0, ..d },
+            "stiff-bend" => Material { bending: ranges::BENDING.1, ..d },
+            _ => return None,
+        })
+    }
+
     /// True when every parameter is finite and strictly positive.
     pub fn is_valid(&self) -> bool {
         [self.density, self.mu, self.lambda, self.bending].iter().all(|v| v.is_finite() && *v > 0.0)

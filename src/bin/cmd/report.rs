@@ -9,13 +9,15 @@ use crate::objective::ObjectiveArg;
 use clap::Args;
 use hood::eval::{common_state_gaps, converged_solver, implicit_rollout, rollout, Animation, Method, Rollout};
 use hood::eval::{Reference, RolloutOptions, Summary};
+use hood::mesh::Material;
 use hood::model::spec::format_schedule;
 use hood::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
 use hood::rig::procedural::Mannequin;
-use hood::scene::{procedural, GarmentKind, MotionKind};
+use hood::scene::{procedural, GarmentKind, MotionKind, Scene};
 use hood::sim::{Precision, SimConfig, StepMode, MAX_REFINE_ITERATIONS};
 use hood::solve::LbfgsParams;
 use hood::{Error, Result};
+use std::cmp::Ordering;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -25,9 +27,12 @@ pub struct ReportArgs {
     /// (timing only) when there is none.
     #[arg(long, value_delimiter = ',')]
     model: Vec<PathBuf>,
-    /// Workloads `GARMENT[:MOTION]`: skirt, dress, cape (procedural mannequin), tee, jeans
-    /// (MakeHuman; skipped when the assets are absent); the motion as `hood simulate --motion`
-    /// takes it (default: walk, for tee and jeans the CMU walk), e.g. `skirt:run,tee:jumps-1001`.
+    /// Workloads `GARMENT[@VERTICES][:MOTION][/MATERIAL]`: skirt, dress, cape (procedural
+    /// mannequin, about VERTICES vertices, default `--vertices`), tee, jeans (MakeHuman; skipped
+    /// when the assets are absent); the motion as `hood simulate --motion` takes it (default:
+    /// walk, for tee and jeans the CMU walk); the material one of default, soft-stretch,
+    /// stiff-stretch, soft-bend, stiff-bend (the ends of the training ranges), e.g.
+    /// `skirt@4000:run/stiff-bend,tee:jumps-1001`.
     #[arg(long, value_delimiter = ',', default_value = "skirt,jeans")]
     workload: Vec<String>,
     /// Vertices of the procedural garments (approximate).
@@ -77,6 +82,7 @@ pub struct ReportArgs {
 }
 
 /// One measured variant on one workload.
+#[derive(Clone)]
 struct Row {
     workload: String,
     vertices: usize,
@@ -139,6 +145,31 @@ fn candidates(a: &ReportArgs) -> Result<Vec<Candidate>> {
 
 fn workload(a: &ReportArgs, name: &str, m: &Mannequin) -> Result<Option<Box<dyn Animation>>> {
     let seconds = (a.frames + 1) as f32 / 30.0 + 0.1;
+    let bad = |what: String| Error::parse("workload", 0, format!("{what} in '{name}'"));
+    let (rest, material) = match name.split_once('/') {
+        Some((r, mat)) => {
+            let known = Material::PRESETS.join(", ");
+            (r, Some(Material::preset(mat).ok_or_else(|| bad(format!("unknown material '{mat}' (one of {known})")))?))
+        }
+        None => (name, None),
+    };
+    let (rest, vertices) = match rest.split_once('@') {
+        Some((g, v)) => {
+            let (v, tail) = v.split_once(':').map_or((v, None), |(v, t)| (v, Some(t)));
+            let n: usize = v.parse().map_err(|_| bad(format!("bad vertex count '{v}'")))?;
+            (tail.map_or(g.to_string(), |t| format!("{g}:{t}")), n)
+        }
+        None => (rest.to_string(), a.vertices),
+    };
+    let Some(mut scene) = scene_of(a, &rest, vertices, seconds, m)? else { return Ok(None) };
+    if let Some(mat) = material {
+        scene.garment = scene.garment_with_material(mat)?;
+    }
+    Ok(Some(Box::new(scene)))
+}
+
+/// The scene of `GARMENT[:MOTION]` (procedural garments at about `vertices` vertices).
+fn scene_of(a: &ReportArgs, name: &str, vertices: usize, seconds: f32, m: &Mannequin) -> Result<Option<Scene>> {
     let (garment, motion) = match name.split_once(':') {
         Some((g, mo)) => {
             let motion = MotionKind::parse(mo)
@@ -149,7 +180,7 @@ fn workload(a: &ReportArgs, name: &str, m: &Mannequin) -> Result<Option<Box<dyn 
     };
     if let Some(kind) = GarmentKind::parse(garment) {
         let motion = motion.unwrap_or(MotionKind::Walk);
-        return Ok(Some(Box::new(procedural(m, kind, a.vertices, motion, seconds)?)));
+        return Ok(Some(procedural(m, kind, vertices, motion, seconds)?));
     }
     use hood::scene::{makehuman_on, MakeHumanGarment};
     let Some(which) = MakeHumanGarment::parse(garment) else {
@@ -159,7 +190,7 @@ fn workload(a: &ReportArgs, name: &str, m: &Mannequin) -> Result<Option<Box<dyn 
     // The MakeHuman garments' walk is the CMU walk (no motion given).
     let motion = motion.filter(|&mo| mo != MotionKind::Walk);
     match makehuman_on(&assets, which, motion, a.frames + 1) {
-        Ok(s) => Ok(Some(Box::new(s))),
+        Ok(s) => Ok(Some(s)),
         Err(e @ Error::Io { .. }) => {
             eprintln!("skipping {name}: {e}");
             Ok(None)
@@ -250,9 +281,14 @@ pub fn report(a: ReportArgs) -> Result<()> {
     let trained = models.iter().all(|m| m.trained);
     let md = markdown(&a, &rows, &models, trained);
     let (own, common): (Vec<Row>, Vec<Row>) = rows.into_iter().partition(|r| !r.common);
-    let mut files = vec![("report.md", md), ("report.svg", svg_plot(&own))];
+    let mut files = vec![("report.md".to_string(), md), ("report.svg".to_string(), svg_plot(&own))];
     if !common.is_empty() {
-        files.push(("report-common.svg", svg_plot(&common)));
+        files.push(("report-common.svg".to_string(), svg_plot(&common)));
+    }
+    let own_refs: Vec<&Row> = own.iter().collect();
+    for name in workload_names(&own_refs) {
+        let cell: Vec<Row> = own.iter().filter(|r| r.workload == name).cloned().collect();
+        files.push((plot_file(name), svg_plot(&cell)));
     }
     for (file, text) in files {
         let p = a.out.join(file);
@@ -271,7 +307,7 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
     let _ = writeln!(s, "# Accuracy against time\n");
     let _ = writeln!(
         s,
-        "Generated by `hood report --workload {} --vertices {} --frames {} --gap-every {} --iterations {}{}{} --threads {} \
+        "Generated by `hood report --workload {} --vertices {} --frames {} --gap-every {} --iterations {}{}{}{} --threads {} \
          --objective {}{}` \
          (EVALUATION.md \"Accuracy against time\"; the figure is [report.svg](report.svg)).\n",
         a.workload.join(","),
@@ -281,6 +317,7 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
         join(&a.iterations),
         if a.refine.is_empty() { String::new() } else { format!(" --refine {}", join(&a.refine)) },
         if a.solver.is_empty() { String::new() } else { format!(" --solver {}", join(&a.solver)) },
+        if a.solver_budget.is_empty() { String::new() } else { format!(" --solver-budget {}", join(&a.solver_budget)) },
         a.threads,
         a.objective.name(),
         if a.common_states { "" } else { " --common-states false" }
@@ -356,6 +393,8 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
         }
     }
     let _ = writeln!(s);
+    which_step(&mut s, rows.iter().filter(|r| !r.common));
+    let _ = writeln!(s, "\n## Own rollouts\n");
     table(&mut s, rows.iter().filter(|r| !r.common));
     if rows.iter().any(|r| r.common) {
         let _ = writeln!(
@@ -397,19 +436,75 @@ fn pareto_front(rows: &[&Row]) -> Vec<bool> {
         .collect()
 }
 
-/// The Markdown tables of `rows`, one per workload, the Pareto front marked.
-fn table<'a>(s: &mut String, rows: impl Iterator<Item = &'a Row>) {
-    let rows: Vec<&Row> = rows.collect();
+/// Frame budgets of the "which step" table, ms.
+const STEP_BUDGETS_MS: [f64; 3] = [5.0, 15.0, 40.0];
+
+/// The workloads of `rows` in order of first appearance.
+fn workload_names<'a>(rows: &[&'a Row]) -> Vec<&'a str> {
     let mut names: Vec<&str> = Vec::new();
-    for r in &rows {
+    for r in rows {
         if !names.contains(&r.workload.as_str()) {
             names.push(&r.workload);
         }
     }
-    for name in names {
+    names
+}
+
+/// File name of a workload's plot: `report-<workload>.svg`, the name's punctuation as `-`.
+fn plot_file(workload: &str) -> String {
+    let slug: String = workload.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '-' }).collect();
+    format!("report-{slug}.svg")
+}
+
+/// "Which step for your garment and budget": per workload and frame budget, the runtime step
+/// mode (no f64 reference solver row) with the lowest own-rollout gap mean among those that keep
+/// the garment on, stay finite and take at most the budget (median ms/step).
+fn which_step<'a>(s: &mut String, rows: impl Iterator<Item = &'a Row>) {
+    let rows: Vec<&Row> = rows.collect();
+    let _ = writeln!(
+        s,
+        "## Which step for your garment and budget\n\n\
+         Per workload and time budget per step: the most accurate of the runtime's step modes (network, network \
+         + refine, solver; not the f64 reference solver) by gap mean on its own rollout, among those that keep the garment on the body, stay finite and take at most the budget (median ms/step, \
+         on the machine that ran this report).\n"
+    );
+    let heads: Vec<String> = STEP_BUDGETS_MS.iter().map(|b| format!("{b} ms")).collect();
+    let _ = writeln!(s, "| workload | vertices | {} |", heads.join(" | "));
+    let _ = writeln!(s, "|---|---:|{}", "---|".repeat(STEP_BUDGETS_MS.len()));
+    for name in workload_names(&rows) {
+        let cell: Vec<&Row> = rows.iter().copied().filter(|r| r.workload == name).collect();
+        let picks: Vec<String> = STEP_BUDGETS_MS
+            .iter()
+            .map(|&budget| {
+                cell.iter()
+                    .filter(|r| {
+                        let m = &r.summary;
+                        !r.implicit
+                            && m.finite
+                            && m.garment_kept()
+                            && m.gap_mean.is_some()
+                            && m.median_step_ms <= budget
+                    })
+                    .min_by(|x, y| x.summary.gap_mean.partial_cmp(&y.summary.gap_mean).unwrap_or(Ordering::Equal))
+                    .map_or("none fits".to_string(), |r| {
+                        format!("{} ({}, {:.1} ms)", r.variant, fmt_opt(r.summary.gap_mean), r.summary.median_step_ms)
+                    })
+            })
+            .collect();
+        let _ = writeln!(s, "| {name} | {} | {} |", cell[0].vertices, picks.join(" | "));
+    }
+}
+
+/// The Markdown tables of `rows`, one per workload, the Pareto front marked.
+fn table<'a>(s: &mut String, rows: impl Iterator<Item = &'a Row>) {
+    let rows: Vec<&Row> = rows.collect();
+    for name in workload_names(&rows) {
         let cell: Vec<&Row> = rows.iter().copied().filter(|r| r.workload == name).collect();
         let front = pareto_front(&cell);
         let _ = writeln!(s, "\n### {name} ({} vertices)\n", cell[0].vertices);
+        if !cell[0].common {
+            let _ = writeln!(s, "Plot: [{0}]({0}).\n", plot_file(name));
+        }
         let _ = writeln!(
             s,
             "| variant | front | ms/step | gap mean | of which stretching | gap p95 | absolute gap mean (mJ) | on the body | worn off % (max) | penetrating % (mean) | inside % (mean) | max strain | finite |"
