@@ -2,8 +2,8 @@
 //!
 //! A hierarchical graph network advances a garment on an animated body by one frame at a time
 //! (Grigorev et al., *HOOD*, CVPR 2023). This crate holds the garment graph and its coarse levels,
-//! the network features, the body queries, and (in later modules) the allocation-free inference
-//! step, the physics objective and the trainer.
+//! the network features, the body queries, the allocation-free inference step, the physics
+//! objective and (feature `train`) the trainer.
 //!
 //! Units everywhere: metres, kilograms, seconds; **y is up**; positions handed to the network are
 //! per frame at the model's 30 Hz.
@@ -29,6 +29,11 @@
 extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
+
+/// The README's examples, compiled and run by `cargo test --doc`.
+#[cfg(all(doctest, feature = "std"))]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;
 
 #[cfg(feature = "std")]
 pub mod bench;
