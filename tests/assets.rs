@@ -1,6 +1,8 @@
 //! Tests on the real CC0 assets in `../shared/assets` (MakeHuman body and garments). Each test
 //! prints a message and passes when the folder is absent, so a fresh clone still tests clean.
 
+mod common;
+
 use hood::body::{BodyFrame, BodyMesh, Nearest};
 use hood::io::obj::{split_components, Obj};
 use hood::mesh::repair::{drop_degenerate_faces, drop_unused_vertices};
@@ -16,7 +18,7 @@ fn asset(rel: &str) -> Option<PathBuf> {
     if p.exists() {
         Some(p)
     } else {
-        println!("SKIPPED: {} not found (the real assets are optional)", p.display());
+        common::skip("assets", &p);
         None
     }
 }

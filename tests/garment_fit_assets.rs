@@ -1,6 +1,8 @@
 //! MakeHuman garments fitted to the MakeHuman body (skipped with a message when
 //! ../shared/assets is absent).
 
+mod common;
+
 use glam::Vec3;
 use hood::io::makehuman::{MakeHuman, METRES_PER_UNIT};
 use hood::io::obj::{split_components, Obj};
@@ -14,7 +16,7 @@ fn assets() -> Option<PathBuf> {
     if p.join("body/base.obj").exists() && p.join("garments/female_casualsuit01.mhclo").exists() {
         Some(p)
     } else {
-        println!("SKIPPED: {} not found", p.display());
+        common::skip("garment_fit_assets", &p);
         None
     }
 }

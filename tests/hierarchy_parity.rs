@@ -15,7 +15,7 @@ use std::collections::BTreeSet;
 fn scene(test: &str) -> Option<SafeTensors> {
     let path = common::shared_dir().join("fixtures/hood-parity/fixture_scene.safetensors");
     if !path.exists() {
-        println!("{test}: skipped, {} is absent", path.display());
+        common::skip(test, &path);
         return None;
     }
     Some(SafeTensors::read(&path).expect("fixture_scene"))

@@ -1,5 +1,7 @@
 //! Motion clips on the real assets (skipped with a message when ../shared/assets is absent).
 
+mod common;
+
 use glam::{Quat, Vec3};
 use hood::io::bvh;
 use hood::io::makehuman::MakeHuman;
@@ -14,7 +16,7 @@ fn assets() -> Option<PathBuf> {
     if p.join("body/base.obj").exists() && p.join("motions/cmu_12_03_walk.bvh").exists() {
         Some(p)
     } else {
-        println!("SKIPPED: {} not found", p.display());
+        common::skip("motion_assets", &p);
         None
     }
 }

@@ -1,6 +1,8 @@
 //! Animated scenes: the procedural garments dressed on the walking mannequin, and the MakeHuman
 //! jeans on the CMU walk (skipped with a message when ../shared/assets is absent).
 
+mod common;
+
 use hood::rig::procedural::Mannequin;
 use hood::scene::{procedural, GarmentKind, MotionKind, INITIAL_CLEARANCE};
 
@@ -63,7 +65,7 @@ fn scene_motion_names_round_trip() {
 fn scene_makehuman_jeans_on_cmu_walk() {
     let assets = hood::workloads::default_shared_dir().join("assets");
     if !assets.join("body/base.obj").exists() {
-        println!("SKIPPED: {} not found", assets.display());
+        common::skip("scene_makehuman_jeans_on_cmu_walk", &assets);
         return;
     }
     let s = hood::scene::makehuman(&assets, hood::scene::MakeHumanGarment::Jeans, 60).unwrap();
@@ -92,7 +94,7 @@ fn scene_initial_states_are_not_torn() {
             scenes.push(hood::scene::makehuman(&assets, g, 60).unwrap());
         }
     } else {
-        println!("MakeHuman scenes SKIPPED: {} not found", assets.display());
+        common::skip("the MakeHuman scenes", &assets);
     }
     let obj = Objective { inertia: false, gravity: false, bending: false, ..Objective::cloth_only() };
     for s in &scenes {
@@ -128,7 +130,7 @@ fn scene_bodies_are_outward_and_fine_enough_for_the_body_edges() {
     if assets.join("body/base.obj").exists() {
         scenes.push(hood::scene::makehuman(&assets, hood::scene::MakeHumanGarment::Tee, 2).unwrap());
     } else {
-        println!("SKIPPED the MakeHuman body: {} not found", assets.display());
+        common::skip("the MakeHuman body", &assets);
     }
     for s in &scenes {
         let survey = s.body.survey(s.body_frame(0)).unwrap();
@@ -145,7 +147,7 @@ fn scene_every_makehuman_outfit_piece_loads() {
     use hood::scene::MakeHumanGarment;
     let assets = hood::workloads::default_shared_dir().join("assets");
     if !assets.join("body/base.obj").exists() {
-        println!("SKIPPED: {} not found", assets.display());
+        common::skip("scene_every_makehuman_outfit_piece_loads", &assets);
         return;
     }
     let expected = [1311, 886, 911, 886, 810, 886];

@@ -566,7 +566,7 @@ const JUMPS_FRAMES: usize = if cfg!(debug_assertions) { 600 } else { 3000 };
 fn stability_shared_tee_on_jumps_forward_and_back() {
     let assets = hood::workloads::default_shared_dir().join("assets");
     if !assets.join("body/base.obj").exists() {
-        println!("stability_shared_tee_on_jumps_forward_and_back: SKIPPED ({} not found)", assets.display());
+        common::skip("stability_shared_tee_on_jumps_forward_and_back", &assets);
         return;
     }
     let period = 150;
