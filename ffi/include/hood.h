@@ -27,8 +27,10 @@
  *   size (stride) and every element must carry the same struct_size.
  * - NULL handles or pointers give HOOD_ERR_NULL_POINTER, never a crash; where a pointer is
  *   optional, the comment says so. Handles that were never created or were already freed give
- *   HOOD_ERR_INVALID_HANDLE (the library keeps a registry of live handles; an address reused by a
- *   newer handle of the same kind cannot be told apart from it). Free functions accept NULL.
+ *   HOOD_ERR_INVALID_HANDLE (the library keeps a registry of live models and garments, and sims
+ *   in memory it never frees; an address reused by a newer handle of the same kind cannot be
+ *   told apart from it, and a freed sim's address is reused only after 4096 other sims have been
+ *   freed). Free functions accept NULL.
  * - No panic crosses the boundary: an internal bug is reported as HOOD_ERR_PANIC.
  *
  * Ownership and lifetimes (the caller's responsibility)
@@ -49,7 +51,9 @@
  * - One sim is used by one thread at a time; different sims may be stepped concurrently. The
  *   library enforces it: a call on a sim that another thread is stepping or changing (or a
  *   hood_sim_free while it does) returns HOOD_ERR_BUSY and does nothing; calls that only read a
- *   sim may overlap each other.
+ *   sim may overlap each other. Calls on a sim (hood_sim_step above all) take no lock: the check
+ *   is one atomic operation on the sim's own state, so sims on different threads never wait for
+ *   each other. Only hood_sim_new and hood_sim_free take a global lock, briefly.
  * - hood_last_error() is per thread.
  * - Callbacks (the executor's run) must not throw a C++ exception or otherwise unwind into the
  *   library: that aborts the process. Catch inside the callback.

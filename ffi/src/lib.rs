@@ -5,11 +5,14 @@
 //! (checked by `tests/header.rs`). The rules the caller must keep (lifetimes of model bytes,
 //! threads) are stated in the header.
 //!
-//! Every export goes through [`guard`], which catches panics; handles are checked against a
-//! registry of live handles, so NULL, freed or mismatched handles give a status code.
+//! Every export goes through [`guard`], which catches panics; handles are checked (models and
+//! garments against a registry of live handles, sims against their slots, without a lock), so
+//! NULL, freed or mismatched handles give a status code.
 #![deny(unsafe_op_in_unsafe_fn)]
 // The C names of the types are the Rust names (the header check maps them one to one).
 #![allow(non_camel_case_types)]
+
+mod slots;
 
 use glam::{Mat3, Quat, Vec3};
 use hood::body::rigid::RigidMotion;
@@ -23,7 +26,7 @@ use std::collections::BTreeMap;
 use std::ffi::{c_char, c_void, CStr, CString};
 use std::mem::ManuallyDrop;
 use std::panic::{catch_unwind, AssertUnwindSafe};
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 /// A status code: [`HOOD_OK`] or an error (codes 1-15 are [`Error::code`]).
@@ -219,11 +222,12 @@ fn guard(f: impl FnOnce() -> Result<()>) -> hood_status {
 enum Kind {
     Model,
     Garment,
-    Sim,
 }
 
-/// Live handles by address. A handle is usable only while registered, which turns use after
-/// free, double free and handles of the wrong kind into [`HOOD_ERR_INVALID_HANDLE`].
+/// Live model and garment handles by address. A handle is usable only while registered, which
+/// turns use after free, double free and handles of the wrong kind into
+/// [`HOOD_ERR_INVALID_HANDLE`]. Sims are not here: their handles are slots that calls check and
+/// claim without a lock (see [`slots`]).
 static LIVE: Mutex<BTreeMap<usize, Kind>> = Mutex::new(BTreeMap::new());
 
 fn live() -> std::sync::MutexGuard<'static, BTreeMap<usize, Kind>> {
@@ -852,21 +856,27 @@ unsafe impl Extensible for hood_executor {
     const NAME: &'static str = "hood_executor";
 }
 
-/// A simulation borrowing its model.
-pub struct hood_sim {
+/// A sim handle: a slot of [`SIMS`] (see [`slots`]), checked and claimed without a lock.
+pub type hood_sim = slots::Slot<SimHandle>;
+
+/// Live sims: the step and every other call on a sim take no lock (see [`slots`]).
+static SIMS: slots::Slots<SimHandle> = slots::Slots::new();
+
+/// A simulation borrowing its model, held by a [`hood_sim`] slot.
+pub struct SimHandle {
     /// Borrows `*model`; `'static` stands for "while registered in `model.sims`", which
     /// `hood_model_free` enforces.
     sim: ManuallyDrop<Sim<'static>>,
     model: *const hood_model,
-    /// Calls in progress: 0 none, [`WRITER`] one call that changes the sim, else that many
-    /// calls that only read it. Taken under the registry lock (so a free never races a call).
-    access: AtomicU32,
 }
 
-/// [`hood_sim::access`] of a call that changes the sim.
-const WRITER: u32 = u32::MAX;
+// SAFETY: the model pointer is only used to release the sim's count in it (an atomic), from
+// whichever thread drops the sim; the model itself is shared read-only (see the header).
+unsafe impl Send for SimHandle {}
+// SAFETY: shared access only reads the sim (`Sim` is `Sync`) and never the model pointer.
+unsafe impl Sync for SimHandle {}
 
-impl Drop for hood_sim {
+impl Drop for SimHandle {
     fn drop(&mut self) {
         // SAFETY: dropped once, here, and never used afterwards.
         unsafe { ManuallyDrop::drop(&mut self.sim) };
@@ -1086,10 +1096,13 @@ pub unsafe extern "C" fn hood_sim_new(
             Ok(sim) => {
                 // The sim holds the count from here on (released when it is dropped).
                 std::mem::forget(count);
-                let h = register(
-                    Box::new(hood_sim { sim: ManuallyDrop::new(sim), model, access: AtomicU32::new(0) }),
-                    Kind::Sim,
-                );
+                let handle = SimHandle { sim: ManuallyDrop::new(sim), model };
+                // On failure the handle is dropped, releasing the model's count.
+                let h = SIMS.insert(Box::new(handle)).ok_or(Error::CapacityExceeded {
+                    what: "live sims",
+                    capacity: slots::CAPACITY,
+                    needed: slots::CAPACITY + 1,
+                })?;
                 // SAFETY: `out` checked non-null.
                 unsafe { write_out(out, h) };
                 Ok(())
@@ -1102,116 +1115,69 @@ pub unsafe extern "C" fn hood_sim_new(
 /// Frees a sim; [`HOOD_ERR_BUSY`] (freeing nothing) while a call on another thread uses it.
 ///
 /// # Safety
-/// `sim` is NULL or a handle (checked against the registry).
+/// `sim` is NULL or a handle (checked against the sim slots).
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_free(sim: *mut hood_sim) -> hood_status {
     guard(|| {
         if sim.is_null() {
             return Ok(());
         }
-        let boxed = {
-            let reg = live();
-            if reg.get(&(sim as usize)) != Some(&Kind::Sim) {
-                return Err(Failure::Handle("sim"));
-            }
-            // SAFETY: a live sim handle; calls take their access under this same lock, so none
-            // can start between this check and the removal below.
-            if unsafe { &*sim }.access.load(Ordering::Acquire) != 0 {
-                return Err(Failure::Busy("sim"));
-            }
-            drop(reg);
-            unregister(sim, Kind::Sim, "sim")?
-        };
-        drop(boxed);
+        // Dropped here, outside the slot allocator's lock.
+        drop(SIMS.remove(sim).map_err(|e| claim_failure(e, "sim"))?);
         Ok(())
     })
 }
 
-/// A call's use of a live sim: shared (reads) or exclusive (changes), released on drop.
-struct SimAccess<'a> {
-    handle: &'a mut hood_sim,
-    exclusive: bool,
-}
-
-impl Drop for SimAccess<'_> {
-    fn drop(&mut self) {
-        if self.exclusive {
-            self.handle.access.store(0, Ordering::Release);
-        } else {
-            self.handle.access.fetch_sub(1, Ordering::AcqRel);
-        }
+fn claim_failure(e: slots::ClaimError, what: &'static str) -> Failure {
+    match e {
+        slots::ClaimError::NotLive => Failure::Handle(what),
+        slots::ClaimError::Busy => Failure::Busy(what),
     }
 }
 
-/// Takes access to `sim` under the registry lock: checks the handle, then claims the sim
-/// (exclusive: no other call may be in progress; shared: no exclusive one).
-///
-/// # Safety
-/// `sim` is NULL or a pointer from this library.
-unsafe fn access<'a>(sim: *const hood_sim, exclusive: bool) -> Result<SimAccess<'a>> {
-    if sim.is_null() {
-        return Err(Failure::Null("sim"));
-    }
-    let reg = live();
-    if reg.get(&(sim as usize)) != Some(&Kind::Sim) {
-        return Err(Failure::Handle("sim"));
-    }
-    // SAFETY: a live sim handle (checked under the lock that `hood_sim_free` takes).
-    let s = unsafe { &*sim };
-    let claimed = if exclusive {
-        s.access.compare_exchange(0, WRITER, Ordering::AcqRel, Ordering::Acquire).is_ok()
-    } else {
-        s.access.fetch_update(Ordering::AcqRel, Ordering::Acquire, |a| (a < WRITER - 1).then_some(a + 1)).is_ok()
-    };
-    drop(reg);
-    if !claimed {
-        return Err(Failure::Busy("sim"));
-    }
-    // SAFETY: the claim keeps the sim alive (a free is refused while it is held) and keeps
-    // other calls out: exclusive access is unique, and shared access only ever reads (the
-    // mutable reference is handed out by `sim_mut` alone).
-    Ok(SimAccess { handle: unsafe { &mut *(sim as *mut hood_sim) }, exclusive })
+/// A call's claim on a live sim: shared (reads) or exclusive (changes), released on drop.
+type SimAccess = slots::Claim<'static, SimHandle>;
+
+/// Checks and claims `sim` (exclusive: no other call may be in progress; shared: no exclusive
+/// one). Takes no lock.
+fn access(sim: *const hood_sim, exclusive: bool) -> Result<SimAccess> {
+    require(sim, "sim")?;
+    SIMS.claim(sim, exclusive).map_err(|e| claim_failure(e, "sim"))
 }
 
 /// Shared access for a call that reads the sim.
-///
-/// # Safety
-/// `sim` is NULL or a pointer from this library.
-unsafe fn sim_ref<'a>(sim: *const hood_sim) -> Result<SimRead<'a>> {
-    // SAFETY: the caller's promise.
-    Ok(SimRead(unsafe { access(sim, false)? }))
+fn sim_ref(sim: *const hood_sim) -> Result<SimRead> {
+    Ok(SimRead(access(sim, false)?))
 }
 
 /// Exclusive access for a call that changes the sim.
-///
-/// # Safety
-/// `sim` is NULL or a pointer from this library.
-unsafe fn sim_mut<'a>(sim: *mut hood_sim) -> Result<SimAccess<'a>> {
-    // SAFETY: the caller's promise.
-    unsafe { access(sim, true) }
+fn sim_mut(sim: *mut hood_sim) -> Result<SimWrite> {
+    Ok(SimWrite(access(sim, true)?))
 }
 
-/// Shared access: derefs to `&hood_sim` only.
-struct SimRead<'a>(SimAccess<'a>);
+/// Shared access: derefs to `&SimHandle` only.
+struct SimRead(SimAccess);
 
-impl std::ops::Deref for SimRead<'_> {
-    type Target = hood_sim;
-    fn deref(&self) -> &hood_sim {
-        self.0.handle
+/// Exclusive access: derefs to `&mut SimHandle`.
+struct SimWrite(SimAccess);
+
+impl std::ops::Deref for SimRead {
+    type Target = SimHandle;
+    fn deref(&self) -> &SimHandle {
+        self.0.get()
     }
 }
 
-impl std::ops::Deref for SimAccess<'_> {
-    type Target = hood_sim;
-    fn deref(&self) -> &hood_sim {
-        self.handle
+impl std::ops::Deref for SimWrite {
+    type Target = SimHandle;
+    fn deref(&self) -> &SimHandle {
+        self.0.get()
     }
 }
 
-impl std::ops::DerefMut for SimAccess<'_> {
-    fn deref_mut(&mut self) -> &mut hood_sim {
-        debug_assert!(self.exclusive);
-        self.handle
+impl std::ops::DerefMut for SimWrite {
+    fn deref_mut(&mut self) -> &mut SimHandle {
+        self.0.get_mut().unwrap_or_else(|| unreachable!("a write claim is exclusive"))
     }
 }
 
@@ -1222,8 +1188,7 @@ impl std::ops::DerefMut for SimAccess<'_> {
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_vertex_count(sim: *const hood_sim, out: *mut usize) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_ref`.
-        let s = unsafe { sim_ref(sim)? };
+        let s = sim_ref(sim)?;
         require(out, "out")?;
         // SAFETY: `out` non-null.
         unsafe { write_out(out, s.sim.garment().n_vertices()) };
@@ -1250,8 +1215,7 @@ pub struct hood_refinement {
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_last_refinement(sim: *const hood_sim, out: *mut hood_refinement) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_ref`.
-        let s = unsafe { sim_ref(sim)? };
+        let s = sim_ref(sim)?;
         require(out, "out")?;
         if s.sim.config().refine.is_none() && s.sim.config().step == StepMode::Network {
             return Err(Error::UnsupportedEffect {
@@ -1277,8 +1241,7 @@ pub unsafe extern "C" fn hood_sim_last_refinement(sim: *const hood_sim, out: *mu
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_body_vertex_count(sim: *const hood_sim, out: *mut usize) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_ref`.
-        let s = unsafe { sim_ref(sim)? };
+        let s = sim_ref(sim)?;
         require(out, "out")?;
         // SAFETY: `out` non-null.
         unsafe { write_out(out, s.sim.state().body_pos.len()) };
@@ -1308,8 +1271,7 @@ pub struct hood_body_survey {
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_body_survey(sim: *const hood_sim, out: *mut hood_body_survey) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_ref`.
-        let s = unsafe { sim_ref(sim)? };
+        let s = sim_ref(sim)?;
         require(out, "out")?;
         let survey =
             s.sim.body_survey().ok_or(Error::UnsupportedEffect { effect: "body survey (the sim has no body)" })?;
@@ -1339,8 +1301,7 @@ pub unsafe extern "C" fn hood_sim_step(
     n_garment_vertices: usize,
 ) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_mut`.
-        let mut s = unsafe { sim_mut(sim)? };
+        let mut s = sim_mut(sim)?;
         expect_len("body vertices", s.sim.state().body_pos.len(), n_body_vertices)?;
         expect_len("garment output vertices", s.sim.garment().n_vertices(), n_garment_vertices)?;
         require(garment_out, "garment_out")?;
@@ -1371,8 +1332,7 @@ fn copy_out(src: &[[f32; 3]], out: *mut f32, n: usize, what: &'static str) -> Re
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_positions(sim: *const hood_sim, out: *mut f32, n_vertices: usize) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_ref`.
-        let s = unsafe { sim_ref(sim)? };
+        let s = sim_ref(sim)?;
         copy_out(s.sim.positions(), out, n_vertices, "position output vertices")
     })
 }
@@ -1384,8 +1344,7 @@ pub unsafe extern "C" fn hood_sim_positions(sim: *const hood_sim, out: *mut f32,
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_velocities(sim: *const hood_sim, out: *mut f32, n_vertices: usize) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_ref`.
-        let s = unsafe { sim_ref(sim)? };
+        let s = sim_ref(sim)?;
         copy_out(&s.sim.state().velocity, out, n_vertices, "velocity output vertices")
     })
 }
@@ -1397,8 +1356,7 @@ pub unsafe extern "C" fn hood_sim_velocities(sim: *const hood_sim, out: *mut f32
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_normals(sim: *const hood_sim, out: *mut f32, n_vertices: usize) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_ref`.
-        let s = unsafe { sim_ref(sim)? };
+        let s = sim_ref(sim)?;
         if !s.sim.config().normals {
             return Err(Error::UnsupportedEffect { effect: "normals (HOOD_EFFECT_NORMALS is off)" }.into());
         }
@@ -1417,8 +1375,7 @@ pub unsafe extern "C" fn hood_sim_set_pin_targets(
     n_vertices: usize,
 ) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_mut`.
-        let mut s = unsafe { sim_mut(sim)? };
+        let mut s = sim_mut(sim)?;
         expect_len("pin targets", s.sim.garment().n_vertices(), n_vertices)?;
         require(targets, "targets")?;
         // SAFETY: count is the caller's promise.
@@ -1441,8 +1398,7 @@ pub unsafe extern "C" fn hood_sim_reset(
     n_body_vertices: usize,
 ) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_mut`.
-        let mut s = unsafe { sim_mut(sim)? };
+        let mut s = sim_mut(sim)?;
         let n = s.sim.garment().n_vertices();
         expect_len("reset positions", n, n_vertices)?;
         require(positions, "positions")?;
@@ -1477,8 +1433,7 @@ pub unsafe extern "C" fn hood_sim_reset(
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_state_size(sim: *const hood_sim, out: *mut usize) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_ref`.
-        let s = unsafe { sim_ref(sim)? };
+        let s = sim_ref(sim)?;
         require(out, "out")?;
         // SAFETY: `out` non-null.
         unsafe { write_out(out, s.sim.saved_state_len()) };
@@ -1493,8 +1448,7 @@ pub unsafe extern "C" fn hood_sim_state_size(sim: *const hood_sim, out: *mut usi
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_save_state(sim: *const hood_sim, out: *mut u8, len: usize) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_ref`.
-        let s = unsafe { sim_ref(sim)? };
+        let s = sim_ref(sim)?;
         require(out, "out")?;
         expect_len("saved state buffer", s.sim.saved_state_len(), len)?;
         // SAFETY: `len` writable bytes (caller).
@@ -1511,8 +1465,7 @@ pub unsafe extern "C" fn hood_sim_save_state(sim: *const hood_sim, out: *mut u8,
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_load_state(sim: *mut hood_sim, bytes: *const u8, len: usize) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_mut`.
-        let mut s = unsafe { sim_mut(sim)? };
+        let mut s = sim_mut(sim)?;
         require(bytes, "bytes")?;
         // SAFETY: `len` readable bytes (caller).
         let b = unsafe { slice(bytes, len, "bytes")? };
@@ -1558,8 +1511,7 @@ pub unsafe extern "C" fn hood_sim_teleport(
     n_body_vertices: usize,
 ) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_mut`.
-        let mut s = unsafe { sim_mut(sim)? };
+        let mut s = sim_mut(sim)?;
         let r: [f32; 9] = if rotation.is_null() {
             [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
         } else {
@@ -1689,8 +1641,7 @@ unsafe impl Executor for CExecutor {
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_set_executor(sim: *mut hood_sim, executor: *const hood_executor) -> hood_status {
     guard(|| {
-        // SAFETY: checked by `sim_mut`.
-        let mut s = unsafe { sim_mut(sim)? };
+        let mut s = sim_mut(sim)?;
         let exec: Box<dyn Executor> = if executor.is_null() {
             let threads = s.sim.config().threads;
             if threads > 1 {
@@ -1707,4 +1658,60 @@ pub unsafe extern "C" fn hood_sim_set_executor(sim: *mut hood_sim, executor: *co
         s.sim.set_executor(exec);
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::ptr::{null, null_mut};
+
+    /// A sim of a random model (the bytes are leaked: they outlive the model).
+    fn small_sim() -> *mut hood_sim {
+        let spec = hood::model::ModelSpec::hood(8);
+        let mut p = hood::model::Params::init(&spec, 3).unwrap();
+        p.normalisers = hood::model::Normalisers::unit_scale(3);
+        let file = hood::model::write_model(&p, false, &[]).unwrap();
+        let bytes: &'static hood::model::ModelBytes = Box::leak(Box::new(hood::model::ModelBytes::new(&file)));
+        let (rest, faces) = hood::mesh::shapes::grid(3, 3, 0.3, 0.3, 0.0);
+        let (mut model, mut garment, mut sim) = (null_mut(), null_mut(), null_mut());
+        // SAFETY: arrays of the stated lengths; the model bytes are leaked.
+        unsafe {
+            let b = bytes.as_bytes();
+            assert_eq!(hood_model_load(b.as_ptr(), b.len(), &mut model), HOOD_OK);
+            let (r, f) = (rest.as_ptr().cast(), faces.as_ptr().cast());
+            assert_eq!(hood_garment_new(r, rest.len(), f, faces.len(), null(), 0, null(), &mut garment), HOOD_OK);
+            assert_eq!(hood_sim_new(model, garment, null(), null(), &mut sim), HOOD_OK);
+            assert_eq!(hood_garment_free(garment), HOOD_OK);
+        }
+        sim
+    }
+
+    /// The calls on a sim, the step first, need neither the handle registry's lock nor the sim
+    /// slots' allocator lock: they finish while another thread holds both.
+    #[test]
+    fn calls_on_a_sim_take_no_lock() {
+        let sim = small_sim() as usize;
+        let registry = live();
+        let allocator = SIMS.hold_lock();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let sim = sim as *mut hood_sim;
+            let mut out = [[0.0f32; 3]; 9];
+            let mut codes = Vec::new();
+            // SAFETY: a live sim; `out` holds 9 points.
+            unsafe {
+                for _ in 0..3 {
+                    codes.push(hood_sim_step(sim, null(), 0, out.as_mut_ptr().cast(), 9));
+                }
+                codes.push(hood_sim_positions(sim, out.as_mut_ptr().cast(), 9));
+                codes.push(hood_sim_velocities(sim, out.as_mut_ptr().cast(), 9));
+            }
+            let _ = tx.send(codes);
+        });
+        let codes = rx.recv_timeout(std::time::Duration::from_secs(60)).expect("a call on a sim waited for a lock");
+        assert!(codes.iter().all(|&c| c == HOOD_OK), "{codes:?}");
+        drop((registry, allocator));
+        // SAFETY: a live, idle sim.
+        assert_eq!(unsafe { hood_sim_free(sim as *mut hood_sim) }, HOOD_OK);
+    }
 }

@@ -905,11 +905,12 @@ fn a_sim_in_use_on_another_thread_is_busy_for_step_and_free() {
 #[test]
 fn free_racing_steps_on_another_thread_never_crashes() {
     let l = load(8, 14);
-    for _ in 0..5 {
-        let sc = scene(6);
-        let n = sc.rest.len();
+    let sc = scene(3);
+    let n = sc.rest.len();
+    let frames: Vec<Vec<[f32; 3]>> = (1..=6).map(|t| sc.body_at(t, [0.0; 3])).collect();
+    for _ in 0..1000 {
         let sim = SendPtr(sc.sim(l.model));
-        let frames: Vec<Vec<[f32; 3]>> = (1..=40).map(|t| sc.body_at(t, [0.0; 3])).collect();
+        let frames = frames.clone();
         let stepper = std::thread::spawn(move || {
             let sim = sim;
             let mut out = vec![[0.0f32; 3]; n];
@@ -933,6 +934,53 @@ fn free_racing_steps_on_another_thread_never_crashes() {
         // Steps before the free succeed; after it the handle is gone.
         let first_gone = codes.iter().position(|&c| c != HOOD_OK).unwrap_or(codes.len());
         assert!(codes[first_gone..].iter().all(|&c| c == HOOD_ERR_INVALID_HANDLE), "{codes:?}");
+    }
+}
+
+#[test]
+fn two_threads_stepping_one_sim_are_told_busy_and_never_race() {
+    let l = load(8, 15);
+    let sc = scene(3);
+    let n = sc.rest.len();
+    let body = sc.body_at(1, [0.0; 3]);
+    let sim = SendPtr(sc.sim(l.model));
+    let run = {
+        let body = body.clone();
+        move || {
+            let sim = sim;
+            let mut out = vec![[0.0f32; 3]; n];
+            let mut ok = 0;
+            for _ in 0..1000 {
+                match step(sim.0, &body, &mut out) {
+                    HOOD_OK => ok += 1,
+                    HOOD_ERR_BUSY => {}
+                    other => panic!("a step gave {other}: {}", last_error()),
+                }
+                // A read may overlap another read, never a step.
+                let mut p = vec![[0.0f32; 3]; n];
+                // SAFETY: `p` holds n points.
+                let r = unsafe { hood_sim_positions(sim.0, p.as_mut_ptr().cast(), n) };
+                assert!(r == HOOD_OK || r == HOOD_ERR_BUSY, "positions gave {r}");
+            }
+            ok
+        }
+    };
+    let a = std::thread::spawn(run.clone());
+    let b = std::thread::spawn(run);
+    let steps = a.join().unwrap() + b.join().unwrap();
+    assert!(steps > 0, "no step succeeded");
+    // Whichever thread won each step, the sim took exactly `steps` of them, one at a time.
+    let alone = sc.sim(l.model);
+    let mut out = vec![[0.0f32; 3]; n];
+    for _ in 0..steps {
+        assert_eq!(step(alone, &body, &mut out), HOOD_OK);
+    }
+    assert_eq!(positions(sim.0, n), positions(alone, n));
+    assert_eq!(velocities(sim.0, n), velocities(alone, n));
+    // SAFETY: live handles, idle.
+    unsafe {
+        assert_eq!(hood_sim_free(sim.0), HOOD_OK);
+        assert_eq!(hood_sim_free(alone), HOOD_OK);
     }
 }
 
