@@ -317,6 +317,20 @@ HOOD_API hood_status HOOD_CALL hood_sim_body_survey(const hood_sim *sim, hood_bo
 HOOD_API hood_status HOOD_CALL hood_sim_step(hood_sim *sim, const float *body_next, size_t n_body_vertices,
                                              float *garment_out, size_t n_garment_vertices);
 
+/* What the last successful hood_sim_step did, as HOOD_STEP_* flags (0 before the first step; a
+ * refused step leaves them). A teleported or sleeping step does nothing else; the other flags may
+ * combine. Teleports by hood_sim_teleport, resets and loaded states are not steps. */
+#define HOOD_STEP_TELEPORTED 1u    /* the body jumped beyond teleport_threshold: the garment was
+                                      moved by the body's rigid motion instead of stepped */
+#define HOOD_STEP_SLEPT 2u         /* sleeping: body and garment at rest, the step was skipped */
+#define HOOD_STEP_STARTUP 4u       /* the start-up (relaxation) pass ran before the regular one */
+#define HOOD_STEP_SPEED_LIMITED 8u /* the body's centroid moved beyond speed_limit: the garment was
+                                      carried by the excess */
+#define HOOD_STEP_REFINED 16u      /* a refinement ran (HOOD_EFFECT_REFINE), or the solver step
+                                      mode's solve */
+#define HOOD_STEP_PROJECTED 32u    /* the collision projection moved at least one vertex */
+HOOD_API hood_status HOOD_CALL hood_sim_last_effects(const hood_sim *sim, uint32_t *flags);
+
 /* Copies the current garment positions (3 * n_vertices floats). */
 HOOD_API hood_status HOOD_CALL hood_sim_positions(const hood_sim *sim, float *out, size_t n_vertices);
 /* Copies the current garment velocities (m/frame, 3 * n_vertices floats). */

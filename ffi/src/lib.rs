@@ -103,6 +103,19 @@ pub const HOOD_EFFECT_COLLISION_PROJECTION: u32 = 128;
 pub const HOOD_EFFECT_REFINE: u32 = 256;
 const ALL_EFFECTS: u32 = 511;
 
+/// Step flag: the body jumped; the garment was moved rigidly instead of stepped.
+pub const HOOD_STEP_TELEPORTED: u32 = 1;
+/// Step flag: sleeping; the step was skipped.
+pub const HOOD_STEP_SLEPT: u32 = 2;
+/// Step flag: the start-up pass ran.
+pub const HOOD_STEP_STARTUP: u32 = 4;
+/// Step flag: the speed limit carried the garment.
+pub const HOOD_STEP_SPEED_LIMITED: u32 = 8;
+/// Step flag: a refinement (or the solver step mode's solve) ran.
+pub const HOOD_STEP_REFINED: u32 = 16;
+/// Step flag: the collision projection moved a vertex.
+pub const HOOD_STEP_PROJECTED: u32 = 32;
+
 /// f32 arithmetic.
 pub const HOOD_PRECISION_F32: u32 = 0;
 /// bf16 weights and activations.
@@ -1283,6 +1296,29 @@ pub unsafe extern "C" fn hood_sim_body_survey(sim: *const hood_sim, out: *mut ho
         };
         // SAFETY: `out` non-null.
         unsafe { write_out(out, v) };
+        Ok(())
+    })
+}
+
+/// What the last successful step did, as `HOOD_STEP_*` flags (see the header).
+///
+/// # Safety
+/// `sim` is NULL or a handle (checked); `flags` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_sim_last_effects(sim: *const hood_sim, flags: *mut u32) -> hood_status {
+    guard(|| {
+        let s = sim_ref(sim)?;
+        require(flags, "flags")?;
+        let e = s.sim.last_effects();
+        let flag = |on: bool, f: u32| if on { f } else { 0 };
+        let v = flag(e.teleported, HOOD_STEP_TELEPORTED)
+            | flag(e.slept, HOOD_STEP_SLEPT)
+            | flag(e.startup, HOOD_STEP_STARTUP)
+            | flag(e.carried, HOOD_STEP_SPEED_LIMITED)
+            | flag(e.refined, HOOD_STEP_REFINED)
+            | flag(e.projected, HOOD_STEP_PROJECTED);
+        // SAFETY: `flags` non-null.
+        unsafe { write_out(flags, v) };
         Ok(())
     })
 }

@@ -1370,3 +1370,90 @@ fn hood_sim_config_default_value() -> hood_sim_config {
         c.assume_init()
     }
 }
+
+fn last_effects(sim: *const hood_sim) -> u32 {
+    let mut flags = u32::MAX;
+    // SAFETY: a live sim; `flags` writable.
+    assert_eq!(unsafe { hood_sim_last_effects(sim, &mut flags) }, HOOD_OK, "{}", last_error());
+    flags
+}
+
+/// A sim of `sc` with the default config changed by `f`.
+fn sim_with(sc: &Scene, model: *const hood_model, f: impl FnOnce(&mut hood_sim_config)) -> *mut hood_sim {
+    let mut cfg = hood_sim_config_default_value();
+    f(&mut cfg);
+    let g = sc.garment();
+    let bd = sc.body_desc();
+    let mut sim = null_mut();
+    // SAFETY: live handles, valid descriptors.
+    unsafe {
+        assert_eq!(hood_sim_new(model, g, &bd, &cfg, &mut sim), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_garment_free(g), HOOD_OK);
+    }
+    sim
+}
+
+#[test]
+fn last_effects_name_what_each_step_did() {
+    let l = load(8, 16);
+    let sc = scene(5);
+    let n = sc.rest.len();
+    let mut out = vec![[0.0f32; 3]; n];
+    let sim = sim_with(&sc, l.model, |_| {});
+    assert_eq!(last_effects(sim), 0, "no step yet");
+    // SAFETY: a live sim; NULL flags.
+    assert_eq!(unsafe { hood_sim_last_effects(sim, null_mut()) }, HOOD_ERR_NULL_POINTER);
+    assert_eq!(unsafe { hood_sim_last_effects(null(), null_mut()) }, HOOD_ERR_NULL_POINTER);
+    assert_eq!(step(sim, &sc.body_at(0, [0.0; 3]), &mut out), HOOD_OK);
+    assert_eq!(last_effects(sim), HOOD_STEP_STARTUP);
+    assert_eq!(step(sim, &sc.body_at(1, [0.0; 3]), &mut out), HOOD_OK);
+    assert_eq!(last_effects(sim), 0);
+    // Faster than the speed limit (0.12 m/frame), slower than a teleport (0.45 m).
+    assert_eq!(step(sim, &sc.body_at(2, [0.2, 0.0, 0.0]), &mut out), HOOD_OK);
+    assert_eq!(last_effects(sim), HOOD_STEP_SPEED_LIMITED);
+    // A refused step leaves the flags.
+    let mut bad = sc.body_at(3, [0.2, 0.0, 0.0]);
+    bad[0][1] = f32::NAN;
+    assert_eq!(step(sim, &bad, &mut out), HOOD_ERR_NON_FINITE);
+    assert_eq!(last_effects(sim), HOOD_STEP_SPEED_LIMITED);
+    // A jump of a metre.
+    assert_eq!(step(sim, &sc.body_at(3, [1.2, 0.0, 0.0]), &mut out), HOOD_OK);
+    assert_eq!(last_effects(sim), HOOD_STEP_TELEPORTED);
+    // SAFETY: a live sim.
+    assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+
+    // Sleeping after one frame at rest (a threshold nothing here exceeds).
+    let sim = sim_with(&sc, l.model, |c| {
+        c.effects |= HOOD_EFFECT_SLEEPING;
+        c.sleep_threshold = 1e3;
+        c.sleep_frames = 1;
+    });
+    let still = sc.body_at(0, [0.0; 3]);
+    assert_eq!(step(sim, &still, &mut out), HOOD_OK);
+    assert_eq!(last_effects(sim), HOOD_STEP_STARTUP);
+    assert_eq!(step(sim, &still, &mut out), HOOD_OK);
+    assert_eq!(last_effects(sim), HOOD_STEP_SLEPT);
+    // SAFETY: a live sim.
+    assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+
+    // Refinement.
+    let sim = sim_with(&sc, l.model, |c| {
+        c.effects |= HOOD_EFFECT_REFINE;
+        c.refine_iterations = 2;
+    });
+    assert_eq!(step(sim, &sc.body_at(0, [0.0; 3]), &mut out), HOOD_OK);
+    assert_eq!(last_effects(sim), HOOD_STEP_STARTUP | HOOD_STEP_REFINED);
+    assert_eq!(step(sim, &sc.body_at(1, [0.0; 3]), &mut out), HOOD_OK);
+    assert_eq!(last_effects(sim), HOOD_STEP_REFINED);
+    // SAFETY: a live sim.
+    assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+    // The projection, with the cloth's middle placed 1 cm inside the body's top.
+    let sim = sim_with(&sc, l.model, |c| c.effects |= HOOD_EFFECT_COLLISION_PROJECTION);
+    let inside: Vec<[f32; 3]> = sc.rest.iter().map(|p| [p[0], 0.29, p[2]]).collect();
+    // SAFETY: a live sim; `inside` holds n points.
+    assert_eq!(unsafe { hood_sim_reset(sim, inside.as_ptr().cast(), n, null(), 0) }, HOOD_OK);
+    assert_eq!(step(sim, &sc.body_at(0, [0.0; 3]), &mut out), HOOD_OK);
+    assert_eq!(last_effects(sim), HOOD_STEP_STARTUP | HOOD_STEP_PROJECTED);
+    // SAFETY: a live sim.
+    assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+}

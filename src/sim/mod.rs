@@ -9,6 +9,7 @@
 
 mod clock;
 pub mod driver;
+mod effects;
 pub mod exec;
 pub mod graph;
 pub mod network;
@@ -34,6 +35,7 @@ pub use clock::Clock;
 #[cfg(feature = "std")]
 pub use clock::StdClock;
 pub use driver::FixedStep;
+pub use effects::StepEffects;
 #[cfg(feature = "std")]
 pub use exec::ThreadPool;
 pub use exec::{Executor, Serial};
@@ -254,6 +256,8 @@ pub struct Sim<'m> {
     last_body: (usize, usize),
     /// The speed limit's carry of the last step, m (zero: none).
     last_carry: [f32; 3],
+    /// What the last successful step did ([`Sim::last_effects`]).
+    last_effects: StepEffects,
 }
 
 /// The body of a scene: its mesh (optionally with omitted vertices) and its positions at the
@@ -424,6 +428,7 @@ impl<'m> Sim<'m> {
             clock: clock::default_clock(),
             last_body: (0, 0),
             last_carry: [0.0; 3],
+            last_effects: StepEffects::default(),
         })
         .map(|mut sim: Sim<'m>| {
             sim.ws.set_tasks(sim.exec.parallelism(), &sim.graph);
@@ -618,6 +623,7 @@ impl<'m> Sim<'m> {
             if jump {
                 let motion = best_rigid_motion(&self.state.body_pos, body_next);
                 self.teleport(&motion, body_next)?;
+                self.last_effects = StepEffects { teleported: true, ..StepEffects::default() };
                 return Ok(&self.state.pos);
             }
         }
@@ -628,6 +634,7 @@ impl<'m> Sim<'m> {
                 rest_frames = rest_frames.saturating_add(1);
                 if rest_frames > sl.frames {
                     self.rest_frames = rest_frames;
+                    self.last_effects = StepEffects { slept: true, ..StepEffects::default() };
                     return Ok(&self.state.pos);
                 }
             } else {
@@ -635,6 +642,9 @@ impl<'m> Sim<'m> {
             }
         }
         let next = if self.body.is_some() { Some(body_next) } else { None };
+        let startup = !self.state.started && self.cfg.step == StepMode::Network;
+        // Whether the start-up pass's projection moved a vertex (the regular pass's is read last).
+        let mut startup_projected = false;
         if self.state.started || self.cfg.step != StepMode::Network {
             self.advance(next, carry, DT, observer)?;
         } else {
@@ -644,6 +654,7 @@ impl<'m> Sim<'m> {
             let last_carry = self.last_carry;
             self.state.velocity.iter_mut().for_each(|v| *v = [0.0; 3]);
             let both = self.advance(None, [0.0; 3], DT_STARTUP, observer).and_then(|()| {
+                startup_projected = self.last_projected() > 0;
                 self.state.started = true;
                 self.advance(next, carry, DT, observer)
             });
@@ -657,6 +668,13 @@ impl<'m> Sim<'m> {
             }
         }
         self.rest_frames = rest_frames;
+        self.last_effects = StepEffects {
+            startup,
+            carried: carry != [0.0; 3],
+            refined: self.refiner.is_some(),
+            projected: startup_projected || self.last_projected() > 0,
+            ..StepEffects::default()
+        };
         Ok(&self.state.pos)
     }
 
