@@ -25,6 +25,10 @@
  *   on an older library as long as it leaves the new fields zero: zero the whole struct (memset)
  *   before filling it. In an array of hood_material, materials[0].struct_size is the element
  *   size (stride) and every element must carry the same struct_size.
+ * - Structs the library fills in (hood_model_info, hood_refinement, hood_body_survey) also start
+ *   with `uint32_t struct_size`, which the caller sets to sizeof(the struct) before the call. The
+ *   library checks it as above (HOOD_ERR_STRUCT_SIZE, nothing written) and writes exactly
+ *   struct_size bytes: the fields it knows, then zeros (so fields of a newer header read 0).
  * - NULL handles or pointers give HOOD_ERR_NULL_POINTER, never a crash; where a pointer is
  *   optional, the comment says so. Handles that were never created or were already freed give
  *   HOOD_ERR_INVALID_HANDLE (the library keeps a registry of live models and garments, and sims
@@ -167,6 +171,36 @@ HOOD_API hood_status HOOD_CALL hood_model_free(hood_model *model);
 /* Whether the model file holds bf16 weights too (needed for HOOD_PRECISION_BF16): 1 or 0. */
 HOOD_API hood_status HOOD_CALL hood_model_has_bf16(const hood_model *model, uint32_t *out);
 
+/* What a model is. Set struct_size = sizeof(hood_model_info) before hood_model_get_info (see
+ * Conventions). */
+typedef struct hood_model_info {
+    uint32_t struct_size;     /* sizeof(hood_model_info), set by the caller */
+    uint32_t format_version;  /* .hood format version of the file (1: no checksum, 2: CRC-32) */
+    uint32_t latent;          /* latent width h */
+    uint32_t hidden_layers;   /* hidden layers per MLP */
+    uint32_t blocks;          /* processor blocks (their edge sets: HOOD_MODEL_TEXT_SCHEDULE) */
+    uint32_t levels;          /* coarse levels of the garment hierarchy */
+    uint32_t has_bf16;        /* 1: bf16 weights present (HOOD_PRECISION_BF16 runs), else 0 */
+    uint32_t effects;         /* trained with: HOOD_EFFECT_BODY_COLLISION, HOOD_EFFECT_PINNING */
+    uint32_t local_materials; /* 1: trained with per-vertex materials, else one per garment */
+    float frame_time;         /* seconds one step advances (1/30: the model runs at 30 Hz) */
+    float length_unit;        /* metres per unit of every position (1) */
+    uint32_t up_axis;         /* 0 x, 1 y, 2 z: the axis gravity points against (1) */
+    size_t parameters;        /* learned parameters */
+    size_t schedule_len;      /* bytes of the HOOD_MODEL_TEXT_SCHEDULE text, without the NUL */
+    size_t provenance_len;    /* bytes of the HOOD_MODEL_TEXT_PROVENANCE text, without the NUL */
+} hood_model_info;
+HOOD_API hood_status HOOD_CALL hood_model_get_info(const hood_model *model, hood_model_info *out);
+
+/* Texts of a model for hood_model_text. */
+#define HOOD_MODEL_TEXT_SCHEDULE 0u   /* the processor blocks' edge sets, e.g. "0,1,2|m|..." */
+#define HOOD_MODEL_TEXT_PROVENANCE 1u /* "key: value" lines (training config, data, iterations,
+                                         metrics, commit), each ending in a newline */
+/* Copies a model's text (`which`: HOOD_MODEL_TEXT_*, else HOOD_ERR_OUT_OF_RANGE) into `out`,
+ * NUL-terminated: `len` must exceed the text's length from hood_model_get_info (else
+ * HOOD_ERR_SIZE_MISMATCH, nothing written). */
+HOOD_API hood_status HOOD_CALL hood_model_text(const hood_model *model, uint32_t which, char *out, size_t len);
+
 /* ---- Garment ----------------------------------------------------------------------------- */
 
 /* Material of a cloth vertex, SI units (training ranges in hood::mesh::material::ranges). */
@@ -284,6 +318,7 @@ HOOD_API hood_status HOOD_CALL hood_sim_free(hood_sim *sim);
  * at the network's prediction and after. All zero before the first refined step; the start-up
  * step is not refined. */
 typedef struct hood_refinement {
+    uint32_t struct_size; /* sizeof(hood_refinement), set by the caller (see Conventions) */
     uint32_t iterations;
     float energy_before;
     float energy_after;
@@ -302,6 +337,7 @@ HOOD_API hood_status HOOD_CALL hood_sim_body_vertex_count(const hood_sim *sim, s
  * after creation and warn, or use a finer body. HOOD_ERR_UNSUPPORTED_EFFECT without a body or
  * body collision. */
 typedef struct hood_body_survey {
+    uint32_t struct_size; /* sizeof(hood_body_survey), set by the caller (see Conventions) */
     float volume;       /* signed volume, m^3 (of an open mesh, an estimate) */
     float median_edge;  /* m */
     float longest_edge; /* m */

@@ -390,10 +390,11 @@ fn require<T>(p: *const T, what: &'static str) -> Result<()> {
 
 // ---- Extensible structs ------------------------------------------------------------------------
 
-/// A struct the caller passes in whose first field is `struct_size: u32`, the size of the struct
-/// in the header the caller was built against (`hood_sim_config`, `hood_body_desc`,
-/// `hood_executor`, `hood_material`). It lets the structs grow without old and new callers
-/// silently misreading each other; [`read_extensible`] applies the rule.
+/// A struct whose first field is `struct_size: u32`, the size of the struct in the header the
+/// caller was built against: passed in (`hood_sim_config`, `hood_body_desc`, `hood_executor`,
+/// `hood_material`) or filled in (`hood_model_info`, `hood_refinement`, `hood_body_survey`). It
+/// lets the structs grow without old and new callers silently misreading each other;
+/// [`read_extensible`] and [`write_extensible`] apply the rule.
 ///
 /// # Safety
 /// Implementors are `#[repr(C)]`, start with `struct_size: u32`, and have no invalid bit
@@ -536,6 +537,57 @@ unsafe fn read_struct_array<T: Extensible>(p: *const T, n: usize, what: &'static
     Ok(out)
 }
 
+/// Writes `v` into a caller's struct of `size` bytes: `v` with `struct_size` set to `size`, then
+/// zeros up to `size` (a newer header's fields, "unset"). `size` must pass [`size_problem`].
+///
+/// # Safety
+/// `out` is non-null, aligned and points to `size >= size_of::<T>()` writable bytes.
+unsafe fn write_sized<T: Extensible>(out: *mut T, v: T, size: usize) {
+    let known = size_of::<T>();
+    // SAFETY: `size >= known` writable bytes at an aligned `out` (caller); `T` starts with the
+    // `u32` struct_size (`Extensible`).
+    unsafe {
+        write_out(out, v);
+        out.cast::<u32>().write(size as u32);
+        std::ptr::write_bytes(out.cast::<u8>().add(known), 0, size - known);
+    }
+}
+
+/// Writes an extensible output struct (`hood_model_info`, `hood_refinement`, `hood_body_survey`)
+/// whose `struct_size` the caller has set: checked as [`read_extensible`] checks an input's
+/// (so an older header's smaller struct is never overrun), then filled by [`write_sized`].
+///
+/// # Safety
+/// `out` is NULL or points to a struct whose leading `u32` is readable and which has at least as
+/// many writable bytes as that `u32` says.
+unsafe fn write_extensible<T: Extensible>(out: *mut T, v: T, what: &'static str) -> Result<()> {
+    // SAFETY: the caller's promise; `read_extensible`'s checks of the size and alignment.
+    let size = unsafe { struct_size_of(out, what)? };
+    // SAFETY: checked above; `size` writable bytes (caller).
+    unsafe { write_sized(out, v, size) };
+    Ok(())
+}
+
+/// The caller's `struct_size` of an output struct at `out`, checked (see [`write_extensible`]).
+///
+/// # Safety
+/// As [`write_extensible`].
+unsafe fn struct_size_of<T: Extensible>(out: *const T, what: &'static str) -> Result<usize> {
+    require(out, what)?;
+    aligned(out, what)?;
+    // SAFETY: non-null and aligned; the leading u32 is readable (caller).
+    let size = unsafe { out.cast::<u32>().read() } as usize;
+    match size_problem::<T>(size) {
+        None => Ok(size),
+        Some(why) => Err(Failure::StructSize(format!(
+            "{}.struct_size is {size}: {why} (set it to sizeof({}) before the call; it is {} in this library)",
+            T::NAME,
+            T::NAME,
+            size_of::<T>()
+        ))),
+    }
+}
+
 // ---- Version and errors ------------------------------------------------------------------------
 
 /// The library version, `(major << 16) | (minor << 8) | patch`.
@@ -610,6 +662,8 @@ pub struct hood_model {
     model: Model<'static>,
     /// Live sims borrowing `model`; changed only under the registry lock.
     sims: AtomicUsize,
+    /// The file's format version (its header's second word).
+    format_version: u32,
 }
 
 /// Validates a `.hood` buffer and views it in place (see the header for the lifetime rules).
@@ -626,7 +680,9 @@ pub unsafe extern "C" fn hood_model_load(bytes: *const u8, len: usize, out: *mut
         // handle unmodified, which is what the erased `'static` lifetime stands for.
         let data: &'static [u8] = unsafe { slice(bytes, len, "bytes")? };
         let model = Model::from_bytes(data)?;
-        let h = register(Box::new(hood_model { model, sims: AtomicUsize::new(0) }), Kind::Model);
+        // The header that `from_bytes` validated: magic, then the little-endian format version.
+        let format_version = u32::from_le_bytes([data[8], data[9], data[10], data[11]]);
+        let h = register(Box::new(hood_model { model, sims: AtomicUsize::new(0), format_version }), Kind::Model);
         // SAFETY: `out` checked non-null above.
         unsafe { write_out(out, h) };
         Ok(())
@@ -673,6 +729,129 @@ pub unsafe extern "C" fn hood_model_has_bf16(model: *const hood_model, out: *mut
         let m = unsafe { &*model };
         // SAFETY: `out` checked non-null.
         unsafe { write_out(out, m.model.has_bf16() as u32) };
+        Ok(())
+    })
+}
+
+/// What a model is (see the header).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct hood_model_info {
+    /// `sizeof(hood_model_info)` in the caller's header, set before the call.
+    pub struct_size: u32,
+    /// The `.hood` format version of the file.
+    pub format_version: u32,
+    /// Latent width h.
+    pub latent: u32,
+    /// Hidden layers per MLP.
+    pub hidden_layers: u32,
+    /// Processor blocks.
+    pub blocks: u32,
+    /// Coarse levels of the hierarchy.
+    pub levels: u32,
+    /// 1 when the file holds bf16 weights too.
+    pub has_bf16: u32,
+    /// Effects trained with (`HOOD_EFFECT_BODY_COLLISION`, `HOOD_EFFECT_PINNING`).
+    pub effects: u32,
+    /// 1 when trained with per-vertex materials.
+    pub local_materials: u32,
+    /// One step's time, s.
+    pub frame_time: f32,
+    /// Metres per length unit of positions (1).
+    pub length_unit: f32,
+    /// The up axis: 0 x, 1 y, 2 z.
+    pub up_axis: u32,
+    /// Learned parameters.
+    pub parameters: usize,
+    /// Bytes of the schedule text (`hood_model_text`), without the NUL.
+    pub schedule_len: usize,
+    /// Bytes of the provenance text (`hood_model_text`), without the NUL.
+    pub provenance_len: usize,
+}
+
+// SAFETY: `#[repr(C)]`, `struct_size` first, only integers and floats.
+unsafe impl Extensible for hood_model_info {
+    const NAME: &'static str = "hood_model_info";
+}
+
+/// `hood_model_text`: the processor schedule.
+pub const HOOD_MODEL_TEXT_SCHEDULE: u32 = 0;
+/// `hood_model_text`: the provenance.
+pub const HOOD_MODEL_TEXT_PROVENANCE: u32 = 1;
+
+/// The text `hood_model_text` copies (see the header).
+fn model_text(m: &Model<'_>, which: u32) -> Result<String> {
+    match which {
+        HOOD_MODEL_TEXT_SCHEDULE => Ok(hood::model::spec::format_schedule(&m.spec().blocks)),
+        HOOD_MODEL_TEXT_PROVENANCE => Ok(m.provenance().map(|(k, v)| format!("{k}: {v}\n")).collect()),
+        w => Err(Error::OutOfRange { what: "model text kind", index: w as usize }.into()),
+    }
+}
+
+/// Describes a model (see the header).
+///
+/// # Safety
+/// `model` is NULL or a handle (checked); `out` is NULL or a `hood_model_info` of the
+/// `struct_size` it states.
+#[no_mangle]
+pub unsafe extern "C" fn hood_model_get_info(model: *const hood_model, out: *mut hood_model_info) -> hood_status {
+    guard(|| {
+        check_live(model, Kind::Model, "model")?;
+        // SAFETY: a live model handle.
+        let h = unsafe { &*model };
+        let (m, spec) = (&h.model, h.model.spec());
+        let flag = |on: bool, f: u32| if on { f } else { 0 };
+        let info = hood_model_info {
+            struct_size: struct_size::<hood_model_info>(),
+            format_version: h.format_version,
+            latent: spec.latent as u32,
+            hidden_layers: spec.hidden_layers as u32,
+            blocks: spec.blocks.len() as u32,
+            levels: spec.levels as u32,
+            has_bf16: m.has_bf16() as u32,
+            effects: flag(spec.effects.body, HOOD_EFFECT_BODY_COLLISION)
+                | flag(spec.effects.pinning, HOOD_EFFECT_PINNING),
+            local_materials: spec.effects.local_materials as u32,
+            frame_time: hood::features::DT,
+            length_unit: 1.0,
+            up_axis: 1,
+            parameters: spec.parameter_count(),
+            schedule_len: model_text(m, HOOD_MODEL_TEXT_SCHEDULE)?.len(),
+            provenance_len: model_text(m, HOOD_MODEL_TEXT_PROVENANCE)?.len(),
+        };
+        // SAFETY: the caller's promise.
+        unsafe { write_extensible(out, info, "out") }
+    })
+}
+
+/// Copies a model's text, NUL-terminated (see the header).
+///
+/// # Safety
+/// `model` is NULL or a handle (checked); `out` is NULL or holds `len` writable bytes.
+#[no_mangle]
+pub unsafe extern "C" fn hood_model_text(
+    model: *const hood_model,
+    which: u32,
+    out: *mut c_char,
+    len: usize,
+) -> hood_status {
+    guard(|| {
+        check_live(model, Kind::Model, "model")?;
+        require(out, "out")?;
+        // SAFETY: a live model handle.
+        let text = model_text(&unsafe { &*model }.model, which)?;
+        if len <= text.len() {
+            return Err(Error::SizeMismatch {
+                what: "model text buffer (text and NUL)",
+                expected: text.len() + 1,
+                got: len,
+            }
+            .into());
+        }
+        // SAFETY: `len` writable bytes (caller), more than the text.
+        let buf = unsafe { slice_mut(out.cast::<u8>(), text.len() + 1, "out")? };
+        buf[..text.len()].copy_from_slice(text.as_bytes());
+        buf[text.len()] = 0;
         Ok(())
     })
 }
@@ -962,14 +1141,8 @@ pub unsafe extern "C" fn hood_sim_config_init(out: *mut hood_sim_config, struct_
                 size_of::<hood_sim_config>()
             )));
         }
-        let c = hood_sim_config { struct_size: struct_size as u32, ..default_config() };
-        let known = size_of::<hood_sim_config>();
-        // SAFETY: `struct_size >= known` writable bytes (caller), aligned: the known prefix, then
-        // the tail up to `struct_size` zeroed (a newer header's fields, "unset").
-        unsafe {
-            write_out(out, c);
-            std::ptr::write_bytes(out.cast::<u8>().add(known), 0, struct_size - known);
-        }
+        // SAFETY: `struct_size` writable bytes (caller), aligned, checked above.
+        unsafe { write_sized(out, default_config(), struct_size) };
         Ok(())
     })
 }
@@ -1213,6 +1386,8 @@ pub unsafe extern "C" fn hood_sim_vertex_count(sim: *const hood_sim, out: *mut u
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct hood_refinement {
+    /// `sizeof(hood_refinement)` in the caller's header, set before the call.
+    pub struct_size: u32,
     /// Accepted L-BFGS iterations.
     pub iterations: u32,
     /// Objective at the network's prediction, J.
@@ -1221,10 +1396,16 @@ pub struct hood_refinement {
     pub energy_after: f32,
 }
 
+// SAFETY: `#[repr(C)]`, `struct_size` first, only integers and floats.
+unsafe impl Extensible for hood_refinement {
+    const NAME: &'static str = "hood_refinement";
+}
+
 /// The last network step's solver refinement (all zero before the first one).
 ///
 /// # Safety
-/// `sim` is NULL or a handle (checked); `out` is NULL or writable.
+/// `sim` is NULL or a handle (checked); `out` is NULL or a `hood_refinement` of the
+/// `struct_size` it states.
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_last_refinement(sim: *const hood_sim, out: *mut hood_refinement) -> hood_status {
     guard(|| {
@@ -1237,13 +1418,13 @@ pub unsafe extern "C" fn hood_sim_last_refinement(sim: *const hood_sim, out: *mu
             .into());
         }
         let r = s.sim.last_refinement().map_or(hood_refinement::default(), |r| hood_refinement {
+            struct_size: 0,
             iterations: r.iterations as u32,
             energy_before: r.f_start as f32,
             energy_after: r.f as f32,
         });
-        // SAFETY: `out` non-null.
-        unsafe { write_out(out, r) };
-        Ok(())
+        // SAFETY: `out` is a `hood_refinement` of its `struct_size` (caller).
+        unsafe { write_extensible(out, r, "out") }
     })
 }
 
@@ -1266,6 +1447,8 @@ pub unsafe extern "C" fn hood_sim_body_vertex_count(sim: *const hood_sim, out: *
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct hood_body_survey {
+    /// `sizeof(hood_body_survey)` in the caller's header, set before the call.
+    pub struct_size: u32,
     /// Signed volume at the first frame, m³ (positive: wound outward).
     pub volume: f32,
     /// Median face edge, m.
@@ -1277,10 +1460,16 @@ pub struct hood_body_survey {
     pub too_coarse: u32,
 }
 
+// SAFETY: `#[repr(C)]`, `struct_size` first, only integers and floats.
+unsafe impl Extensible for hood_body_survey {
+    const NAME: &'static str = "hood_body_survey";
+}
+
 /// The survey of the sim's body (see the header).
 ///
 /// # Safety
-/// `sim` is NULL or a handle (checked); `out` is NULL or writable.
+/// `sim` is NULL or a handle (checked); `out` is NULL or a `hood_body_survey` of the
+/// `struct_size` it states.
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_body_survey(sim: *const hood_sim, out: *mut hood_body_survey) -> hood_status {
     guard(|| {
@@ -1289,14 +1478,14 @@ pub unsafe extern "C" fn hood_sim_body_survey(sim: *const hood_sim, out: *mut ho
         let survey =
             s.sim.body_survey().ok_or(Error::UnsupportedEffect { effect: "body survey (the sim has no body)" })?;
         let v = hood_body_survey {
+            struct_size: 0,
             volume: survey.volume as f32,
             median_edge: survey.median_edge,
             longest_edge: survey.longest_edge,
             too_coarse: survey.too_coarse_for(hood::sim::BODY_EDGE_RADIUS) as u32,
         };
-        // SAFETY: `out` non-null.
-        unsafe { write_out(out, v) };
-        Ok(())
+        // SAFETY: `out` is a `hood_body_survey` of its `struct_size` (caller).
+        unsafe { write_extensible(out, v, "out") }
     })
 }
 

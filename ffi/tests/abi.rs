@@ -808,9 +808,10 @@ fn config_effects_are_honoured() {
         }
         refine.refine_iterations = 2;
         assert_eq!(hood_sim_new(l.model, g, &bd, &refine, &mut sim), HOOD_OK, "{}", last_error());
-        let mut rep = hood_refinement { iterations: 9, energy_before: 9.0, energy_after: 9.0 };
+        let sized = hood_refinement { struct_size: size_of_u32::<hood_refinement>(), ..Default::default() };
+        let mut rep = hood_refinement { iterations: 9, energy_before: 9.0, energy_after: 9.0, ..sized };
         assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_OK);
-        assert_eq!(rep, hood_refinement::default(), "nothing refined yet");
+        assert_eq!(rep, sized, "nothing refined yet");
         assert_eq!(hood_sim_last_refinement(sim, null_mut()), HOOD_ERR_NULL_POINTER);
         let body = sc.body_at(1, [0.0; 3]);
         let mut buf = vec![[0.0f32; 3]; n];
@@ -1011,7 +1012,7 @@ fn an_inside_out_body_is_refused_and_a_coarse_one_reported() {
     let sc = scene(6);
     // The test scene's body: 194 vertices over an ellipsoid, outward, and coarse.
     let sim = sc.sim(m.model);
-    let mut survey = hood_body_survey::default();
+    let mut survey = hood_body_survey { struct_size: size_of_u32::<hood_body_survey>(), ..Default::default() };
     // SAFETY: live handle, writable out.
     assert_eq!(unsafe { hood_sim_body_survey(sim, &mut survey) }, HOOD_OK, "{}", last_error());
     assert!(survey.volume > 0.0 && survey.too_coarse == 1, "{survey:?}");
@@ -1456,4 +1457,110 @@ fn last_effects_name_what_each_step_did() {
     assert_eq!(last_effects(sim), HOOD_STEP_STARTUP | HOOD_STEP_PROJECTED);
     // SAFETY: a live sim.
     assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+}
+
+#[test]
+fn model_info_and_texts_describe_the_model() {
+    let l = load(16, 17);
+    let mut info = hood_model_info { struct_size: size_of_u32::<hood_model_info>(), ..Default::default() };
+    // SAFETY: a live model; `info` of its size.
+    assert_eq!(unsafe { hood_model_get_info(l.model, &mut info) }, HOOD_OK, "{}", last_error());
+    let bytes = random_model_bytes(16, 17);
+    let aligned = ModelBytes::new(&bytes);
+    let m = aligned.model().unwrap();
+    let spec = m.spec();
+    let want = hood_model_info {
+        struct_size: size_of_u32::<hood_model_info>(),
+        format_version: hood::model::file::FORMAT_VERSION,
+        latent: 16,
+        hidden_layers: spec.hidden_layers as u32,
+        blocks: spec.blocks.len() as u32,
+        levels: spec.levels as u32,
+        has_bf16: 0,
+        effects: HOOD_EFFECT_BODY_COLLISION | HOOD_EFFECT_PINNING,
+        local_materials: spec.effects.local_materials as u32,
+        frame_time: 1.0 / 30.0,
+        length_unit: 1.0,
+        up_axis: 1,
+        parameters: spec.parameter_count(),
+        schedule_len: hood::model::spec::format_schedule(&spec.blocks).len(),
+        provenance_len: "kind: random hood-ffi test model\n".len(),
+    };
+    assert_eq!(info, want);
+    let text = |which: u32, len: usize| -> (hood_status, Vec<u8>) {
+        let mut buf = vec![0xAAu8; len];
+        // SAFETY: `buf` holds `len` bytes.
+        let s = unsafe { hood_model_text(l.model, which, buf.as_mut_ptr().cast(), len) };
+        (s, buf)
+    };
+    let (s, buf) = text(HOOD_MODEL_TEXT_PROVENANCE, info.provenance_len + 1);
+    assert_eq!(s, HOOD_OK, "{}", last_error());
+    assert_eq!(&buf[..], b"kind: random hood-ffi test model\n\0");
+    let (s, buf) = text(HOOD_MODEL_TEXT_SCHEDULE, info.schedule_len + 8);
+    assert_eq!(s, HOOD_OK);
+    assert_eq!(
+        &buf[..=info.schedule_len],
+        format!("{}\0", hood::model::spec::format_schedule(&spec.blocks)).as_bytes()
+    );
+    assert!(buf[info.schedule_len + 1..].iter().all(|&b| b == 0xAA), "wrote past the NUL");
+    // Too small a buffer, an unknown text, NULLs: refused, nothing written.
+    let (s, buf) = text(HOOD_MODEL_TEXT_PROVENANCE, info.provenance_len);
+    assert_eq!(s, HOOD_ERR_SIZE_MISMATCH);
+    assert!(buf.iter().all(|&b| b == 0xAA));
+    assert_eq!(text(2, 64).0, HOOD_ERR_OUT_OF_RANGE);
+    // SAFETY: NULL pointers and a freed-looking handle are what the library must catch.
+    unsafe {
+        assert_eq!(hood_model_text(l.model, 0, null_mut(), 8), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_model_get_info(l.model, null_mut()), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_model_get_info(null(), &mut info), HOOD_ERR_NULL_POINTER);
+    }
+    // bf16 weights show.
+    let bf =
+        ModelBytes::new(&hood::model::write_model(&hood::model::Params::init(spec, 1).unwrap(), true, &[]).unwrap());
+    let mut model = null_mut();
+    // SAFETY: aligned bytes that outlive the model (freed below).
+    unsafe {
+        assert_eq!(hood_model_load(bf.as_bytes().as_ptr(), bf.as_bytes().len(), &mut model), HOOD_OK);
+        assert_eq!(hood_model_get_info(model, &mut info), HOOD_OK);
+        assert_eq!((info.has_bf16, info.provenance_len), (1, 0));
+        assert_eq!(hood_model_free(model), HOOD_OK);
+    }
+}
+
+/// Output structs follow the `struct_size` rule: a size too small or misaligned is refused and
+/// nothing is written; a larger one (a newer header) gets the known fields and zeros after them.
+#[test]
+fn output_struct_sizes_are_checked_and_tails_zeroed() {
+    let l = load(8, 18);
+    let sc = scene(5);
+    let sim = sc.sim(l.model);
+    fn check<T: Copy>(v: T, call: impl Fn(*mut T) -> hood_status) {
+        let size = size_of::<T>();
+        let sized = |struct_size: usize, fill: u8| {
+            let mut g = Grown { known: v, tail: [fill; 16] };
+            // SAFETY: every output struct starts with its u32 struct_size.
+            unsafe { (&mut g.known as *mut T).cast::<u32>().write(struct_size as u32) };
+            g
+        };
+        for bad in [0, size - 4, size + 1, 5000] {
+            let mut g = sized(bad, 0xEE);
+            assert_eq!(call(&mut g.known), HOOD_ERR_STRUCT_SIZE, "struct_size {bad}");
+            assert!(last_error().contains("struct_size"), "{}", last_error());
+            assert_eq!(g.tail, [0xEE; 16], "a refused call wrote past the struct");
+        }
+        let mut g = sized(size + 16, 0xEE);
+        assert_eq!(call(&mut g.known), HOOD_OK, "{}", last_error());
+        assert_eq!(g.tail, [0; 16], "a newer header's fields read zero");
+        // SAFETY: as above.
+        assert_eq!(unsafe { (&g.known as *const T).cast::<u32>().read() } as usize, size + 16);
+    }
+    // SAFETY: live handles; every pointer is a grown struct of the size it states.
+    unsafe {
+        check(hood_model_info::default(), |p| hood_model_get_info(l.model, p));
+        check(hood_body_survey::default(), |p| hood_sim_body_survey(sim, p));
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        let refined = sim_with(&sc, l.model, |c| c.effects |= HOOD_EFFECT_REFINE);
+        check(hood_refinement::default(), |p| hood_sim_last_refinement(refined, p));
+        assert_eq!(hood_sim_free(refined), HOOD_OK);
+    }
 }

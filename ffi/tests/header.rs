@@ -260,6 +260,8 @@ fn checked_constants() -> Vec<(&'static str, u64)> {
         HOOD_STEP_PROJECTED,
         HOOD_PRECISION_F32,
         HOOD_PRECISION_BF16,
+        HOOD_MODEL_TEXT_SCHEDULE,
+        HOOD_MODEL_TEXT_PROVENANCE,
         HOOD_VERSION_MAJOR,
         HOOD_VERSION_MINOR,
         HOOD_VERSION_PATCH,
@@ -326,8 +328,28 @@ fn compiler_checks_types_constants_and_layouts() {
         }
     );
     layout!(cpp, hood_body_desc { struct_size, positions, n_vertices, indices, n_faces, omitted });
-    layout!(cpp, hood_refinement { iterations, energy_before, energy_after });
-    layout!(cpp, hood_body_survey { volume, median_edge, longest_edge, too_coarse });
+    layout!(cpp, hood_refinement { struct_size, iterations, energy_before, energy_after });
+    layout!(cpp, hood_body_survey { struct_size, volume, median_edge, longest_edge, too_coarse });
+    layout!(
+        cpp,
+        hood_model_info {
+            struct_size,
+            format_version,
+            latent,
+            hidden_layers,
+            blocks,
+            levels,
+            has_bf16,
+            effects,
+            local_materials,
+            frame_time,
+            length_unit,
+            up_axis,
+            parameters,
+            schedule_len,
+            provenance_len
+        }
+    );
     layout!(cpp, hood_executor { struct_size, user, parallelism, run });
     cpp.push_str("int main() { return 0; }\n");
 
