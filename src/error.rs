@@ -144,6 +144,13 @@ impl Error {
     pub fn parse(format: &'static str, line: usize, message: impl Into<String>) -> Self {
         Error::Parse { format, line, message: message.into() }
     }
+
+    /// An [`Error::Io`] for `path` (feature `std`).
+    #[cfg(feature = "std")]
+    pub fn io(path: &std::path::Path, e: std::io::Error) -> Self {
+        use alloc::string::ToString;
+        Error::Io { path: path.display().to_string(), message: e.to_string() }
+    }
 }
 
 impl fmt::Display for Error {

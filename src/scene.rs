@@ -292,7 +292,6 @@ mod assets {
     use crate::rig::fit::{boundary_loop_pins, pinned_flags, LoopChoice, MhcloBinding};
     use crate::rig::motion::{ClipRest, Retarget, RetargetOptions, MODEL_FPS};
     use std::path::Path;
-    use std::string::ToString;
 
     /// The MakeHuman garments of the assets: the pieces of the three outfits of
     /// `assets/garments` (README there). Tops hang free; trousers and leggings have their waist
@@ -379,10 +378,6 @@ mod assets {
         }
     }
 
-    fn io_err(path: &Path, e: std::io::Error) -> Error {
-        Error::Io { path: path.display().to_string(), message: e.to_string() }
-    }
-
     /// The MakeHuman body (`assets/body`) wearing `which` (fitted with its `.mhclo` binding,
     /// outside the body) on the CMU 12_03 walk retargeted at 30 Hz, at most `max_frames` frames.
     ///
@@ -407,7 +402,7 @@ mod assets {
         let mh = MakeHuman::load(assets.join("body"))?;
         let (outfit, rank) = which.source();
         let path = assets.join("garments").join(alloc::format!("{outfit}.mhclo"));
-        let text = std::fs::read_to_string(&path).map_err(|e| io_err(&path, e))?;
+        let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
         let binding = MhcloBinding::parse(&text, METRES_PER_UNIT)?;
         let obj = Obj::read(assets.join("garments").join(&binding.obj_file))?;
         let mut normals = vec![[0.0; 3]; mh.obj.positions.len()];

@@ -24,11 +24,6 @@ macro_rules! say {
     }};
 }
 
-/// An I/O error on `path` as the crate's error value (one helper for every subcommand).
-fn io_err(path: &std::path::Path, e: std::io::Error) -> hood::Error {
-    hood::Error::Io { path: path.display().to_string(), message: e.to_string() }
-}
-
 #[path = "cmd/objective.rs"]
 mod objective;
 #[path = "cmd/report.rs"]
@@ -79,7 +74,7 @@ struct InfoArgs {
 }
 
 fn info(a: InfoArgs) -> hood::Result<()> {
-    let bytes = ModelBytes::new(&std::fs::read(&a.model).map_err(|e| io_err(&a.model, e))?);
+    let bytes = ModelBytes::new(&std::fs::read(&a.model).map_err(|e| hood::Error::io(&a.model, e))?);
     let m = bytes.model()?;
     let spec = m.spec();
     say!(
@@ -126,7 +121,7 @@ fn convert(a: ConvertArgs) -> hood::Result<()> {
     let bytes =
         write_model(&params, !a.no_bf16, &[("converted_from", source.as_str()), ("architecture", "HOOD postcvpr")])?;
     ModelBytes::new(&bytes).model()?; // what we write must load
-    std::fs::write(&a.out, &bytes).map_err(|e| io_err(&a.out, e))?;
+    std::fs::write(&a.out, &bytes).map_err(|e| hood::Error::io(&a.out, e))?;
     eprintln!("wrote {} ({} parameters, h = {}, {} bytes)", a.out.display(), params.count(), spec.latent, bytes.len());
     Ok(())
 }
@@ -146,7 +141,7 @@ fn average(a: AverageArgs) -> hood::Result<()> {
     let files: Vec<ModelBytes> = a
         .models
         .iter()
-        .map(|p| std::fs::read(p).map(|b| ModelBytes::new(&b)).map_err(|e| io_err(p, e)))
+        .map(|p| std::fs::read(p).map(|b| ModelBytes::new(&b)).map_err(|e| hood::Error::io(p, e)))
         .collect::<Result<_, _>>()?;
     let models: Vec<hood::model::Model<'_>> = files.iter().map(|f| f.model()).collect::<Result<_, _>>()?;
     let params: Vec<Params> = models.iter().map(|m| m.to_params()).collect();
@@ -166,7 +161,7 @@ fn average(a: AverageArgs) -> hood::Result<()> {
     prov.push(("averaged_from", &sources));
     let bytes = write_model(&mean, last.has_bf16(), &prov)?;
     ModelBytes::new(&bytes).model()?; // what we write must load
-    std::fs::write(&a.out, &bytes).map_err(|e| io_err(&a.out, e))?;
+    std::fs::write(&a.out, &bytes).map_err(|e| hood::Error::io(&a.out, e))?;
     eprintln!("wrote {}: mean of {} models", a.out.display(), params.len());
     Ok(())
 }

@@ -228,8 +228,7 @@ pub fn parse(text: &str) -> Result<Clip> {
 /// Reads a BVH file (see [`parse`]).
 pub fn read(path: impl AsRef<std::path::Path>) -> Result<Clip> {
     let p = path.as_ref();
-    let text =
-        std::fs::read_to_string(p).map_err(|e| Error::Io { path: p.display().to_string(), message: e.to_string() })?;
+    let text = std::fs::read_to_string(p).map_err(|e| Error::io(p, e))?;
     parse(&text)
 }
 

@@ -41,7 +41,7 @@ pub struct MakeHuman {
 }
 
 fn read_text(path: &Path) -> Result<String> {
-    std::fs::read_to_string(path).map_err(|e| Error::Io { path: path.display().to_string(), message: e.to_string() })
+    std::fs::read_to_string(path).map_err(|e| Error::io(path, e))
 }
 
 impl MakeHuman {

@@ -12,7 +12,6 @@ pub mod zlib;
 
 use crate::error::{Error, Result};
 use std::path::Path;
-use std::string::ToString;
 
 /// Writes `bytes` to `path` through a temporary file beside it (`path` with the extension
 /// `tmp`), then renames it over `path`, so that a reader never sees a half-written file.
@@ -20,7 +19,7 @@ use std::string::ToString;
 /// # Errors
 /// [`Error::Io`] naming `path`.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let io = |e: std::io::Error| Error::Io { path: path.display().to_string(), message: e.to_string() };
+    let io = |e: std::io::Error| Error::io(path, e);
     let tmp = path.with_extension("tmp");
     std::fs::write(&tmp, bytes).map_err(io)?;
     std::fs::rename(&tmp, path).map_err(io)

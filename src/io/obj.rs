@@ -135,7 +135,7 @@ impl Obj {
     /// [`Error::Io`] when the file cannot be read (or is not UTF-8); as [`Obj::parse`].
     pub fn read(path: impl AsRef<Path>) -> Result<Obj> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| io_error(path, e))?;
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         Obj::parse(&text)
     }
 
@@ -234,10 +234,6 @@ fn resolve(s: &str, count: usize, what: &str, corner: &str) -> core::result::Res
     Ok(zero_based as u32)
 }
 
-fn io_error(path: &Path, e: std::io::Error) -> Error {
-    Error::Io { path: path.display().to_string(), message: e.to_string() }
-}
-
 /// Splits a triangle mesh into its connected components (vertices joined by triangle edges), in
 /// order of each component's lowest vertex; vertices used by no triangle are dropped. Each part
 /// carries the remap to the input's vertex indices.
@@ -310,7 +306,7 @@ pub fn write(
 ) -> Result<()> {
     let text = to_string(positions, triangles, normals)?;
     let path = path.as_ref();
-    std::fs::write(path, text).map_err(|e| io_error(path, e))
+    std::fs::write(path, text).map_err(|e| Error::io(path, e))
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@ use super::zlib;
 use crate::error::{Error, Result};
 use crate::render::Image;
 use std::path::Path;
-use std::string::ToString;
+
 use std::vec;
 use std::vec::Vec;
 
@@ -96,7 +96,7 @@ fn predict(kind: u8, a: u8, b: u8, c: u8) -> u8 {
 /// Writes an image as PNG.
 pub fn write(path: impl AsRef<Path>, image: &Image) -> Result<()> {
     let p = path.as_ref();
-    std::fs::write(p, encode(image)).map_err(|e| Error::Io { path: p.display().to_string(), message: e.to_string() })
+    std::fs::write(p, encode(image)).map_err(|e| Error::io(p, e))
 }
 
 /// Writes frames side by side as one PNG strip.

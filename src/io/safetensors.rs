@@ -133,8 +133,7 @@ impl SafeTensors {
     /// [`Error::Io`] when the file cannot be read; see [`SafeTensors::from_bytes`].
     pub fn read(path: impl AsRef<Path>) -> Result<SafeTensors> {
         let path = path.as_ref();
-        let bytes =
-            std::fs::read(path).map_err(|e| Error::Io { path: path.display().to_string(), message: e.to_string() })?;
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
         SafeTensors::from_bytes(bytes)
     }
 

@@ -544,8 +544,7 @@ impl ModelBytes {
     #[cfg(feature = "std")]
     pub fn read(path: impl AsRef<std::path::Path>) -> Result<ModelBytes> {
         let path = path.as_ref();
-        let bytes =
-            std::fs::read(path).map_err(|e| Error::Io { path: path.display().to_string(), message: e.to_string() })?;
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
         Ok(ModelBytes::new(&bytes))
     }
 

@@ -9,7 +9,7 @@ use crate::rig::procedural::Mannequin;
 use crate::rng::Rng;
 use crate::scene::{self, MakeHumanGarment, Scene};
 use std::path::Path;
-use std::string::{String, ToString};
+use std::string::String;
 use std::vec::Vec;
 
 /// The scenes a run samples from.
@@ -217,7 +217,7 @@ fn read_states(path: &Path, n: usize) -> Option<Vec<Vec<[f32; 3]>>> {
 
 /// Writes `states` in [`read_states`]' format (atomically).
 fn write_states(path: &Path, states: &[Vec<[f32; 3]>]) -> Result<()> {
-    let io = |e: std::io::Error| Error::Io { path: path.display().to_string(), message: e.to_string() };
+    let io = |e: std::io::Error| Error::io(path, e);
     let verts = states.first().map_or(0, Vec::len);
     let mut bytes = Vec::with_capacity(16 + states.len() * verts * 12);
     bytes.extend_from_slice(STATES_MAGIC);

@@ -4,7 +4,6 @@
 //! the Pareto front of time against gap marked and the off-body verdict, and an SVG plot of the
 //! relative objective gap against ms per step.
 
-use crate::io_err;
 use crate::objective::ObjectiveArg;
 use clap::Args;
 use hood::eval::{common_state_gaps, converged_solver, implicit_rollout, rollout, Animation, Method, Rollout};
@@ -277,7 +276,7 @@ pub fn report(a: ReportArgs) -> Result<()> {
             }
         }
     }
-    std::fs::create_dir_all(&a.out).map_err(|e| io_err(&a.out, e))?;
+    std::fs::create_dir_all(&a.out).map_err(|e| hood::Error::io(&a.out, e))?;
     let trained = models.iter().all(|m| m.trained);
     let md = markdown(&a, &rows, &models, trained);
     let (own, common): (Vec<Row>, Vec<Row>) = rows.into_iter().partition(|r| !r.common);
@@ -292,7 +291,7 @@ pub fn report(a: ReportArgs) -> Result<()> {
     }
     for (file, text) in files {
         let p = a.out.join(file);
-        std::fs::write(&p, text).map_err(|e| io_err(&p, e))?;
+        std::fs::write(&p, text).map_err(|e| hood::Error::io(&p, e))?;
         say!("wrote {}", p.display());
     }
     Ok(())

@@ -1,7 +1,6 @@
 //! `hood simulate`: run a model on a scene, write an OBJ sequence and a PNG preview strip, print
 //! per-step timing and the objective.
 
-use crate::io_err;
 use crate::objective::ObjectiveArg;
 use clap::Args;
 use hood::eval::{common_state_gaps, rollout_observed, strip_images, Animation, FrameRecord, Method, Playback};
@@ -125,7 +124,7 @@ pub fn parse_precision(p: &str) -> Result<Precision> {
 /// The OBJ files of a folder, sorted by name.
 fn obj_sequence(dir: &Path) -> Result<Vec<PathBuf>> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(|e| io_err(dir, e))?
+        .map_err(|e| hood::Error::io(dir, e))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("obj")))
         .collect();
@@ -288,7 +287,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         anim.body_mesh().map_or(0, |b| b.n_vertices()),
         clock.elapsed().as_secs_f64()
     );
-    std::fs::create_dir_all(&a.out).map_err(|e| io_err(&a.out, e))?;
+    std::fs::create_dir_all(&a.out).map_err(|e| hood::Error::io(&a.out, e))?;
     let k = a.strip.max(1);
     let keep: Vec<usize> = if k == 1 { vec![frames] } else { (0..k).map(|i| i * frames / (k - 1)).collect() };
     let opts = RolloutOptions {

@@ -1,6 +1,5 @@
 //! `hood train`: a training run in a folder (checkpoint, exported model, logs), resumable.
 
-use crate::io_err;
 use clap::Args;
 use hood::io::write_atomic;
 use hood::model::ModelBytes;
@@ -195,12 +194,13 @@ fn truncate_log(path: &Path, limit: u64) -> hood::Result<()> {
     if !out.is_empty() {
         out.push('\n');
     }
-    std::fs::write(path, out).map_err(|e| io_err(path, e))
+    std::fs::write(path, out).map_err(|e| hood::Error::io(path, e))
 }
 
 fn append(path: &Path, line: &str) -> hood::Result<()> {
-    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path).map_err(|e| io_err(path, e))?;
-    writeln!(f, "{line}").map_err(|e| io_err(path, e))
+    let mut f =
+        std::fs::OpenOptions::new().create(true).append(true).open(path).map_err(|e| hood::Error::io(path, e))?;
+    writeln!(f, "{line}").map_err(|e| hood::Error::io(path, e))
 }
 
 fn build_data(cfg: &TrainConfig, shared: &Path) -> hood::Result<Dataset> {
@@ -233,7 +233,7 @@ fn progress(t: &Trainer, start_it: u64, started: Instant, recent_loss: f64) {
 
 pub fn train(a: TrainArgs) -> hood::Result<()> {
     let dir = expand(&a.dir);
-    std::fs::create_dir_all(&dir).map_err(|e| io_err(&dir, e))?;
+    std::fs::create_dir_all(&dir).map_err(|e| hood::Error::io(&dir, e))?;
     let shared = a.shared.clone().unwrap_or_else(hood::workloads::default_shared_dir);
     let ckpt = dir.join("checkpoint.safetensors");
     let log = dir.join("log.jsonl");
@@ -244,7 +244,7 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
         let st = hood::io::safetensors::SafeTensors::read(&ckpt)?;
         let mut cfg = hood::train::session::checkpoint_config(&st)?;
         if let Some(p) = &a.scenes_from {
-            let other = TrainConfig::from_json(&std::fs::read_to_string(p).map_err(|e| io_err(p, e))?)?;
+            let other = TrainConfig::from_json(&std::fs::read_to_string(p).map_err(|e| hood::Error::io(p, e))?)?;
             eprintln!("scenes from {}: {} instead of {}", p.display(), other.scenes.len(), cfg.scenes.len());
             cfg.scenes = other.scenes;
         }
@@ -258,13 +258,13 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
             return Err(hood::Error::parse("--scenes-from", 0, format!("{}: {message}", p.display())));
         }
         let cfg = match &a.config {
-            Some(p) => TrainConfig::from_json(&std::fs::read_to_string(p).map_err(|e| io_err(p, e))?)?,
+            Some(p) => TrainConfig::from_json(&std::fs::read_to_string(p).map_err(|e| hood::Error::io(p, e))?)?,
             None => TrainConfig::default(),
         };
         let data = build_data(&cfg, &shared)?;
         match &a.from_model {
             Some(p) => {
-                let bytes = ModelBytes::new(&std::fs::read(p).map_err(|e| io_err(p, e))?);
+                let bytes = ModelBytes::new(&std::fs::read(p).map_err(|e| hood::Error::io(p, e))?);
                 let t = Trainer::from_model(cfg, data, &bytes.model()?)?;
                 eprintln!("continuing from {} (iteration {}, fresh optimiser)", p.display(), t.iteration);
                 t
@@ -360,7 +360,7 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
             }
         }
         if let Some(p) = snapshot {
-            std::fs::create_dir_all(&snapshots).map_err(|e| io_err(&snapshots, e))?;
+            std::fs::create_dir_all(&snapshots).map_err(|e| hood::Error::io(&snapshots, e))?;
             write_atomic(&p, &bytes)?;
         }
         Ok(())

@@ -7,7 +7,6 @@
 //! any `GARMENT:MOTION` pair can be named. Every row says first whether the garment stayed on
 //! the body (the off-body metric): a lost garment fails whatever its other figures.
 
-use crate::io_err;
 use crate::objective::ObjectiveArg;
 use crate::simulate::{named_scene, parse_precision, step_mode};
 use clap::Args;
@@ -245,7 +244,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
     let files: Vec<ModelBytes> = a.models.iter().map(ModelBytes::read).collect::<Result<_>>()?;
     // Validated once, before any rollout; the rollouts share them.
     let models: Vec<Model<'_>> = files.iter().map(ModelBytes::model).collect::<Result<_>>()?;
-    std::fs::create_dir_all(&a.out).map_err(|e| io_err(&a.out, e))?;
+    std::fs::create_dir_all(&a.out).map_err(|e| hood::Error::io(&a.out, e))?;
     let labels = labels(&a.models);
     let stem = |m: usize| labels[m].as_str();
     let jobs: Vec<(usize, usize)> = (0..models.len()).flat_map(|m| (0..scenes.len()).map(move |s| (m, s))).collect();
@@ -358,7 +357,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         );
     }
     let path = a.out.join("validation.md");
-    std::fs::write(&path, &table).map_err(|e| io_err(&path, e))?;
+    std::fs::write(&path, &table).map_err(|e| hood::Error::io(&path, e))?;
     say!("{table}\nwrote {} and the strips beside it", path.display());
     failed.map_or(Ok(()), Err)
 }
