@@ -1,8 +1,9 @@
-//! Collision push-out: the start-up repair of garments that begin inside or too near the body.
+//! Collision push-out: the start-up repair of garments that begin inside or too near the body,
+//! each vertex moved as [`crate::physics::push_out`] moves it.
 
 use crate::error::{Error, Result};
-use crate::math::{add3, dot3, scale3, sub3, Real};
-use crate::physics::{check_len, FaceFrame};
+use crate::math::{add3, Real};
+use crate::physics::{check_len, push_out as vertex_push_out, FaceFrame};
 
 /// Moves every vertex closer than `eps` (m) to the plane of its nearest body face (index in
 /// `nearest`, face data in `frame`) out along that face's normal to distance `eps`. Vertices
@@ -32,10 +33,9 @@ pub fn push_out<T: Real>(
         if pinned.get(i).copied().unwrap_or(false) {
             continue;
         }
-        let nrm = frame.normals[k];
-        let d = dot3(sub3(*p, frame.centroids[k]), nrm);
-        if d < eps {
-            *p = add3(*p, scale3(nrm, eps - d));
+        let step = vertex_push_out(*p, k, frame, eps);
+        if step != [T::ZERO; 3] {
+            *p = add3(*p, step);
             moved += 1;
         }
     }
