@@ -39,14 +39,7 @@ fn overhead(c: &mut Criterion) {
     let mut h_garment = null_mut();
     let mut h_sim = null_mut();
     let pins: Vec<u8> = pinned.iter().map(|&p| p as u8).collect();
-    let desc = hood_body_desc {
-        struct_size: size_of::<hood_body_desc>() as u32,
-        positions: body.as_ptr().cast(),
-        n_vertices: body.len(),
-        indices: body_faces.as_ptr().cast(),
-        n_faces: body_faces.len(),
-        omitted: null(),
-    };
+    let desc = common::body_desc(&body, &body_faces);
     let mut out = vec![[0.0f32; 3]; n];
     let mut saved = Vec::new();
     // SAFETY: arrays of the stated lengths; `bytes` outlives the model (freed below).

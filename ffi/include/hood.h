@@ -59,8 +59,8 @@
  *   is one atomic operation on the sim's own state, so sims on different threads never wait for
  *   each other. Only hood_sim_new and hood_sim_free take a global lock, briefly.
  * - hood_last_error() is per thread.
- * - Callbacks (the executor's run) must not throw a C++ exception or otherwise unwind into the
- *   library: that aborts the process. Catch inside the callback.
+ * - Callbacks (the executor's run, the log callback) must not throw a C++ exception or otherwise
+ *   unwind into the library: that aborts the process. Catch inside the callback.
  *
  * Linkage and calling convention
  * ------------------------------
@@ -154,6 +154,27 @@ HOOD_API const char *HOOD_CALL hood_last_error(void);
  * another thread"; "unknown status" for a code this library does not have. NUL-terminated, static
  * storage; never fails and leaves hood_last_error alone. */
 HOOD_API const char *HOOD_CALL hood_status_string(hood_status code);
+
+/* ---- Log ------------------------------------------------------------------------------------ */
+
+#define HOOD_LOG_ERROR 1u   /* an internal error: the message of a panic caught at the boundary */
+#define HOOD_LOG_WARNING 2u /* a warning, e.g. a body mesh too coarse for its collisions */
+
+/* Receives a message: `level` (HOOD_LOG_*), `message` (NUL-terminated UTF-8, valid only during
+ * the call), `user` as given to hood_set_log_callback. Called on the thread whose hood_* call
+ * (or executor task) produced the message, so possibly on several threads at once; it may call
+ * hood_* functions, and must not throw (see Threads). */
+typedef void (HOOD_CALL *hood_log_fn)(uint32_t level, const char *message, void *user);
+
+/* Sets the process-wide log callback (NULL removes it). With one set, the library's warnings
+ * (today: hood_sim_new with a body too coarse for the 3 cm body-edge radius, see
+ * hood_body_survey) and the message of every internal error caught at the boundary (the call
+ * returns HOOD_ERR_PANIC; the same text is its hood_last_error) go to it, and internal errors
+ * no longer print to stderr. Without one, warnings go nowhere and an internal error prints
+ * Rust's panic message to stderr. A call already running on another thread may still use the
+ * previous callback after this returns: keep its `user` valid until such calls are done. Any
+ * time, any thread. */
+HOOD_API hood_status HOOD_CALL hood_set_log_callback(hood_log_fn callback, void *user);
 
 /* ---- Model ------------------------------------------------------------------------------- */
 

@@ -12,6 +12,7 @@
 // The C names of the types are the Rust names (the header check maps them one to one).
 #![allow(non_camel_case_types)]
 
+mod log;
 mod slots;
 
 use glam::{Mat3, Quat, Vec3};
@@ -116,6 +117,11 @@ pub const HOOD_STEP_REFINED: u32 = 16;
 /// Step flag: the collision projection moved a vertex.
 pub const HOOD_STEP_PROJECTED: u32 = 32;
 
+/// Log level: an internal error (a panic caught at the boundary).
+pub const HOOD_LOG_ERROR: u32 = 1;
+/// Log level: a warning (e.g. a body too coarse for its collisions).
+pub const HOOD_LOG_WARNING: u32 = 2;
+
 /// f32 arithmetic.
 pub const HOOD_PRECISION_F32: u32 = 0;
 /// bf16 weights and activations.
@@ -214,6 +220,7 @@ fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
 /// Runs the body of an export: maps its error to a status code and the last-error message, and
 /// catches any panic (reported as [`HOOD_ERR_PANIC`]).
 fn guard(f: impl FnOnce() -> Result<()>) -> hood_status {
+    let _inside = log::Inside::enter();
     match catch_unwind(AssertUnwindSafe(f)) {
         Ok(Ok(())) => HOOD_OK,
         Ok(Err(e)) => {
@@ -223,7 +230,14 @@ fn guard(f: impl FnOnce() -> Result<()>) -> hood_status {
         Err(payload) => {
             // Formatting the message could itself panic (allocation failure): contain that too.
             let msg = catch_unwind(AssertUnwindSafe(|| panic_message(&*payload))).unwrap_or_default();
-            let _ = catch_unwind(AssertUnwindSafe(|| set_last_error(format!("internal error (panic): {msg}"))));
+            let _ = catch_unwind(AssertUnwindSafe(|| {
+                let text = match log::take_panic_location() {
+                    Some(at) => format!("internal error (panic at {at}): {msg}"),
+                    None => format!("internal error (panic): {msg}"),
+                };
+                log::log(HOOD_LOG_ERROR, &text);
+                set_last_error(text);
+            }));
             HOOD_ERR_PANIC
         }
     }
@@ -651,6 +665,21 @@ fn status_text(code: hood_status) -> &'static CStr {
 #[no_mangle]
 pub extern "C" fn hood_status_string(code: hood_status) -> *const c_char {
     status_text(code).as_ptr()
+}
+
+/// The log callback's type (`extern "C"` is cdecl on 32-bit Windows, as `HOOD_CALL` declares it).
+pub type hood_log_fn = Option<unsafe extern "C" fn(level: u32, message: *const c_char, user: *mut c_void)>;
+
+/// Sets (or with NULL removes) the log callback (see the header).
+///
+/// # Safety
+/// `callback` is NULL or keeps the header's contract; `user` stays valid while it is set.
+#[no_mangle]
+pub unsafe extern "C" fn hood_set_log_callback(callback: hood_log_fn, user: *mut c_void) -> hood_status {
+    guard(|| {
+        log::set(callback, user);
+        Ok(())
+    })
 }
 
 // ---- Model -------------------------------------------------------------------------------------
@@ -1280,6 +1309,18 @@ pub unsafe extern "C" fn hood_sim_new(
         let bd = body_parts.as_ref().map(|(mesh, pos)| BodyDesc { mesh, positions: pos });
         match Sim::new(m, garment, bd, cfg) {
             Ok(sim) => {
+                if let Some(b) = sim.body_survey().filter(|b| b.too_coarse_for(hood::sim::BODY_EDGE_RADIUS)) {
+                    log::log(
+                        HOOD_LOG_WARNING,
+                        &format!(
+                            "the body mesh is too coarse for the {} m body-edge radius: its median edge is {:.3} m \
+                             (at most {:.3} m), so unpinned cloth may fall through between its vertices; use a finer body",
+                            hood::sim::BODY_EDGE_RADIUS,
+                            b.median_edge,
+                            3f32.sqrt() * hood::sim::BODY_EDGE_RADIUS
+                        ),
+                    );
+                }
                 // The sim holds the count from here on (released when it is dropped).
                 std::mem::forget(count);
                 let handle = SimHandle { sim: ManuallyDrop::new(sim), model };
@@ -1814,8 +1855,12 @@ unsafe extern "C" fn run_task(ctx: *mut c_void, index: u32) {
         return;
     }
     c.calls.fetch_add(1, Ordering::SeqCst);
+    let _inside = log::Inside::enter();
     // No unwinding through the C job system: remember the panic and re-raise it after `run`.
-    if catch_unwind(AssertUnwindSafe(|| (c.task)(i))).is_err() {
+    if let Err(payload) = catch_unwind(AssertUnwindSafe(|| (c.task)(i))) {
+        let _ = catch_unwind(AssertUnwindSafe(|| {
+            log::log(HOOD_LOG_ERROR, &format!("a step task panicked: {}", panic_message(&*payload)))
+        }));
         c.panicked.store(true, Ordering::SeqCst);
     }
 }

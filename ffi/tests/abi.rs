@@ -75,14 +75,7 @@ impl Scene {
     }
 
     fn body_desc(&self) -> hood_body_desc {
-        hood_body_desc {
-            struct_size: size_of_u32::<hood_body_desc>(),
-            positions: self.body.as_ptr().cast(),
-            n_vertices: self.body.len(),
-            indices: self.body_faces.as_ptr().cast(),
-            n_faces: self.body_faces.len(),
-            omitted: null(),
-        }
+        common::body_desc(&self.body, &self.body_faces)
     }
 
     fn sim(&self, model: *const hood_model) -> *mut hood_sim {
@@ -1028,14 +1021,7 @@ fn an_inside_out_body_is_refused_and_a_coarse_one_reported() {
     assert!(out.is_null() && last_error().contains("inside out"), "{}", last_error());
     // A finer body of the same shape: not coarse.
     let (fine, fine_faces) = hood::body::shapes::ellipsoid(40, 64, [0.25, 0.3, 0.25], [0.0; 3]);
-    let bd = hood_body_desc {
-        struct_size: size_of_u32::<hood_body_desc>(),
-        positions: fine.as_ptr().cast(),
-        n_vertices: fine.len(),
-        indices: fine_faces.as_ptr().cast(),
-        n_faces: fine_faces.len(),
-        omitted: null(),
-    };
+    let bd = common::body_desc(&fine, &fine_faces);
     // SAFETY: as above.
     assert_eq!(unsafe { hood_sim_new(m.model, g, &bd, null(), &mut out) }, HOOD_OK, "{}", last_error());
     // SAFETY: live handle, writable out.

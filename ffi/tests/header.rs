@@ -258,6 +258,8 @@ fn checked_constants() -> Vec<(&'static str, u64)> {
         HOOD_STEP_SPEED_LIMITED,
         HOOD_STEP_REFINED,
         HOOD_STEP_PROJECTED,
+        HOOD_LOG_ERROR,
+        HOOD_LOG_WARNING,
         HOOD_PRECISION_F32,
         HOOD_PRECISION_BF16,
         HOOD_MODEL_TEXT_SCHEDULE,
@@ -300,7 +302,8 @@ fn compiler_checks_types_constants_and_layouts() {
     cpp.push_str("static_assert(std::is_same<hood_status, uint32_t>::value, \"hood_status\");\n");
     cpp.push_str(
         "static_assert(std::is_same<hood_task_fn, void (*)(void *, uint32_t)>::value, \"hood_task_fn\");\n\
-         static_assert(std::is_same<decltype(hood_executor::run), void (*)(void *, uint32_t, hood_task_fn, void *)>::value, \"run\");\n",
+         static_assert(std::is_same<decltype(hood_executor::run), void (*)(void *, uint32_t, hood_task_fn, void *)>::value, \"run\");\n\
+         static_assert(std::is_same<hood_log_fn, void (*)(uint32_t, const char *, void *)>::value, \"hood_log_fn\");\n",
     );
     for (name, (ret, params)) in rust_exports() {
         let ps: Vec<String> = params.iter().map(c_spelling).collect();
@@ -501,12 +504,14 @@ fn hood_call_makes_every_function_and_callback_cdecl() {
         c.push_str(&format!("{} (__cdecl *p_{name})({ps}) = {name};\n", c_spelling(&ret)));
     }
     c.push_str(
-        "void check_callbacks(hood_task_fn task, const hood_executor *e);\n\
-         void check_callbacks(hood_task_fn task, const hood_executor *e) {\n\
+        "void check_callbacks(hood_task_fn task, const hood_executor *e, hood_log_fn log);\n\
+         void check_callbacks(hood_task_fn task, const hood_executor *e, hood_log_fn log) {\n\
          \x20   void (__cdecl *t)(void *, uint32_t) = task;\n\
          \x20   void (__cdecl *r)(void *, uint32_t, hood_task_fn, void *) = e->run;\n\
+         \x20   void (__cdecl *l)(uint32_t, const char *, void *) = log;\n\
          \x20   (void)t;\n\
          \x20   (void)r;\n\
+         \x20   (void)l;\n\
          }\n",
     );
     let (ok, stderr) = compiles("cdecl.c", &c);

@@ -15,6 +15,19 @@ pub fn random_model_bytes(h: usize, seed: u64) -> Vec<u8> {
     write_model(&p, false, &[("kind", "random hood-ffi test model")]).unwrap()
 }
 
+/// A body descriptor of the current `struct_size` over `positions` and `faces` (no omitted
+/// vertices); the arrays must outlive its use.
+pub fn body_desc(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> hood_ffi::hood_body_desc {
+    hood_ffi::hood_body_desc {
+        struct_size: size_of::<hood_ffi::hood_body_desc>() as u32,
+        positions: positions.as_ptr().cast(),
+        n_vertices: positions.len(),
+        indices: faces.as_ptr().cast(),
+        n_faces: faces.len(),
+        omitted: std::ptr::null(),
+    }
+}
+
 /// A fresh scratch directory under the target directory.
 pub fn scratch(name: &str) -> PathBuf {
     let d = target_dir().join("hood-ffi-tests").join(name);
