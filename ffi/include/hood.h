@@ -434,6 +434,36 @@ HOOD_API hood_status HOOD_CALL hood_sim_load_state(hood_sim *sim, const uint8_t 
 HOOD_API hood_status HOOD_CALL hood_sim_teleport(hood_sim *sim, const float *rotation, const float *translation,
                                                  const float *body_now, size_t n_body_vertices);
 
+/* ---- Fixed-step driver ------------------------------------------------------------------- */
+
+/* The model runs at 30 Hz; an engine runs at its own frame rate. A driver advances a sim by
+ * engine frames of any length: each hood_driver_update runs as many hood_sim_step calls as 30 Hz
+ * frames were crossed, with the body linearly interpolated to each frame's time, and writes the
+ * garment interpolated between the last two model frames to engine time (one model frame behind,
+ * as fixed-step rendering is). Never feed the model another time step: this is how to run it at
+ * 60 or 144 Hz. The same as the Rust hood::sim::FixedStep, bitwise. */
+typedef struct hood_driver hood_driver;
+
+/* A driver of `sim`, starting at a model frame with the body and garment where the sim has them.
+ * The driver names the sim, it does not own it: free the driver before or after the sim (updates
+ * of a driver whose sim was freed give HOOD_ERR_INVALID_HANDLE). Make a new driver after
+ * hood_sim_reset, hood_sim_teleport or hood_sim_load_state, which its interpolation does not see.
+ * The sim may also be stepped directly, but not both ways in one frame. */
+HOOD_API hood_status HOOD_CALL hood_driver_new(hood_sim *sim, hood_driver **out);
+/* Frees a driver (NULL: nothing to do); HOOD_ERR_BUSY while another thread updates it. */
+HOOD_API hood_status HOOD_CALL hood_driver_free(hood_driver *driver);
+/* Advances engine time by `dt` seconds (finite, >= 0, else HOOD_ERR_OUT_OF_RANGE). `body_now`:
+ * the body's vertices at the new engine time, 3 * n_body_vertices floats (NULL with 0 without a
+ * body). `garment_out`: receives the interpolated garment, 3 * n_garment_vertices floats. Bad
+ * input is refused before any step; a step's error ends the update with that status (the steps
+ * before it stay done). The sim is claimed as by hood_sim_step (HOOD_ERR_BUSY while another
+ * thread uses it); one driver is updated by one thread at a time (else HOOD_ERR_BUSY). */
+HOOD_API hood_status HOOD_CALL hood_driver_update(hood_driver *driver, float dt, const float *body_now,
+                                                  size_t n_body_vertices, float *garment_out,
+                                                  size_t n_garment_vertices);
+/* Model steps the driver has taken. */
+HOOD_API hood_status HOOD_CALL hood_driver_model_steps(const hood_driver *driver, uint64_t *out);
+
 /* ---- Executor (an engine's job system) --------------------------------------------------- */
 
 /* One task of a step: call task(ctx, i). */

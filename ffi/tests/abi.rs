@@ -1550,3 +1550,78 @@ fn output_struct_sizes_are_checked_and_tails_zeroed() {
         assert_eq!(hood_sim_free(refined), HOOD_OK);
     }
 }
+
+#[test]
+fn driver_matches_the_rust_fixed_step_bitwise() {
+    let bytes = ModelBytes::new(&random_model_bytes(8, 19));
+    let model = bytes.model().unwrap();
+    let sc = scene(5);
+    let n = sc.rest.len();
+    let pins: Vec<bool> = sc.pinned.iter().map(|&p| p != 0).collect();
+    let garment = hood::mesh::Garment::new(hood::mesh::GarmentDesc::new(&sc.rest, &sc.faces).pinned(&pins)).unwrap();
+    let mesh = hood::body::BodyMesh::new(sc.body.len(), &sc.body_faces).unwrap();
+    let body = hood::sim::BodyDesc { mesh: &mesh, positions: &sc.body };
+    let sim = hood::sim::Sim::new(&model, &garment, Some(body), hood::sim::SimConfig::default()).unwrap();
+    let mut rust = hood::sim::FixedStep::new(sim);
+
+    let mut h_model = null_mut();
+    let mut driver = null_mut();
+    // SAFETY: aligned bytes that outlive the model (freed below).
+    unsafe { assert_eq!(hood_model_load(bytes.as_bytes().as_ptr(), bytes.as_bytes().len(), &mut h_model), HOOD_OK) };
+    let sim = sc.sim(h_model);
+    // SAFETY: a live sim; `driver` writable.
+    assert_eq!(unsafe { hood_driver_new(sim, &mut driver) }, HOOD_OK, "{}", last_error());
+    let body_at = |t: f32| -> Vec<[f32; 3]> {
+        let dx = 0.05 * (2.0 * t).sin();
+        sc.body.iter().map(|p| [p[0] + dx, p[1], p[2]]).collect()
+    };
+    let update = |dt: f32, b: &[[f32; 3]], out: &mut [[f32; 3]]| {
+        // SAFETY: arrays of the stated lengths.
+        unsafe { hood_driver_update(driver, dt, b.as_ptr().cast(), b.len(), out.as_mut_ptr().cast(), out.len()) }
+    };
+    // Engine frames of 60, 144, 30 and 20 Hz, a zero-length one, and some uneven ones.
+    let dts = [1.0 / 60.0, 1.0 / 144.0, 1.0 / 30.0, 0.05, 0.0, 0.013, 0.041, 1.0 / 144.0, 0.1];
+    let mut t = 0.0f32;
+    let mut out = vec![[0.0f32; 3]; n];
+    for k in 0..120 {
+        let dt = dts[k % dts.len()];
+        t += dt;
+        let b = body_at(t);
+        let want = rust.update(dt, &b).unwrap().to_vec();
+        assert_eq!(update(dt, &b, &mut out), HOOD_OK, "{}", last_error());
+        assert_eq!(out, want, "update {k}");
+        let mut steps = 0;
+        // SAFETY: a live driver.
+        assert_eq!(unsafe { hood_driver_model_steps(driver, &mut steps) }, HOOD_OK);
+        assert_eq!(steps, rust.model_steps());
+    }
+    assert!(rust.model_steps() > 100, "{}", rust.model_steps());
+    // Refused input changes nothing; then both go on alike.
+    let sentinel = vec![[5.0f32; 3]; n];
+    let mut o = sentinel.clone();
+    let b = body_at(t);
+    assert_eq!(update(-0.01, &b, &mut o), HOOD_ERR_OUT_OF_RANGE);
+    assert_eq!(update(f32::NAN, &b, &mut o), HOOD_ERR_OUT_OF_RANGE);
+    let mut nan = b.clone();
+    nan[3][0] = f32::NAN;
+    assert_eq!(update(0.1, &nan, &mut o), HOOD_ERR_NON_FINITE);
+    assert_eq!(update(0.1, &b[1..], &mut o), HOOD_ERR_SIZE_MISMATCH);
+    assert_eq!(update(0.1, &b, &mut o[1..]), HOOD_ERR_SIZE_MISMATCH);
+    assert_eq!(o, sentinel);
+    assert_eq!(update(0.1, &b, &mut out), HOOD_OK);
+    assert_eq!(out, rust.update(0.1, &b).unwrap());
+    // SAFETY: NULL and freed handles are what the library must catch.
+    unsafe {
+        let mut steps = 0;
+        assert_eq!(hood_driver_update(null_mut(), 0.1, null(), 0, out.as_mut_ptr().cast(), n), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_driver_model_steps(driver, null_mut()), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_driver_model_steps(sim.cast(), &mut steps), HOOD_ERR_INVALID_HANDLE);
+        // The sim freed under the driver: its updates are refused, the driver can still go.
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        assert_eq!(update(0.1, &b, &mut out), HOOD_ERR_INVALID_HANDLE);
+        assert_eq!(hood_driver_free(driver), HOOD_OK);
+        assert_eq!(hood_driver_free(driver), HOOD_ERR_INVALID_HANDLE);
+        assert_eq!(hood_driver_free(null_mut()), HOOD_OK);
+        assert_eq!(hood_model_free(h_model), HOOD_OK);
+    }
+}

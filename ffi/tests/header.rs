@@ -109,6 +109,7 @@ fn rust_to_c(ty: &str) -> CType {
     }
     let base = match ty {
         "u32" => "uint32_t",
+        "u64" => "uint64_t",
         "u8" => "uint8_t",
         "usize" => "size_t",
         "f32" => "float",

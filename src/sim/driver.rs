@@ -13,29 +13,13 @@ pub const MODEL_DT: f64 = 1.0 / 30.0;
 /// Drives a [`Sim`] at 30 Hz from engine frames of any length. Allocates nothing per update.
 pub struct FixedStep<'m> {
     sim: Sim<'m>,
-    /// Engine seconds since the last model frame, in `[0, MODEL_DT)`.
-    since_frame: f64,
-    engine_body: Vec<[f32; 3]>,
-    body_sample: Vec<[f32; 3]>,
-    prev_out: Vec<[f32; 3]>,
-    out: Vec<[f32; 3]>,
-    steps: u64,
+    clock: Interpolator,
 }
 
 impl<'m> FixedStep<'m> {
     /// Wraps `sim`; the body starts where the sim's state has it.
     pub fn new(sim: Sim<'m>) -> FixedStep<'m> {
-        let body = sim.state().body_pos.clone();
-        let pos = sim.positions().to_vec();
-        FixedStep {
-            since_frame: 0.0,
-            body_sample: body.clone(),
-            engine_body: body,
-            prev_out: pos.clone(),
-            out: pos,
-            steps: 0,
-            sim,
-        }
+        FixedStep { clock: Interpolator::new(&sim), sim }
     }
 
     /// The wrapped simulation.
@@ -45,7 +29,7 @@ impl<'m> FixedStep<'m> {
 
     /// Model steps taken so far.
     pub fn model_steps(&self) -> u64 {
-        self.steps
+        self.clock.model_steps()
     }
 
     /// Advances engine time by `dt` seconds, with `body_now` the body at the new engine time
@@ -57,9 +41,60 @@ impl<'m> FixedStep<'m> {
     /// [`Error::OutOfRange`] for a negative or non-finite `dt`; bad body input is refused
     /// before any step (state unchanged); errors of [`Sim::step`].
     pub fn update(&mut self, dt: f32, body_now: &[[f32; 3]]) -> Result<&[[f32; 3]]> {
+        self.clock.update(&mut self.sim, dt, body_now)
+    }
+}
+
+/// The clock and interpolation of [`FixedStep`] apart from the sim they drive, for a caller that
+/// keeps the sim elsewhere (the C ABI's driver). It belongs to the sim it was made for: a sim of
+/// another garment or body is refused.
+pub struct Interpolator {
+    /// Engine seconds since the last model frame, in `[0, MODEL_DT)`.
+    since_frame: f64,
+    engine_body: Vec<[f32; 3]>,
+    body_sample: Vec<[f32; 3]>,
+    prev_out: Vec<[f32; 3]>,
+    out: Vec<[f32; 3]>,
+    steps: u64,
+}
+
+impl Interpolator {
+    /// A clock at a model frame, with the body and garment where `sim`'s state has them.
+    pub fn new(sim: &Sim<'_>) -> Interpolator {
+        let body = sim.state().body_pos.clone();
+        let pos = sim.positions().to_vec();
+        Interpolator {
+            since_frame: 0.0,
+            body_sample: body.clone(),
+            engine_body: body,
+            prev_out: pos.clone(),
+            out: pos,
+            steps: 0,
+        }
+    }
+
+    /// Model steps taken so far.
+    pub fn model_steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// [`FixedStep::update`] of `sim`.
+    ///
+    /// # Errors
+    /// As [`FixedStep::update`]; [`Error::SizeMismatch`] for a sim other than the one this
+    /// clock was made for.
+    pub fn update(&mut self, sim: &mut Sim<'_>, dt: f32, body_now: &[[f32; 3]]) -> Result<&[[f32; 3]]> {
         let dt = dt as f64;
         if !(dt >= 0.0 && dt.is_finite()) {
             return Err(Error::OutOfRange { what: "engine frame time", index: 0 });
+        }
+        for (what, expected, got) in [
+            ("driven sim garment vertices", self.out.len(), sim.positions().len()),
+            ("driven sim body vertices", self.engine_body.len(), sim.state().body_pos.len()),
+        ] {
+            if expected != got {
+                return Err(Error::SizeMismatch { what, expected, got });
+            }
         }
         let has_body = !self.engine_body.is_empty();
         if has_body {
@@ -85,8 +120,8 @@ impl<'m> FixedStep<'m> {
                     *s = [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])];
                 }
             }
-            self.prev_out.copy_from_slice(self.sim.positions());
-            self.sim.step(&self.body_sample)?;
+            self.prev_out.copy_from_slice(sim.positions());
+            sim.step(&self.body_sample)?;
             self.steps += 1;
             self.since_frame = 0.0;
         }
@@ -95,7 +130,7 @@ impl<'m> FixedStep<'m> {
             self.engine_body.copy_from_slice(body_now);
         }
         let alpha = (self.since_frame / MODEL_DT) as f32;
-        for ((o, a), b) in self.out.iter_mut().zip(&self.prev_out).zip(self.sim.positions()) {
+        for ((o, a), b) in self.out.iter_mut().zip(&self.prev_out).zip(sim.positions()) {
             *o = [a[0] + alpha * (b[0] - a[0]), a[1] + alpha * (b[1] - a[1]), a[2] + alpha * (b[2] - a[2])];
         }
         Ok(&self.out)

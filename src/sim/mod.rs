@@ -34,7 +34,7 @@ use alloc::vec::Vec;
 pub use clock::Clock;
 #[cfg(feature = "std")]
 pub use clock::StdClock;
-pub use driver::FixedStep;
+pub use driver::{FixedStep, Interpolator};
 pub use effects::StepEffects;
 #[cfg(feature = "std")]
 pub use exec::ThreadPool;
