@@ -73,6 +73,45 @@ pub enum MotionKind {
     RandomPoses(u64),
     /// A clip of the motion corpus: a family and the seed of its draws (`jumps-3`, `dance-1001`).
     Corpus(proc_::Family, u64),
+    /// A motion-capture clip of `../shared/assets/motions`, retargeted onto the MakeHuman rig
+    /// (MakeHuman scenes only).
+    Mocap(MocapClip),
+}
+
+/// The AMP humanoid's motion-capture clips in `assets/motions` (BSD-3; CMU takes 07_01, 09_11
+/// and the AMP back flip): 15 joints, rest pose with the arms hanging down, 30 Hz (the back flip
+/// 16 Hz, resampled).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MocapClip {
+    /// `amp_walk.bvh`: a walk at about 1.5 m/s, 77 frames.
+    AmpWalk,
+    /// `amp_run.bvh`: a run at about 3.4 m/s, 41 frames.
+    AmpRun,
+    /// `amp_backflip.bvh`: a standing back flip, 29 frames at 16 Hz (held out: validation only).
+    AmpBackflip,
+}
+
+impl MocapClip {
+    /// Every clip.
+    pub const ALL: [MocapClip; 3] = [MocapClip::AmpWalk, MocapClip::AmpRun, MocapClip::AmpBackflip];
+
+    /// Name as motions are named (`amp-walk`, `amp-run`, `amp-backflip`).
+    pub fn name(self) -> &'static str {
+        match self {
+            MocapClip::AmpWalk => "amp-walk",
+            MocapClip::AmpRun => "amp-run",
+            MocapClip::AmpBackflip => "amp-backflip",
+        }
+    }
+
+    /// File name in `assets/motions`.
+    pub fn file(self) -> &'static str {
+        match self {
+            MocapClip::AmpWalk => "amp_walk.bvh",
+            MocapClip::AmpRun => "amp_run.bvh",
+            MocapClip::AmpBackflip => "amp_backflip.bvh",
+        }
+    }
 }
 
 impl MotionKind {
@@ -86,6 +125,7 @@ impl MotionKind {
             MotionKind::ArmSwings => "arm-swings".into(),
             MotionKind::RandomPoses(s) => alloc::format!("random-{s}"),
             MotionKind::Corpus(f, s) => alloc::format!("{}-{s}", f.name()),
+            MotionKind::Mocap(c) => c.name().into(),
         }
     }
 
@@ -97,6 +137,7 @@ impl MotionKind {
             "jump" => MotionKind::Jump,
             "turn" => MotionKind::Turn,
             "arm-swings" => MotionKind::ArmSwings,
+            _ if name.starts_with("amp-") => MotionKind::Mocap(MocapClip::ALL.into_iter().find(|c| c.name() == name)?),
             _ => {
                 let (family, seed) = name.rsplit_once('-')?;
                 let seed = seed.parse().ok()?;
@@ -115,6 +156,7 @@ impl MotionKind {
         match self {
             MotionKind::Corpus(f, s) => proc_::is_held_out(f, s),
             MotionKind::RandomPoses(s) => s >= proc_::HELD_OUT_SEEDS,
+            MotionKind::Mocap(c) => c == MocapClip::AmpBackflip,
             _ => false,
         }
     }
@@ -122,7 +164,8 @@ impl MotionKind {
     /// The motion on `skel` (any rig with the CMU bone names), `seconds` long at 30 Hz.
     ///
     /// # Errors
-    /// Errors of the motion generators.
+    /// Errors of the motion generators; [`Error::UnsupportedEffect`] for a motion-capture clip
+    /// (it needs the assets: [`makehuman_on`]).
     pub fn local(self, skel: &Skeleton, seconds: f32) -> Result<LocalMotion> {
         match self {
             MotionKind::Walk => proc_::walk(skel, seconds),
@@ -132,6 +175,9 @@ impl MotionKind {
             MotionKind::ArmSwings => proc_::arm_swings(skel, seconds),
             MotionKind::RandomPoses(seed) => proc_::random_poses(skel, seconds, seed),
             MotionKind::Corpus(family, seed) => proc_::family_motion(skel, family, seconds, seed),
+            MotionKind::Mocap(_) => Err(Error::UnsupportedEffect {
+                effect: "a motion-capture clip on the procedural mannequin (MakeHuman only)",
+            }),
         }
     }
 }
@@ -246,6 +292,24 @@ pub fn push_out_of(body: &BodyMesh, body_pos: &[[f32; 3]], x: &mut [[f32; 3]], p
     let idx: Vec<u32> = near.iter().map(|n| n.index).collect();
     let ff = FaceFrame { centroids: frame.centroids(), normals: frame.face_normals() };
     push_out(x, &idx, ff, INITIAL_CLEARANCE, pinned)
+}
+
+/// Local rotations (as [`Skeleton::forward_kinematics`] takes them) that turn the upper arms of
+/// a rig with the CMU bone names from its rest to hanging straight down (-y): the rest of the AMP
+/// clips. Every other bone stays at rest.
+#[cfg(feature = "std")]
+fn arms_hanging_down(skel: &Skeleton) -> Vec<glam::Quat> {
+    let mut local = vec![glam::Quat::IDENTITY; skel.len()];
+    for name in ["LeftArm", "RightArm"] {
+        if let Some(b) = skel.find(name) {
+            let bone = &skel.bones()[b];
+            let along = (bone.tail - bone.head).normalize_or_zero();
+            // With its parents at rest the world rotation is the bone-frame rotation conjugated.
+            let world = glam::Quat::from_rotation_arc(along, -glam::Vec3::Y);
+            local[b] = bone.frame.conjugate() * world * bone.frame;
+        }
+    }
+    local
 }
 
 /// A procedural scene: `garment` (about `vertices` vertices, its suggested pins set) on the
@@ -435,7 +499,47 @@ mod assets {
             poses.push(pose);
             Ok(())
         };
-        if let Some(kind) = motion {
+        if let Some(MotionKind::Mocap(which)) = motion {
+            let clip = bvh::read(assets.join("motions").join(which.file()))?.resample(MODEL_FPS)?;
+            let arms_down = arms_hanging_down(&mh.skeleton);
+            let opts = RetargetOptions {
+                clip_rest: ClipRest::ZeroRotations,
+                rig_initial: Some(&arms_down),
+                // The AMP "Head" joint is the base of the neck; the head rides on it.
+                aliases: &[("Neck", "Head"), ("Head", "")],
+                ..Default::default()
+            };
+            let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
+            let frames = clip.n_frames().min(max_frames.max(1));
+            let mut clip_poses = Vec::with_capacity(frames);
+            for f in 0..frames {
+                let mut pose = Pose::rest(&mh.skeleton);
+                rt.pose(&mh.skeleton, &clip, f, &mut pose)?;
+                clip_poses.push(pose);
+            }
+            // The AMP clips put the lowest ankle joint at y = 0 (the feet sink 5-9 cm into the
+            // floor) and their root rises by up to 8 cm over a take: lift each frame onto the
+            // line through the lowest body vertex of each half of the clip (a stance in every
+            // clip: walk, run and back flip start and end on their feet), so that the soles sit
+            // where the rest pose's do.
+            let rest_low = mh.body.rest.iter().map(|v| v[1]).fold(f32::INFINITY, f32::min);
+            let mut lows = Vec::with_capacity(frames);
+            let mut low_tr = crate::rig::SkinTransforms::new(mh.skeleton.len());
+            let mut low_buf = vec![[0.0; 3]; nb];
+            for pose in &clip_poses {
+                low_tr.update(&mh.skeleton, pose)?;
+                crate::rig::skin(&low_tr, &mh.body_weights, &mh.body.rest, &mut low_buf)?;
+                lows.push(low_buf.iter().map(|v| v[1]).fold(f32::INFINITY, f32::min));
+            }
+            let lowest = |r: core::ops::Range<usize>| r.min_by(|&a, &b| lows[a].total_cmp(&lows[b])).unwrap_or(0);
+            let (f1, f2) = (lowest(0..frames / 2), lowest(frames / 2..frames));
+            let slope = if f2 > f1 { (lows[f2] - lows[f1]) / (f2 - f1) as f32 } else { 0.0 };
+            for (f, mut pose) in clip_poses.into_iter().enumerate() {
+                let lift = rest_low - (lows[f1] + slope * (f as f32 - f1 as f32));
+                pose.head.iter_mut().for_each(|h| h.y += lift);
+                push(pose, &mut poses, &mut positions)?;
+            }
+        } else if let Some(kind) = motion {
             let frames = max_frames.max(1);
             let local = kind.local(&mh.skeleton, (frames - 1).max(1) as f32 / MODEL_FPS)?;
             for f in 0..frames.min(local.n_frames()) {

@@ -123,3 +123,47 @@ fn motion_cmu_walk_retargeted_stays_on_the_floor_and_moves_forward() {
     assert!(travel.length() > 2.0, "walked {travel}");
     assert!(travel.normalize().dot(facing) > 0.8, "walks forward: travel {travel}, facing {facing}");
 }
+
+/// The AMP clips retargeted onto MakeHuman (`MotionKind::Mocap`): their rest has the arms hanging
+/// down (the fingertips, 0.5 m from the midline in the A-pose, come in beside the thighs), the
+/// feet stay on the floor through the walk (within 7 cm: the lift removes the clip's 8 cm rise of
+/// the root), the run leaves it only in its flights, and the back flip turns the body upside down.
+#[test]
+fn motion_amp_clips_retarget_onto_makehuman() {
+    use hood::scene::{makehuman_on, MakeHumanGarment, MocapClip, MotionKind};
+    let Some(dir) = assets() else { return };
+    let rest = &makehuman().body.rest;
+    let (mut top, mut tip) = (0, 0);
+    for (i, p) in rest.iter().enumerate() {
+        if p[1] > rest[top][1] {
+            top = i;
+        }
+        if p[0].abs() > rest[tip][0].abs() {
+            tip = i;
+        }
+    }
+    for clip in MocapClip::ALL {
+        let s = makehuman_on(&dir, MakeHumanGarment::Tee, Some(MotionKind::Mocap(clip)), 1000).unwrap();
+        let n = s.motion.n_frames();
+        let lows: Vec<f32> =
+            (0..n).map(|f| s.motion.frame(f).iter().map(|p| p[1]).fold(f32::INFINITY, f32::min)).collect();
+        let (lo, hi) = lows.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |a, &l| (a.0.min(l), a.1.max(l)));
+        let spread = s.motion.frame(0)[tip][0].abs();
+        let inverted = (0..n).any(|f| s.motion.frame(f)[top][1] < lows[f] + 0.3);
+        println!(
+            "{}: {n} frames, lowest vertex {lo:.3} to {hi:.3} m, fingertip {spread:.2} m from the midline at \
+             frame 0 (rest {:.2}), upside down: {inverted}",
+            clip.name(),
+            rest[tip][0].abs()
+        );
+        assert!(spread < 0.3 && rest[tip][0].abs() > 0.4, "{}: arms not hanging down", clip.name());
+        // The lift puts the lowest vertex of each half of the clip where the rest soles are.
+        let rest_low = rest.iter().map(|p| p[1]).fold(f32::INFINITY, f32::min);
+        assert!(lo > rest_low - 0.02 && lo < rest_low + 0.01, "{}: lowest {lo}, rest {rest_low}", clip.name());
+        match clip {
+            MocapClip::AmpWalk => assert!(n == 77 && hi - lo < 0.07 && !inverted, "walk: {hi} - {lo}"),
+            MocapClip::AmpRun => assert!(n == 41 && hi - lo < 0.25 && !inverted, "run: {hi} - {lo}"),
+            MocapClip::AmpBackflip => assert!((50..=56).contains(&n) && inverted, "back flip: {n} frames"),
+        }
+    }
+}

@@ -39,7 +39,8 @@ pub struct SimulateArgs {
     vertices: usize,
     /// Procedural motion: walk, run, jump, turn, arm-swings, random-<seed>, or a clip of the motion
     /// corpus as <family>-<seed> (families: jumps, hop, skip, crouch, spin, dance, kick,
-    /// cartwheel, handstand, backflip, fall, mix). For tee and jeans, walk is the CMU walk.
+    /// cartwheel, handstand, backflip, fall, mix). For the MakeHuman garments, walk is the CMU
+    /// walk, and amp-walk, amp-run, amp-backflip are the AMP motion-capture clips.
     #[arg(long, default_value = "walk")]
     motion: String,
     /// Frames to simulate (30 per second).
