@@ -18,12 +18,13 @@
  *   start with `uint32_t struct_size`: set it to sizeof(the struct) (hood_sim_config_default
  *   sets it for the config). It lets the structs grow in later versions without a caller built
  *   against another header being misread. Every call that reads such a struct checks it and
- *   refuses, with HOOD_ERR_STRUCT_SIZE: a struct_size smaller than the library's sizeof (an
- *   older header); one larger than 4096 or not a multiple of the struct's alignment; and a
+ *   reads a smaller struct_size (an older header, down to the struct's size in version 0.2.0)
+ *   with the fields added since as zero, and refuses, with HOOD_ERR_STRUCT_SIZE: a struct_size
+ *   smaller than that; one larger than 4096 or not a multiple of the struct's alignment; and a
  *   larger one (a newer header) unless every byte past the library's sizeof, up to struct_size,
- *   is zero. Every field a later version adds takes zero to mean "unset", so a newer caller runs
- *   on an older library as long as it leaves the new fields zero: zero the whole struct (memset)
- *   before filling it. In an array of hood_material, materials[0].struct_size is the element
+ *   is zero. Every field a later version adds takes zero to mean "unset", so an older caller
+ *   runs on a newer library, and a newer caller on an older library as long as it leaves the
+ *   new fields zero: zero the whole struct (memset) before filling it. In an array of hood_material, materials[0].struct_size is the element
  *   size (stride) and every element must carry the same struct_size.
  * - Structs the library fills in (hood_model_info, hood_refinement, hood_body_survey) also start
  *   with `uint32_t struct_size`, which the caller sets to sizeof(the struct) before the call. The
@@ -106,7 +107,7 @@ extern "C" {
 /* ---- Version ----------------------------------------------------------------------------- */
 
 #define HOOD_VERSION_MAJOR 0
-#define HOOD_VERSION_MINOR 2
+#define HOOD_VERSION_MINOR 3
 #define HOOD_VERSION_PATCH 0
 /* The version as one number: (major << 16) | (minor << 8) | patch. */
 #define HOOD_MAKE_VERSION(major, minor, patch) (((uint32_t)(major) << 16) | ((uint32_t)(minor) << 8) | (uint32_t)(patch))
@@ -294,6 +295,12 @@ typedef struct hood_sim_config {
                                    guess, with no start-up step (HOOD_EFFECT_REFINE must be off,
                                    else HOOD_ERR_UNSUPPORTED_EFFECT). hood_sim_last_refinement
                                    reports each solve */
+    uint32_t solver_budget_us;  /* (since 0.3.0) 0: no time budget. B > 0, with solver_iterations
+                                   N: each step's solve also stops once B microseconds have passed
+                                   since it began (after at least one iteration), so it takes at
+                                   most N iterations and about B us: the step that fits a frame's
+                                   budget, its result no longer reproducible bit for bit. Without
+                                   solver_iterations: HOOD_ERR_UNSUPPORTED_EFFECT */
 } hood_sim_config;
 
 /* The defaults: body collision, pinning, start-up, auto-teleport (0.45 m) and the speed limit

@@ -419,6 +419,9 @@ fn require<T>(p: *const T, what: &'static str) -> Result<()> {
 unsafe trait Extensible: Copy {
     /// The C name, for messages.
     const NAME: &'static str;
+    /// The smallest `struct_size` accepted: the struct's size in the first release that had
+    /// `struct_size` (fields added since read as zero from a caller built against it).
+    const MIN_SIZE: usize = size_of::<Self>();
 }
 
 /// The `struct_size` of `T` in this library (what `hood_sim_config_default` writes).
@@ -487,6 +490,19 @@ unsafe fn read_extensible<T: Extensible>(
     if let Some(why) = size_problem::<T>(size) {
         return refuse(why);
     }
+    if size < size_of::<T>() {
+        // An older header: its fields, and zeros for those added since ("unset").
+        let mut out = std::mem::MaybeUninit::<T>::zeroed();
+        // SAFETY: `size` bytes are readable (caller) and fit in `out`; all-zero bytes and any
+        // bytes are valid for `T` (`Extensible`).
+        unsafe {
+            std::ptr::copy_nonoverlapping(p.cast::<u8>(), out.as_mut_ptr().cast::<u8>(), size);
+            let mut t = out.assume_init();
+            // The caller's struct_size stays as it wrote it.
+            std::ptr::addr_of_mut!(t).cast::<u32>().write(size as u32);
+            return Ok((t, size));
+        }
+    }
     // SAFETY: `size` bytes are readable (caller) and `size_of::<T>() <= size`, so the tail
     // `size_of::<T>()..size` is inside them.
     let tail = unsafe { std::slice::from_raw_parts(p.cast::<u8>().add(size_of::<T>()), size - size_of::<T>()) };
@@ -504,8 +520,8 @@ unsafe fn read_extensible<T: Extensible>(
 
 /// Why `size` cannot be a `struct_size` of `T` (see [`read_extensible`]), or `None`.
 fn size_problem<T: Extensible>(size: usize) -> Option<String> {
-    if size < size_of::<T>() {
-        Some("smaller than this library's struct (an older header)".into())
+    if size < T::MIN_SIZE {
+        Some(format!("smaller than the oldest header this library reads ({} bytes)", T::MIN_SIZE))
     } else if size > MAX_STRUCT_SIZE {
         Some(format!("larger than {MAX_STRUCT_SIZE} bytes"))
     } else if !size.is_multiple_of(align_of::<T>()) {
@@ -554,18 +570,23 @@ unsafe fn read_struct_array<T: Extensible>(p: *const T, n: usize, what: &'static
 }
 
 /// Writes `v` into a caller's struct of `size` bytes: `v` with `struct_size` set to `size`, then
-/// zeros up to `size` (a newer header's fields, "unset"). `size` must pass [`size_problem`].
+/// zeros up to `size` (a newer header's fields, "unset"); for an older header's smaller struct,
+/// only its first `size` bytes. `size` must pass [`size_problem`].
 ///
 /// # Safety
-/// `out` is non-null, aligned and points to `size >= size_of::<T>()` writable bytes.
+/// `out` is non-null, aligned and points to `size >= T::MIN_SIZE` writable bytes.
 unsafe fn write_sized<T: Extensible>(out: *mut T, v: T, size: usize) {
     let known = size_of::<T>();
-    // SAFETY: `size >= known` writable bytes at an aligned `out` (caller); `T` starts with the
-    // `u32` struct_size (`Extensible`).
+    // SAFETY: `size` writable bytes at an aligned `out` (caller); `T` starts with the `u32`
+    // struct_size (`Extensible`).
     unsafe {
-        write_out(out, v);
+        if size >= known {
+            write_out(out, v);
+            std::ptr::write_bytes(out.cast::<u8>().add(known), 0, size - known);
+        } else {
+            std::ptr::copy_nonoverlapping((&v as *const T).cast::<u8>(), out.cast::<u8>(), size);
+        }
         out.cast::<u32>().write(size as u32);
-        std::ptr::write_bytes(out.cast::<u8>().add(known), 0, size - known);
     }
 }
 
@@ -1026,6 +1047,8 @@ pub struct hood_sim_config {
     pub refine_iterations: u32,
     /// 0: the network steps; N: the solver step mode, N L-BFGS iterations per step.
     pub solver_iterations: u32,
+    /// With `solver_iterations`: each step's solve also ends after this many µs (0: no budget).
+    pub solver_budget_us: u32,
 }
 
 /// The body of a scene (see the header).
@@ -1049,6 +1072,8 @@ pub struct hood_body_desc {
 // SAFETY: `#[repr(C)]`, `struct_size` first, only integers and floats.
 unsafe impl Extensible for hood_sim_config {
     const NAME: &'static str = "hood_sim_config";
+    // Version 0.2.0 ended before `solver_budget_us`.
+    const MIN_SIZE: usize = std::mem::offset_of!(hood_sim_config, solver_budget_us);
 }
 
 // SAFETY: `#[repr(C)]`, `struct_size` first, only integers and raw pointers.
@@ -1134,6 +1159,10 @@ fn default_config() -> hood_sim_config {
         speed_limit: d.speed_limit.unwrap_or(hood::sim::DEFAULT_SPEED_LIMIT),
         projection_margin: d.projection.unwrap_or(hood::sim::DEFAULT_PROJECTION_MARGIN),
         refine_iterations: d.refine.unwrap_or(hood::sim::DEFAULT_REFINE_ITERATIONS),
+        solver_budget_us: match d.step {
+            StepMode::SolverBudget { micros, .. } => micros,
+            _ => 0,
+        },
         solver_iterations: match d.step {
             StepMode::Network => 0,
             StepMode::Solver { iterations } | StepMode::SolverBudget { max_iterations: iterations, .. } => iterations,
@@ -1212,9 +1241,13 @@ fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
     // The count's range is checked by the sim (1 ..= hood::sim::MAX_REFINE_ITERATIONS).
     let refine = (c.effects & HOOD_EFFECT_REFINE != 0).then_some(c.refine_iterations);
     // Likewise (and the sim refuses it beside HOOD_EFFECT_REFINE).
-    let step = match c.solver_iterations {
-        0 => StepMode::Network,
-        iterations => StepMode::Solver { iterations },
+    let step = match (c.solver_iterations, c.solver_budget_us) {
+        (0, 0) => StepMode::Network,
+        (0, _) => {
+            return Err(Error::UnsupportedEffect { effect: "a solver time budget without solver_iterations" }.into())
+        }
+        (iterations, 0) => StepMode::Solver { iterations },
+        (max_iterations, micros) => StepMode::SolverBudget { micros, max_iterations },
     };
     Ok(SimConfig {
         step,

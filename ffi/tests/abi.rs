@@ -827,6 +827,19 @@ fn config_effects_are_honoured() {
         assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_OK);
         assert!(rep.iterations >= 1 && rep.energy_after <= rep.energy_before, "{rep:?}");
         assert_eq!(hood_sim_free(sim), HOOD_OK);
+        // Within a time budget (an hour: the iteration cap ends every solve here), and a budget
+        // without the solver refused.
+        assert_eq!(cfg.solver_budget_us, 0, "no time budget by default");
+        solver.solver_budget_us = 3_600_000_000;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &solver, &mut sim), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_step(sim, body.as_ptr().cast(), body.len(), buf.as_mut_ptr().cast(), n), HOOD_OK);
+        assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_OK);
+        assert!(rep.iterations >= 1 && rep.iterations <= 4, "{rep:?}");
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        let mut budget_alone = cfg;
+        budget_alone.solver_budget_us = 5000;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &budget_alone, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
+        solver.solver_budget_us = 0;
         solver.effects |= HOOD_EFFECT_REFINE;
         assert_eq!(hood_sim_new(l.model, g, &bd, &solver, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
         refine.effects &= !HOOD_EFFECT_BODY_COLLISION;
@@ -1052,15 +1065,16 @@ fn grown<T: Copy>(v: T, size: usize) -> Grown<T> {
 }
 
 /// The struct_size rule on one kind of struct: `call` passes the struct to the library and returns
-/// the status (it checks itself that a refused call wrote no out-parameter). Sizes too small,
-/// absurd or misaligned are refused without reading past the struct; a larger size is accepted
-/// with a zero tail and refused with any nonzero byte in it; bytes past struct_size are not read.
-fn check_struct_size_rule<T: Copy>(v: T, mut call: impl FnMut(*const T) -> hood_status) {
+/// the status (it checks itself that a refused call wrote no out-parameter). Sizes below `oldest`
+/// (the struct's size in the oldest header the library reads), absurd or misaligned are refused
+/// without reading past the struct; a larger size is accepted with a zero tail and refused with
+/// any nonzero byte in it; bytes past struct_size are not read.
+fn check_struct_size_rule<T: Copy>(v: T, oldest: usize, mut call: impl FnMut(*const T) -> hood_status) {
     let name = std::any::type_name::<T>();
     let (size, align) = (size_of::<T>(), align_of::<T>());
     assert_eq!(call(&v), HOOD_OK, "{name}: the current size: {}", last_error());
     // u32::MAX and 4104 are larger than the 16 spare bytes: the library must not scan them.
-    for bad in [0, 4, size - 1, size - align, size + 1, size + align / 2, 4096 + align, u32::MAX as usize] {
+    for bad in [0, 4, oldest - 1, oldest - align, size + 1, size + align / 2, 4096 + align, u32::MAX as usize] {
         let g = grown(v, bad);
         assert_eq!(call(&g.known), HOOD_ERR_STRUCT_SIZE, "{name}: struct_size {bad}");
         let e = last_error();
@@ -1108,8 +1122,14 @@ fn sim_config_and_body_struct_sizes_are_checked() {
         }
         s
     };
-    check_struct_size_rule(cfg, |c| new_sim(&bd, c));
-    check_struct_size_rule(bd, |b| new_sim(b, &cfg));
+    check_struct_size_rule(bd, size_of::<hood_body_desc>(), |b| new_sim(b, &cfg));
+    // The config has grown since 0.2.0: a caller built against that header is read with the
+    // fields added since as zero (here a set budget byte past its struct_size stays unread:
+    // read, it would be refused without solver_iterations).
+    let old = std::mem::offset_of!(hood_sim_config, solver_budget_us);
+    check_struct_size_rule(cfg, old, |c| new_sim(&bd, c));
+    let older = grown(hood_sim_config { solver_budget_us: 5000, ..cfg }, old);
+    assert_eq!(new_sim(&bd, &older.known), HOOD_OK, "a 0.2.0 config: {}", last_error());
     // SAFETY: live handles.
     unsafe {
         assert_eq!(hood_garment_free(g), HOOD_OK);
@@ -1133,26 +1153,32 @@ fn executor_struct_size_is_checked_and_a_refused_one_changes_nothing() {
     );
     let mut out = vec![[0.0f32; 3]; n];
     let mut t = 0;
-    check_struct_size_rule(executor(&other as *const _ as *mut _, 2, Some(test_run)), |e| {
-        let before = (calls(&installed), calls(&other));
-        // SAFETY: `e` holds the bytes its struct_size states, or is refused before more are read;
-        // `other` outlives the sim.
-        let s = unsafe { hood_sim_set_executor(sim, e) };
-        t += 1;
-        assert_eq!(step(sim, &sc.body_at(t, [0.0; 3]), &mut out), HOOD_OK, "{}", last_error());
-        let after = (calls(&installed), calls(&other));
-        if s == HOOD_OK {
-            assert!(after.1 > before.1 && after.0 == before.0, "the new executor did not run the step");
-            // SAFETY: as above.
-            assert_eq!(
-                unsafe { hood_sim_set_executor(sim, &executor(&installed as *const _ as *mut _, 2, Some(test_run))) },
-                HOOD_OK
-            );
-        } else {
-            assert!(after.0 > before.0 && after.1 == before.1, "a refused executor replaced the installed one");
-        }
-        s
-    });
+    check_struct_size_rule(
+        executor(&other as *const _ as *mut _, 2, Some(test_run)),
+        size_of::<hood_executor>(),
+        |e| {
+            let before = (calls(&installed), calls(&other));
+            // SAFETY: `e` holds the bytes its struct_size states, or is refused before more are read;
+            // `other` outlives the sim.
+            let s = unsafe { hood_sim_set_executor(sim, e) };
+            t += 1;
+            assert_eq!(step(sim, &sc.body_at(t, [0.0; 3]), &mut out), HOOD_OK, "{}", last_error());
+            let after = (calls(&installed), calls(&other));
+            if s == HOOD_OK {
+                assert!(after.1 > before.1 && after.0 == before.0, "the new executor did not run the step");
+                // SAFETY: as above.
+                assert_eq!(
+                    unsafe {
+                        hood_sim_set_executor(sim, &executor(&installed as *const _ as *mut _, 2, Some(test_run)))
+                    },
+                    HOOD_OK
+                );
+            } else {
+                assert!(after.0 > before.0 && after.1 == before.1, "a refused executor replaced the installed one");
+            }
+            s
+        },
+    );
     // SAFETY: a live sim.
     assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
 }
@@ -1329,8 +1355,14 @@ fn config_init_writes_the_callers_size_and_refuses_what_it_cannot_serve() {
     assert_eq!(newer.cfg.struct_size as usize, size);
     let same = hood_sim_config { struct_size: newer.cfg.struct_size, ..def };
     assert_eq!(newer.cfg, same);
+    // A caller built against the 0.2.0 header: its fields written, not one byte more.
+    let old = std::mem::offset_of!(hood_sim_config, solver_budget_us);
+    let mut older = Newer { cfg: hood_sim_config { solver_budget_us: 77, ..def }, extra: [7; 4] };
+    // SAFETY: `old` writable bytes (and more).
+    assert_eq!(unsafe { hood_sim_config_init(&mut older.cfg, old) }, HOOD_OK, "{}", last_error());
+    assert_eq!(older.cfg, hood_sim_config { struct_size: old as u32, solver_budget_us: 77, ..def });
     // Too small, too large, misaligned: refused, nothing written.
-    for bad in [std::mem::size_of::<hood_sim_config>() - 4, 8192, std::mem::size_of::<hood_sim_config>() + 2] {
+    for bad in [old - 4, 8192, std::mem::size_of::<hood_sim_config>() + 2] {
         let mut c = Newer { cfg: def, extra: [7; 4] };
         c.cfg.effects = 12345;
         // SAFETY: at least `size` writable bytes; refused sizes write nothing.

@@ -328,7 +328,8 @@ fn compiler_checks_types_constants_and_layouts() {
             speed_limit,
             projection_margin,
             refine_iterations,
-            solver_iterations
+            solver_iterations,
+            solver_budget_us
         }
     );
     layout!(cpp, hood_body_desc { struct_size, positions, n_vertices, indices, n_faces, omitted });
