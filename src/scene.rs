@@ -345,7 +345,7 @@ pub fn procedural(
 }
 
 #[cfg(feature = "std")]
-pub use assets::{makehuman, makehuman_on, MakeHumanGarment};
+pub use assets::{makehuman, makehuman_on, makehuman_on_bvh, BvhRest, MakeHumanGarment};
 
 #[cfg(feature = "std")]
 mod assets {
@@ -451,6 +451,36 @@ mod assets {
         makehuman_on(assets, which, None, max_frames)
     }
 
+    /// The CMU finger names as the MakeHuman rig spells them.
+    const CMU_FINGERS: &[(&str, &str)] =
+        &[("LeftHandFinger1", "LeftHandIndex1"), ("RightHandFinger1", "RightHandIndex1")];
+
+    /// `poses` lifted onto the floor: clips put their lowest joint (often an ankle) at y = 0,
+    /// which sinks the feet, and some rise over a take (the AMP walk's root by 8 cm). Each frame
+    /// goes onto the line through the lowest body vertex of each half of the clip (a stance in
+    /// any clip that starts and ends on its feet), so that the soles sit where the rest pose's do.
+    fn lifted_onto_the_floor(mh: &MakeHuman, mut poses: Vec<Pose>) -> Result<Vec<Pose>> {
+        let nb = mh.body.rest.len();
+        let rest_low = mh.body.rest.iter().map(|v| v[1]).fold(f32::INFINITY, f32::min);
+        let mut lows = Vec::with_capacity(poses.len());
+        let mut tr = crate::rig::SkinTransforms::new(mh.skeleton.len());
+        let mut buf = vec![[0.0; 3]; nb];
+        for pose in &poses {
+            tr.update(&mh.skeleton, pose)?;
+            crate::rig::skin(&tr, &mh.body_weights, &mh.body.rest, &mut buf)?;
+            lows.push(buf.iter().map(|v| v[1]).fold(f32::INFINITY, f32::min));
+        }
+        let n = poses.len();
+        let lowest = |r: core::ops::Range<usize>| r.min_by(|&a, &b| lows[a].total_cmp(&lows[b])).unwrap_or(0);
+        let (f1, f2) = (lowest(0..n / 2), lowest(n / 2..n));
+        let slope = if f2 > f1 { (lows[f2] - lows[f1]) / (f2 - f1) as f32 } else { 0.0 };
+        for (f, pose) in poses.iter_mut().enumerate() {
+            let lift = rest_low - (lows[f1] + slope * (f as f32 - f1 as f32));
+            pose.head.iter_mut().for_each(|h| h.y += lift);
+        }
+        Ok(poses)
+    }
+
     /// [`makehuman`] on `motion` instead of the CMU walk when given: a procedural motion or a
     /// clip of the motion corpus, posed on the MakeHuman rig directly (it has the CMU bone
     /// names), `max_frames` frames long.
@@ -461,6 +491,76 @@ mod assets {
         assets: &Path,
         which: MakeHumanGarment,
         motion: Option<MotionKind>,
+        max_frames: usize,
+    ) -> Result<Scene> {
+        let source = match motion {
+            None => Source::CmuWalk,
+            Some(MotionKind::Mocap(clip)) => {
+                Source::Bvh(assets.join("motions").join(clip.file()), BvhRest::ZeroArmsDown)
+            }
+            Some(kind) => Source::Procedural(kind),
+        };
+        let name = motion.map_or_else(|| "CMU walk".into(), |m| m.name());
+        makehuman_from(assets, which, source, &name, max_frames)
+    }
+
+    /// [`makehuman`] on a BVH clip of the user's (any frame rate: resampled to 30 Hz), retargeted
+    /// onto the MakeHuman rig by bone name (the CMU / MotionBuilder names: `Hips`, `Spine`,
+    /// `LeftUpLeg`, `LeftArm`, ...; joints the rig lacks are ignored, bones the clip lacks stay
+    /// at rest relative to their parents), the root translation scaled by the ratio of leg
+    /// lengths (so the clip's length unit does not matter), each frame lifted onto the floor as
+    /// [`MocapClip`]s are. `rest` says what the clip's rest is.
+    ///
+    /// # Errors
+    /// As [`makehuman`]; BVH parse errors; [`Error::Empty`] when no clip joint matches a rig bone.
+    pub fn makehuman_on_bvh(
+        assets: &Path,
+        which: MakeHumanGarment,
+        bvh: &Path,
+        rest: BvhRest,
+        max_frames: usize,
+    ) -> Result<Scene> {
+        let name = bvh.file_stem().map_or_else(|| "a BVH clip".into(), |s| s.to_string_lossy().into_owned());
+        makehuman_from(assets, which, Source::Bvh(bvh.to_path_buf(), rest), &name, max_frames)
+    }
+
+    /// Where a MakeHuman scene's motion comes from.
+    enum Source {
+        /// The CMU walk of the assets (frame 0 its T-pose calibration frame).
+        CmuWalk,
+        /// A procedural motion, posed on the rig directly.
+        Procedural(MotionKind),
+        /// A BVH file, retargeted.
+        Bvh(std::path::PathBuf, BvhRest),
+    }
+
+    /// The rest of a BVH clip, which retargeting aligns the rig to.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum BvhRest {
+        /// Frame 0 is a T-pose calibration frame (the CMU takes); the clip starts at frame 1.
+        FirstFrameTPose,
+        /// All rotations zero is a T-pose (Mixamo and many exporters).
+        ZeroTPose,
+        /// All rotations zero has the arms hanging down (the AMP humanoid).
+        ZeroArmsDown,
+    }
+
+    impl BvhRest {
+        /// Names as the command line takes them.
+        pub const NAMES: [&'static str; 3] = ["first-frame-t-pose", "zero-t-pose", "zero-arms-down"];
+
+        /// The rest called `name` (see [`BvhRest::NAMES`]).
+        pub fn parse(name: &str) -> Option<BvhRest> {
+            let all = [BvhRest::FirstFrameTPose, BvhRest::ZeroTPose, BvhRest::ZeroArmsDown];
+            BvhRest::NAMES.iter().position(|&n| n == name).map(|i| all[i])
+        }
+    }
+
+    fn makehuman_from(
+        assets: &Path,
+        which: MakeHumanGarment,
+        source: Source,
+        motion_name: &str,
         max_frames: usize,
     ) -> Result<Scene> {
         let mh = MakeHuman::load(assets.join("body"))?;
@@ -499,77 +599,69 @@ mod assets {
             poses.push(pose);
             Ok(())
         };
-        if let Some(MotionKind::Mocap(which)) = motion {
-            let clip = bvh::read(assets.join("motions").join(which.file()))?.resample(MODEL_FPS)?;
-            let arms_down = arms_hanging_down(&mh.skeleton);
-            let opts = RetargetOptions {
-                clip_rest: ClipRest::ZeroRotations,
-                rig_initial: Some(&arms_down),
-                // The AMP "Head" joint is the base of the neck; the head rides on it.
-                aliases: &[("Neck", "Head"), ("Head", "")],
-                ..Default::default()
-            };
-            let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
-            let frames = clip.n_frames().min(max_frames.max(1));
-            let mut clip_poses = Vec::with_capacity(frames);
-            for f in 0..frames {
-                let mut pose = Pose::rest(&mh.skeleton);
-                rt.pose(&mh.skeleton, &clip, f, &mut pose)?;
-                clip_poses.push(pose);
+        match source {
+            Source::Procedural(kind) => {
+                let frames = max_frames.max(1);
+                let local = kind.local(&mh.skeleton, (frames - 1).max(1) as f32 / MODEL_FPS)?;
+                for f in 0..frames.min(local.n_frames()) {
+                    let mut pose = Pose::rest(&mh.skeleton);
+                    local.pose(&mh.skeleton, f, &mut pose)?;
+                    push(pose, &mut poses, &mut positions)?;
+                }
             }
-            // The AMP clips put the lowest ankle joint at y = 0 (the feet sink 5-9 cm into the
-            // floor) and their root rises by up to 8 cm over a take: lift each frame onto the
-            // line through the lowest body vertex of each half of the clip (a stance in every
-            // clip: walk, run and back flip start and end on their feet), so that the soles sit
-            // where the rest pose's do.
-            let rest_low = mh.body.rest.iter().map(|v| v[1]).fold(f32::INFINITY, f32::min);
-            let mut lows = Vec::with_capacity(frames);
-            let mut low_tr = crate::rig::SkinTransforms::new(mh.skeleton.len());
-            let mut low_buf = vec![[0.0; 3]; nb];
-            for pose in &clip_poses {
-                low_tr.update(&mh.skeleton, pose)?;
-                crate::rig::skin(&low_tr, &mh.body_weights, &mh.body.rest, &mut low_buf)?;
-                lows.push(low_buf.iter().map(|v| v[1]).fold(f32::INFINITY, f32::min));
+            Source::CmuWalk => {
+                let clip = bvh::read(assets.join("motions/cmu_12_03_walk.bvh"))?.resample(MODEL_FPS)?;
+                let opts = RetargetOptions {
+                    clip_rest: ClipRest::Frame(0),
+                    rig_initial: Some(&mh.t_pose),
+                    aliases: CMU_FINGERS,
+                    ..Default::default()
+                };
+                let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
+                // Frame 0 of the clip is its T-pose calibration frame: start on the walk.
+                let first = 1.min(clip.n_frames() - 1);
+                let frames = (clip.n_frames() - first).min(max_frames.max(1));
+                for f in first..first + frames {
+                    let mut pose = Pose::rest(&mh.skeleton);
+                    rt.pose(&mh.skeleton, &clip, f, &mut pose)?;
+                    push(pose, &mut poses, &mut positions)?;
+                }
             }
-            let lowest = |r: core::ops::Range<usize>| r.min_by(|&a, &b| lows[a].total_cmp(&lows[b])).unwrap_or(0);
-            let (f1, f2) = (lowest(0..frames / 2), lowest(frames / 2..frames));
-            let slope = if f2 > f1 { (lows[f2] - lows[f1]) / (f2 - f1) as f32 } else { 0.0 };
-            for (f, mut pose) in clip_poses.into_iter().enumerate() {
-                let lift = rest_low - (lows[f1] + slope * (f as f32 - f1 as f32));
-                pose.head.iter_mut().for_each(|h| h.y += lift);
-                push(pose, &mut poses, &mut positions)?;
-            }
-        } else if let Some(kind) = motion {
-            let frames = max_frames.max(1);
-            let local = kind.local(&mh.skeleton, (frames - 1).max(1) as f32 / MODEL_FPS)?;
-            for f in 0..frames.min(local.n_frames()) {
-                let mut pose = Pose::rest(&mh.skeleton);
-                local.pose(&mh.skeleton, f, &mut pose)?;
-                push(pose, &mut poses, &mut positions)?;
-            }
-        } else {
-            let bvh_path = assets.join("motions/cmu_12_03_walk.bvh");
-            let clip = bvh::read(&bvh_path)?.resample(MODEL_FPS)?;
-            let opts = RetargetOptions {
-                clip_rest: ClipRest::Frame(0),
-                rig_initial: Some(&mh.t_pose),
-                aliases: &[("LeftHandFinger1", "LeftHandIndex1"), ("RightHandFinger1", "RightHandIndex1")],
-                ..Default::default()
-            };
-            let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
-            // Frame 0 of the clip is its T-pose calibration frame: start on the walk.
-            let first = 1.min(clip.n_frames() - 1);
-            let frames = (clip.n_frames() - first).min(max_frames.max(1));
-            for f in first..first + frames {
-                let mut pose = Pose::rest(&mh.skeleton);
-                rt.pose(&mh.skeleton, &clip, f, &mut pose)?;
-                push(pose, &mut poses, &mut positions)?;
+            Source::Bvh(path, rest) => {
+                let clip = bvh::read(&path)?.resample(MODEL_FPS)?;
+                let arms_down = arms_hanging_down(&mh.skeleton);
+                let opts = RetargetOptions {
+                    clip_rest: if rest == BvhRest::FirstFrameTPose {
+                        ClipRest::Frame(0)
+                    } else {
+                        ClipRest::ZeroRotations
+                    },
+                    rig_initial: Some(if rest == BvhRest::ZeroArmsDown { &arms_down } else { &mh.t_pose }),
+                    // The AMP "Head" joint is the base of the neck; the head rides on it.
+                    aliases: if rest == BvhRest::ZeroArmsDown {
+                        &[("Neck", "Head"), ("Head", "")]
+                    } else {
+                        CMU_FINGERS
+                    },
+                    ..Default::default()
+                };
+                let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
+                let first = usize::from(rest == BvhRest::FirstFrameTPose).min(clip.n_frames() - 1);
+                let frames = (clip.n_frames() - first).min(max_frames.max(1));
+                let mut clip_poses = Vec::with_capacity(frames);
+                for f in first..first + frames {
+                    let mut pose = Pose::rest(&mh.skeleton);
+                    rt.pose(&mh.skeleton, &clip, f, &mut pose)?;
+                    clip_poses.push(pose);
+                }
+                for pose in lifted_onto_the_floor(&mh, clip_poses)? {
+                    push(pose, &mut poses, &mut positions)?;
+                }
             }
         }
         let body_motion = BodyMotion { fps: MODEL_FPS, n_vertices: nb, positions };
         let body = BodyMesh::new(nb, &mh.body.faces)?;
         let garment_name = which.description();
-        let motion_name = motion.map_or_else(|| "CMU walk".into(), |m| m.name());
         let name = alloc::format!("MakeHuman {garment_name} on {motion_name}");
         Scene::new(name, garment, body, &mh.body.rest, &mh.body_weights, mh.skeleton.clone(), poses, body_motion)
     }

@@ -167,3 +167,30 @@ fn motion_amp_clips_retarget_onto_makehuman() {
         }
     }
 }
+
+/// A user's BVH (`makehuman_on_bvh`): the CMU walk given as a file with its T-pose frame 0 is
+/// the built-in CMU walk scene, but for the lift onto the floor (a vertical shift per frame, under
+/// 3 cm); every rest name parses back.
+#[test]
+fn motion_user_bvh_is_the_built_in_retarget_plus_the_lift() {
+    use hood::scene::{makehuman_on, makehuman_on_bvh, BvhRest, MakeHumanGarment};
+    let Some(dir) = assets() else { return };
+    for name in BvhRest::NAMES {
+        assert!(BvhRest::parse(name).is_some(), "{name}");
+    }
+    assert!(BvhRest::parse("a-pose").is_none());
+    let built_in = makehuman_on(&dir, MakeHumanGarment::Jeans, None, 60).unwrap();
+    let file = dir.join("motions/cmu_12_03_walk.bvh");
+    let user = makehuman_on_bvh(&dir, MakeHumanGarment::Jeans, &file, BvhRest::FirstFrameTPose, 60).unwrap();
+    assert_eq!(user.motion.n_frames(), built_in.motion.n_frames());
+    assert!(user.name.ends_with("cmu_12_03_walk"), "{}", user.name);
+    for f in 0..user.motion.n_frames() {
+        let (a, b) = (user.motion.frame(f), built_in.motion.frame(f));
+        let dy = a[0][1] - b[0][1];
+        for (p, q) in a.iter().zip(b) {
+            assert!((p[0] - q[0]).abs() < 1e-5 && (p[2] - q[2]).abs() < 1e-5, "frame {f}: {p:?} {q:?}");
+            assert!((p[1] - q[1] - dy).abs() < 1e-4, "frame {f}: not one shift");
+        }
+        assert!(dy.abs() < 0.03, "frame {f}: lifted by {dy} m");
+    }
+}

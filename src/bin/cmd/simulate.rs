@@ -65,6 +65,16 @@ pub struct SimulateArgs {
     /// Folder of the MakeHuman assets (default: ../shared/assets beside the source).
     #[arg(long)]
     assets: Option<PathBuf>,
+    /// A BVH clip of your own for a MakeHuman garment (`--garment tee`, ...), instead of
+    /// --motion: bones matched by the CMU / MotionBuilder names (Hips, Spine, LeftUpLeg, LeftArm,
+    /// ...), resampled to 30 Hz, the root scaled by the leg-length ratio, lifted onto the floor.
+    #[arg(long)]
+    bvh: Option<PathBuf>,
+    /// The --bvh clip's rest: first-frame-t-pose (a T-pose calibration frame 0, as the CMU
+    /// takes), zero-t-pose (all rotations zero is a T-pose, as Mixamo), zero-arms-down (all
+    /// rotations zero has the arms hanging down, as the AMP clips).
+    #[arg(long, default_value = "zero-t-pose", requires = "bvh")]
+    bvh_rest: String,
     /// Also compute the relative objective gap to the converged implicit step every this many
     /// frames (slow; 0: never).
     #[arg(long, default_value_t = 0)]
@@ -167,6 +177,19 @@ fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
     if let (Some(g), Some(b)) = (&a.garment_obj, &a.body_obj) {
         let p = files_scene(g, b)?;
         return Ok((Box::new(p), format!("{} on {}", g.display(), b.display())));
+    }
+    if let Some(bvh) = &a.bvh {
+        use hood::scene::{makehuman_on_bvh, BvhRest, MakeHumanGarment};
+        let which = MakeHumanGarment::parse(&a.garment).ok_or_else(|| {
+            Error::parse("garment", 0, format!("--bvh needs a MakeHuman garment, not '{}'", a.garment))
+        })?;
+        let rest = BvhRest::parse(&a.bvh_rest).ok_or_else(|| {
+            Error::parse("bvh rest", 0, format!("unknown rest '{}' (one of {})", a.bvh_rest, BvhRest::NAMES.join(", ")))
+        })?;
+        let assets = a.assets.clone().unwrap_or_else(|| hood::workloads::default_shared_dir().join("assets"));
+        let s = makehuman_on_bvh(&assets, which, bvh, rest, a.frames + 1)?;
+        let name = s.name.clone();
+        return Ok((Box::new(s), name));
     }
     named_scene(&a.garment, a.vertices, &a.motion, a.frames, a.assets.as_deref())
 }
