@@ -147,6 +147,7 @@ typedef uint32_t hood_status;
 #define HOOD_ERR_BAD_POINTER 104u      /* a pointer misaligned for its type, or an output overlapping an input */
 #define HOOD_ERR_BUSY 105u             /* the sim is in use by a call on another thread */
 #define HOOD_ERR_STRUCT_SIZE 106u      /* struct_size is not one this library knows: the caller was built against another header */
+#define HOOD_ERR_TOO_LATE 107u         /* hood_set_allocator after the library has allocated (call it first) */
 
 /* The message of the most recent failing call on this thread ("" if none): NUL-terminated, owned
  * by the library, valid until the next hood_* call on this thread. Successful calls leave it. */
@@ -155,6 +156,26 @@ HOOD_API const char *HOOD_CALL hood_last_error(void);
  * another thread"; "unknown status" for a code this library does not have. NUL-terminated, static
  * storage; never fails and leaves hood_last_error alone. */
 HOOD_API const char *HOOD_CALL hood_status_string(hood_status code);
+
+/* ---- Allocator ------------------------------------------------------------------------------ */
+
+/* An engine's allocator. `alloc(size, align, user)` returns `size` bytes aligned to `align` (a
+ * power of two; size > 0), or NULL when out of memory (the library then aborts, as Rust does on
+ * allocation failure). `free(ptr, size, align, user)` releases a block `alloc` returned, with the
+ * same size and alignment. Both may be called from any thread, concurrently, and must not call
+ * hood_* functions or throw. */
+typedef struct hood_allocator {
+    uint32_t struct_size; /* sizeof(hood_allocator) (see Conventions) */
+    void *user;
+    void *(HOOD_CALL *alloc)(size_t size, size_t align, void *user);
+    void (HOOD_CALL *free)(void *ptr, size_t size, size_t align, void *user);
+} hood_allocator;
+
+/* Routes every allocation of the library to `allocator` (copied), for the life of the process.
+ * It must come before any other hood_* call (every call may allocate; blocks must go back to the
+ * allocator that gave them): afterwards, and after a refused call, it returns HOOD_ERR_TOO_LATE
+ * and changes nothing. Without it the library uses the system allocator (malloc). */
+HOOD_API hood_status HOOD_CALL hood_set_allocator(const hood_allocator *allocator);
 
 /* ---- Log ------------------------------------------------------------------------------------ */
 

@@ -12,6 +12,8 @@
 // The C names of the types are the Rust names (the header check maps them one to one).
 #![allow(non_camel_case_types)]
 
+#[cfg_attr(not(feature = "allocator"), allow(dead_code))]
+mod alloc;
 mod log;
 mod slots;
 
@@ -82,6 +84,9 @@ pub const HOOD_ERR_BUSY: hood_status = 105;
 /// A struct's `struct_size` is not one this library accepts: the caller was built against another
 /// header (the rule is in the header's Conventions).
 pub const HOOD_ERR_STRUCT_SIZE: hood_status = 106;
+
+/// `hood_set_allocator` after the library has allocated.
+pub const HOOD_ERR_TOO_LATE: hood_status = 107;
 
 /// Required alignment of model bytes (`hood::model::file::ALIGN`).
 pub const HOOD_MODEL_ALIGN: usize = hood::model::file::ALIGN;
@@ -161,6 +166,8 @@ enum Failure {
     Busy(&'static str),
     /// A `struct_size` this library does not accept: the whole message.
     StructSize(String),
+    /// A call that must come before the library's first allocation.
+    TooLate(&'static str),
 }
 
 impl From<Error> for Failure {
@@ -179,6 +186,7 @@ impl Failure {
             Failure::InUse(_) => HOOD_ERR_MODEL_IN_USE,
             Failure::Busy(_) => HOOD_ERR_BUSY,
             Failure::StructSize(_) => HOOD_ERR_STRUCT_SIZE,
+            Failure::TooLate(_) => HOOD_ERR_TOO_LATE,
         }
     }
 
@@ -193,6 +201,7 @@ impl Failure {
                 format!("{what} is in use by a call on another thread (one thread at a time per sim)")
             }
             Failure::StructSize(msg) => msg.clone(),
+            Failure::TooLate(what) => format!("{what}: the library has allocated already (call it before any other)"),
         }
     }
 }
@@ -679,6 +688,9 @@ fn status_text(code: hood_status) -> &'static CStr {
         HOOD_ERR_STRUCT_SIZE => {
             c"HOOD_ERR_STRUCT_SIZE: struct_size is not one this library knows: the caller was built against another header"
         }
+        HOOD_ERR_TOO_LATE => {
+            c"HOOD_ERR_TOO_LATE: hood_set_allocator after the library has allocated (call it first)"
+        }
         _ => c"unknown status",
     }
 }
@@ -688,6 +700,61 @@ fn status_text(code: hood_status) -> &'static CStr {
 #[no_mangle]
 pub extern "C" fn hood_status_string(code: hood_status) -> *const c_char {
     status_text(code).as_ptr()
+}
+
+/// The library's allocator: the system's, or the engine's (`hood_set_allocator`).
+#[cfg(feature = "allocator")]
+#[global_allocator]
+static GLOBAL: alloc::Hooked = alloc::Hooked;
+
+/// An engine's allocator (see the header).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct hood_allocator {
+    /// `sizeof(hood_allocator)` in the caller's header (see its Conventions).
+    pub struct_size: u32,
+    /// Passed back to both functions.
+    pub user: *mut c_void,
+    /// Allocates `size` bytes aligned to `align` (NULL on failure).
+    pub alloc: Option<unsafe extern "C" fn(size: usize, align: usize, user: *mut c_void) -> *mut c_void>,
+    /// Frees a block of `alloc` with its size and alignment.
+    pub free: Option<unsafe extern "C" fn(ptr: *mut c_void, size: usize, align: usize, user: *mut c_void)>,
+}
+
+// SAFETY: `#[repr(C)]`, `struct_size` first, an integer, a raw pointer and optional function
+// pointers.
+unsafe impl Extensible for hood_allocator {
+    const NAME: &'static str = "hood_allocator";
+}
+
+/// Routes the library's allocations to the engine (see the header).
+///
+/// # Safety
+/// `allocator` is NULL or holds the `struct_size` bytes it states, and its functions keep the
+/// header's contract for the life of the process.
+#[no_mangle]
+pub unsafe extern "C" fn hood_set_allocator(allocator: *const hood_allocator) -> hood_status {
+    // Not through `guard`, which may allocate (the panic machinery, the last error): checks that
+    // fail before the choice is made allocate only to report.
+    if !cfg!(feature = "allocator") {
+        return guard(|| Err(Error::UnsupportedEffect { effect: "allocator callbacks (built without them)" }.into()));
+    }
+    if allocator.is_null() {
+        return guard(|| Err(Failure::Null("allocator")));
+    }
+    // SAFETY: non-null; `struct_size` readable bytes (caller). Reading allocates nothing.
+    let a = match unsafe { read_extensible(allocator, None, None, "allocator") } {
+        Ok((a, _)) => a,
+        Err(e) => return guard(|| Err(e)),
+    };
+    let (Some(alloc), Some(free)) = (a.alloc, a.free) else {
+        return guard(|| Err(Failure::Null("allocator alloc or free")));
+    };
+    if alloc::install(alloc::Hooks { alloc, free, user: a.user }) {
+        HOOD_OK
+    } else {
+        guard(|| Err(Failure::TooLate("hood_set_allocator")))
+    }
 }
 
 /// The log callback's type (`extern "C"` is cdecl on 32-bit Windows, as `HOOD_CALL` declares it).

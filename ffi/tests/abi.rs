@@ -179,6 +179,7 @@ fn status_codes_mirror_error_codes() {
         HOOD_ERR_BAD_POINTER,
         HOOD_ERR_BUSY,
         HOOD_ERR_STRUCT_SIZE,
+        HOOD_ERR_TOO_LATE,
     ] {
         assert!(seen.insert(c), "code {c} reused");
     }
@@ -1282,7 +1283,7 @@ fn status_string_is_static_and_leaves_the_last_error() {
     let text = |p| unsafe { CStr::from_ptr(p) }.to_str().unwrap();
     assert_eq!(text(p), "HOOD_ERR_BUSY: the sim is in use by a call on another thread");
     assert_eq!(text(hood_status_string(HOOD_ERR_STRUCT_SIZE)).split(':').next(), Some("HOOD_ERR_STRUCT_SIZE"));
-    assert_eq!(text(hood_status_string(107)), "unknown status");
+    assert_eq!(text(hood_status_string(108)), "unknown status");
     assert_eq!(last_error(), e, "hood_status_string changed the last error");
     // Still valid after other calls, and the same storage.
     assert_eq!(hood_status_string(HOOD_ERR_BUSY), p);
@@ -1655,5 +1656,28 @@ fn driver_matches_the_rust_fixed_step_bitwise() {
         assert_eq!(hood_driver_free(driver), HOOD_ERR_INVALID_HANDLE);
         assert_eq!(hood_driver_free(null_mut()), HOOD_OK);
         assert_eq!(hood_model_free(h_model), HOOD_OK);
+    }
+}
+
+/// In a Rust program the library has allocated before any call (the test harness did), so an
+/// allocator is refused; `tests/examples.rs` installs one from C.
+#[test]
+fn an_allocator_after_the_first_allocation_is_refused() {
+    unsafe extern "C" fn no_alloc(_: usize, _: usize, _: *mut std::ffi::c_void) -> *mut std::ffi::c_void {
+        null_mut()
+    }
+    unsafe extern "C" fn no_free(_: *mut std::ffi::c_void, _: usize, _: usize, _: *mut std::ffi::c_void) {}
+    let a = hood_allocator {
+        struct_size: size_of_u32::<hood_allocator>(),
+        user: null_mut(),
+        alloc: Some(no_alloc),
+        free: Some(no_free),
+    };
+    // SAFETY: a valid allocator struct (never installed), and NULLs.
+    unsafe {
+        assert_eq!(hood_set_allocator(&a), HOOD_ERR_TOO_LATE);
+        assert!(last_error().contains("before any other"), "{}", last_error());
+        assert_eq!(hood_set_allocator(null()), HOOD_ERR_NULL_POINTER);
+        assert_eq!(hood_set_allocator(&hood_allocator { free: None, ..a }), HOOD_ERR_NULL_POINTER);
     }
 }

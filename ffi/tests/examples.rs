@@ -108,3 +108,19 @@ fn c_example_valgrind_memcheck() {
     assert!(!stderr.contains("definitely lost: ") || stderr.contains("definitely lost: 0 bytes"), "{stderr}");
     check_report(&parse(&String::from_utf8_lossy(&o.stdout)));
 }
+
+/// `tests/c/alloc_hooks.c`: an allocator installed first gets every allocation of a model load,
+/// a sim's creation, steps and frees (each free with its block's size and alignment), and a
+/// second installation is refused with `HOOD_ERR_TOO_LATE`.
+#[test]
+fn allocator_callbacks_get_every_allocation() {
+    let dir = scratch("alloc_hooks");
+    let model = model_file(&dir, 8, 5);
+    let exe = dir.join("alloc_hooks");
+    let src = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/c/alloc_hooks.c"));
+    compile("cc", C_FLAGS, &src, &exe);
+    let o = Command::new(&exe).arg(&model).output().unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "exit {:?}: {stdout}{}", o.status.code(), String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.starts_with("allocations: "), "{stdout}");
+}

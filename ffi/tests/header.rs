@@ -243,6 +243,7 @@ fn checked_constants() -> Vec<(&'static str, u64)> {
         HOOD_ERR_BAD_POINTER,
         HOOD_ERR_BUSY,
         HOOD_ERR_STRUCT_SIZE,
+        HOOD_ERR_TOO_LATE,
         HOOD_MODEL_ALIGN,
         HOOD_EFFECT_BODY_COLLISION,
         HOOD_EFFECT_PINNING,
@@ -356,6 +357,7 @@ fn compiler_checks_types_constants_and_layouts() {
         }
     );
     layout!(cpp, hood_executor { struct_size, user, parallelism, run });
+    layout!(cpp, hood_allocator { struct_size, user, alloc, free });
     cpp.push_str("int main() { return 0; }\n");
 
     let dir = scratch("header");
