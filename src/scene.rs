@@ -267,6 +267,28 @@ impl Scene {
         Ok(x)
     }
 
+    /// The garment's velocity at frame `f`, m per frame: the displacement of its skinned shape
+    /// into frame `f` (at frame 0, out of it; zero for a one-frame scene). A clip that starts in
+    /// mid-motion (a run, a hop) thus starts its garment moving with the body, not at rest while
+    /// the body runs into it.
+    ///
+    /// # Errors
+    /// Errors of the skinning.
+    pub fn initial_velocity(&self, f: usize) -> Result<Vec<[f32; 3]>> {
+        let n = self.garment.n_vertices();
+        let last = self.n_frames() - 1;
+        let f = f.min(last);
+        if last == 0 {
+            return Ok(vec![[0.0; 3]; n]);
+        }
+        let (from, to) = if f == 0 { (0, 1) } else { (f - 1, f) };
+        let mut a = vec![[0.0; 3]; n];
+        let mut b = vec![[0.0; 3]; n];
+        self.skinned_garment(from, &mut a)?;
+        self.skinned_garment(to, &mut b)?;
+        Ok(b.iter().zip(&a).map(|(b, a)| crate::math::sub3(*b, *a)).collect())
+    }
+
     /// The scene's garment with every vertex made of `material` (same rest shape and pins, so
     /// the same hierarchy: only masses and the network's material inputs change).
     ///

@@ -472,3 +472,60 @@ fn eval_common_states_score_every_method_from_the_reference_states() {
         Err(hood::Error::Empty { .. })
     ));
 }
+
+/// A scene that starts in mid-motion starts its garment moving with the body: the initial
+/// velocity is the skinned garment's displacement into frame 1, a recorded playback keeps it,
+/// and the implicit rollout starts from it (the garment's first-frame displacement follows the
+/// body's, where a garment at rest would lag behind by a whole frame's travel).
+#[test]
+fn eval_a_clip_starting_at_speed_starts_its_garment_moving() {
+    use hood::eval::{converged_solver, implicit_rollout, Animation};
+    let m = Mannequin::with_spacing(0.04).unwrap();
+    let scene = procedural(&m, GarmentKind::Skirt, 300, MotionKind::Run, 0.5).unwrap();
+    let n = scene.garment.n_vertices();
+    let v0 = Animation::initial_velocity(&scene).unwrap();
+    let (mut a, mut b) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
+    scene.skinned_garment(0, &mut a).unwrap();
+    scene.skinned_garment(1, &mut b).unwrap();
+    for i in 0..n {
+        assert_eq!(v0[i], [b[i][0] - a[i][0], b[i][1] - a[i][1], b[i][2] - a[i][2]], "vertex {i}");
+    }
+    assert_eq!(scene.initial_velocity(3).unwrap()[7], {
+        scene.skinned_garment(2, &mut a).unwrap();
+        scene.skinned_garment(3, &mut b).unwrap();
+        [b[7][0] - a[7][0], b[7][1] - a[7][1], b[7][2] - a[7][2]]
+    });
+    // Along the body's travel in the first frame (its centroid's displacement).
+    let centroid = |v: &[[f32; 3]]| {
+        let s = v.iter().fold([0.0f64; 3], |s, p| [s[0] + p[0] as f64, s[1] + p[1] as f64, s[2] + p[2] as f64]);
+        s.map(|c| c / v.len() as f64)
+    };
+    let (c0, c1) = (centroid(scene.body_frame(0)), centroid(scene.body_frame(1)));
+    let travel = [c1[0] - c0[0], c1[1] - c0[1], c1[2] - c0[2]];
+    let body_dx = (travel[0] * travel[0] + travel[1] * travel[1] + travel[2] * travel[2]).sqrt();
+    let dir = travel.map(|c| c / body_dx);
+    let mean_x = |v: &[[f32; 3]]| {
+        let c = centroid(v);
+        c[0] * dir[0] + c[1] * dir[1] + c[2] * dir[2]
+    };
+    assert!(body_dx.abs() > 0.02, "the run starts at speed: {body_dx} m in the first frame");
+
+    let recorded = Playback::record(&scene, 4).unwrap();
+    assert_eq!(recorded.initial_velocity().unwrap(), v0);
+    let mut at_rest = recorded.clone();
+    at_rest.initial_velocity.clear();
+    assert!(at_rest.initial_velocity().unwrap().iter().all(|v| *v == [0.0; 3]));
+    let mut bad = recorded.clone();
+    bad.initial_velocity.pop();
+    assert!(matches!(bad.initial_velocity(), Err(hood::Error::SizeMismatch { .. })));
+
+    let opts = RolloutOptions { keep: vec![1], ..RolloutOptions::default() };
+    let first_dx = |anim: &Playback| {
+        let r = implicit_rollout(anim, 1, &converged_solver(), &opts, &mut |_, _| Ok(())).unwrap();
+        mean_x(&r.kept[0].1) - mean_x(&anim.initial)
+    };
+    let (moving, resting) = (first_dx(&recorded), first_dx(&at_rest));
+    println!("first frame: body {body_dx:.4} m, garment {moving:.4} m moving, {resting:.4} m from rest");
+    assert!((moving - body_dx).abs() < 0.25 * body_dx.abs(), "{moving} vs {body_dx}");
+    assert!((resting - body_dx).abs() > 0.5 * body_dx.abs(), "{resting} vs {body_dx}");
+}

@@ -55,7 +55,7 @@ pub enum Reference<'a> {
 }
 
 /// Plays a `reference` rollout of `anim` over frames `1..=frames`, from
-/// [`Animation::initial_garment`] at rest. On the frames `options.gap_every` picks (every
+/// [`Animation::initial_garment`] moving at [`Animation::initial_velocity`]. On the frames `options.gap_every` picks (every
 /// frame when 0), every method steps once from the reference's state and is scored as in
 /// [`rollout`](super::rollout) under `options.objective`: terms, penetration, strain, speed,
 /// step time, the inside count on the frames `options.inside_every` picks, and the [`Gap`]
@@ -117,7 +117,7 @@ pub fn common_state_gaps(
         .collect();
     let every = options.gap_every.max(1);
     let mut pos = anim.initial_garment()?;
-    let mut vel = vec![[0.0f32; 3]; n];
+    let mut vel = anim.initial_velocity()?;
     if let Some(sim) = &mut runtime {
         let body_state = if sim.state().body_pos.is_empty() { vec![] } else { b0.to_vec() };
         sim.set_state(&SimState {

@@ -60,6 +60,15 @@ pub trait Animation {
     /// # Errors
     /// Implementation-specific (body queries, ...).
     fn initial_garment(&self) -> Result<Vec<[f32; 3]>>;
+    /// Garment velocities at frame 0, m per frame (the displacement since the frame before):
+    /// the motion the body carries the garment with when the animation starts in mid-motion.
+    /// Default: at rest.
+    ///
+    /// # Errors
+    /// Implementation-specific (skinning, ...).
+    fn initial_velocity(&self) -> Result<Vec<[f32; 3]>> {
+        Ok(vec![[0.0; 3]; self.garment().n_vertices()])
+    }
 }
 
 impl Animation for Scene {
@@ -81,6 +90,9 @@ impl Animation for Scene {
     fn initial_garment(&self) -> Result<Vec<[f32; 3]>> {
         Scene::initial_garment(self, 0)
     }
+    fn initial_velocity(&self) -> Result<Vec<[f32; 3]>> {
+        Scene::initial_velocity(self, 0)
+    }
 }
 
 /// An animation held in memory, every part editable (for hard cases: a body that jumps, a bad
@@ -97,6 +109,8 @@ pub struct Playback {
     pub pin_targets: Vec<Vec<[f32; 3]>>,
     /// Garment positions at frame 0, m.
     pub initial: Vec<[f32; 3]>,
+    /// Garment velocities at frame 0, m per frame (empty: at rest).
+    pub initial_velocity: Vec<[f32; 3]>,
     /// Number of frames.
     pub frames: usize,
 }
@@ -125,6 +139,7 @@ impl Playback {
             body_frames,
             pin_targets,
             initial: anim.initial_garment()?,
+            initial_velocity: anim.initial_velocity()?,
             frames,
         })
     }
@@ -133,7 +148,15 @@ impl Playback {
     /// for `frames` frames.
     pub fn cloth_only(garment: Garment, frames: usize) -> Playback {
         let initial = garment.rest().to_vec();
-        Playback { garment, body: None, body_frames: Vec::new(), pin_targets: Vec::new(), initial, frames }
+        Playback {
+            garment,
+            body: None,
+            body_frames: Vec::new(),
+            pin_targets: Vec::new(),
+            initial,
+            initial_velocity: Vec::new(),
+            frames,
+        }
     }
 }
 
@@ -166,6 +189,13 @@ impl Animation for Playback {
     }
     fn initial_garment(&self) -> Result<Vec<[f32; 3]>> {
         Ok(self.initial.clone())
+    }
+    fn initial_velocity(&self) -> Result<Vec<[f32; 3]>> {
+        match self.initial_velocity.len() {
+            0 => Ok(vec![[0.0; 3]; self.garment.n_vertices()]),
+            k if k == self.garment.n_vertices() => Ok(self.initial_velocity.clone()),
+            k => Err(Error::SizeMismatch { what: "initial velocity", expected: self.garment.n_vertices(), got: k }),
+        }
     }
 }
 
@@ -785,7 +815,7 @@ pub fn rollout_observed(
     let body_state = if sim_body { b0.to_vec() } else { Vec::new() };
     sim.set_state(&SimState {
         pos: anim.initial_garment()?,
-        velocity: vec![[0.0; 3]; n],
+        velocity: anim.initial_velocity()?,
         body_prev: body_state.clone(),
         body_pos: body_state,
         started: sim.state().started,
@@ -840,7 +870,7 @@ pub fn rollout_observed(
 }
 
 /// The implicit solver as the simulator, for comparison with models (EVALUATION.md "Accuracy
-/// against time"): from [`Animation::initial_garment`] at rest, every frame is one
+/// against time"): from [`Animation::initial_garment`] moving at [`Animation::initial_velocity`], every frame is one
 /// [`ImplicitStep`] (f64 L-BFGS under `solver`, e.g. a few iterations) on `options.objective`,
 /// pinned vertices at their targets; no start-up step. Records, gap and summary as in
 /// [`rollout_observed`] (`step_ms` is the solve's wall time); a non-finite solve ends the rollout
@@ -862,7 +892,7 @@ pub fn implicit_rollout(
     let mut inside = InsideCounter::new(anim, options.inside_every)?;
     let mut off_body = OffBody::new(anim)?;
     let mut pos = anim.initial_garment()?;
-    let mut vel = vec![[0.0f32; 3]; n];
+    let mut vel = anim.initial_velocity()?;
     let mut targets = vec![[0.0f32; 3]; n];
     let mut next = vec![[0.0f32; 3]; n];
     let mut out =

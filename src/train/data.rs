@@ -198,8 +198,9 @@ fn truncate_at_loss(scene: &Scene, states: &mut Vec<Positions>) -> Result<()> {
 /// iterations within about 0.002 of the converged step's gap).
 pub const REFERENCE_ITERATIONS: usize = 100;
 
-/// Magic bytes of a reference-state file.
-const STATES_MAGIC: &[u8; 8] = b"HOODREF1";
+/// Magic bytes of a reference-state file. Version 2: the rollouts start at the scene's initial
+/// velocity ([`Scene::initial_velocity`]); files of version 1 (from rest) are recomputed.
+const STATES_MAGIC: &[u8; 8] = b"HOODREF2";
 
 /// Reads a reference-state file (magic, frames and vertices as little-endian `u32`, then the
 /// positions as little-endian `f32`), `None` when absent, damaged or not of `n` vertices.

@@ -169,7 +169,15 @@ fn files_scene(garment_obj: &Path, body_dir: &Path) -> Result<Playback> {
     let mut initial = garment.rest().to_vec();
     hood::scene::push_out_of(&body, &body_frames[0], &mut initial, garment.pinned())?;
     let frames = body_frames.len();
-    Ok(Playback { garment, body: Some(body), body_frames, pin_targets: Vec::new(), initial, frames })
+    Ok(Playback {
+        garment,
+        body: Some(body),
+        body_frames,
+        pin_targets: Vec::new(),
+        initial,
+        initial_velocity: Vec::new(),
+        frames,
+    })
 }
 
 /// The scene the arguments name, as a boxed animation, and its description.
