@@ -317,9 +317,9 @@ typedef struct hood_sim_config {
                                    else HOOD_ERR_UNSUPPORTED_EFFECT). hood_sim_last_refinement
                                    reports each solve */
     uint32_t solver_budget_us;  /* (since 0.3.0) 0: no time budget. B > 0, with solver_iterations
-                                   N: each step's solve also stops once B microseconds have passed
-                                   since it began (after at least one iteration), so it takes at
-                                   most N iterations and about B us: the step that fits a frame's
+                                   N: each step's solve also starts no iteration that it predicts
+                                   would end past B microseconds (at least one runs), so it takes
+                                   at most N iterations and about B us: the step that fits a frame's
                                    budget, its result no longer reproducible bit for bit. Without
                                    solver_iterations: HOOD_ERR_UNSUPPORTED_EFFECT */
 } hood_sim_config;

@@ -1114,7 +1114,7 @@ pub struct hood_sim_config {
     pub refine_iterations: u32,
     /// 0: the network steps; N: the solver step mode, N L-BFGS iterations per step.
     pub solver_iterations: u32,
-    /// With `solver_iterations`: each step's solve also ends after this many µs (0: no budget).
+    /// With `solver_iterations`: each step's solve also ends within this many µs (0: no budget).
     pub solver_budget_us: u32,
 }
 

@@ -39,6 +39,42 @@ impl Clock for StdClock {
     }
 }
 
+/// A time budget over the iterations of one solve that stops before an iteration it predicts
+/// would end past the budget: an iteration starts only if the longest one so far still fits.
+/// (Stopping once the budget has passed overshoots it by up to a whole iteration.)
+pub(super) struct Deadline<'c> {
+    clock: &'c dyn Clock,
+    /// Clock reading at which the budget ends, ns.
+    end: u64,
+    /// Clock reading at the last check (or at the start), ns.
+    last: u64,
+    /// Longest iteration so far, ns.
+    longest: u64,
+    /// Whether no check has run yet.
+    first: bool,
+}
+
+impl<'c> Deadline<'c> {
+    /// A budget of `budget_ns` starting now.
+    pub(super) fn new(clock: &'c dyn Clock, budget_ns: u64) -> Deadline<'c> {
+        let now = clock.now_ns();
+        Deadline { clock, end: now.saturating_add(budget_ns), last: now, longest: 0, first: true }
+    }
+
+    /// Whether to stop rather than start another iteration; asked after each one.
+    pub(super) fn stop_before_next(&mut self) -> bool {
+        let now = self.clock.now_ns();
+        let took = now.saturating_sub(self.last);
+        // The first interval also holds the work before the first iteration (the body's update,
+        // the starting evaluation, about one more iteration's worth): half of it is the iteration.
+        let took = if self.first { took / 2 } else { took };
+        self.first = false;
+        self.last = now;
+        self.longest = self.longest.max(took);
+        now.saturating_add(self.longest) > self.end
+    }
+}
+
 /// The clock a new sim starts with: [`StdClock`] with `std`, none without.
 pub(super) fn default_clock<'m>() -> Option<alloc::boxed::Box<dyn Clock + 'm>> {
     #[cfg(feature = "std")]

@@ -78,10 +78,10 @@ pub enum StepMode {
         /// L-BFGS iterations per step.
         iterations: u32,
     },
-    /// As [`StepMode::Solver`], ending each step's solve once `micros` microseconds of wall time
-    /// have passed since it began (after at least one iteration) or after `max_iterations`
-    /// (1 ..= [`MAX_REFINE_ITERATIONS`]), whichever comes first: the step that fits a frame's
-    /// time budget. The result then depends on the machine and its load (not bitwise
+    /// As [`StepMode::Solver`], within `micros` microseconds of wall time per step (from the
+    /// body's update on): after each iteration, the solve ends if the longest iteration so far
+    /// would not end within the budget, or after `max_iterations` (1 ..= [`MAX_REFINE_ITERATIONS`]);
+    /// at least one iteration runs. The step that fits a frame's time budget. The result then depends on the machine and its load (not bitwise
     /// reproducible). Reads the sim's clock ([`Sim::set_clock`]; with `std` one is there).
     SolverBudget {
         /// Wall time of one step's solve, µs (at least 1).

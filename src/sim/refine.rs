@@ -8,7 +8,7 @@
 //! [`crate::solve`] over the free vertices; pinned vertices stay at their targets. The refined
 //! move is added to the velocity too, so the next step starts from the refined state.
 
-use super::clock::Clock;
+use super::clock::{Clock, Deadline};
 use crate::body::{BodyMesh, PointGrid};
 use crate::error::{Error, Result};
 use crate::math::finite3;
@@ -185,9 +185,9 @@ impl Refiner {
         new_vel: &mut [[f32; 3]],
     ) -> Result<()> {
         self.pending = None;
-        let deadline = match (self.budget_ns, clock) {
+        let mut deadline = match (self.budget_ns, clock) {
             (None, _) => None,
-            (Some(b), Some(c)) => Some((c, c.now_ns().saturating_add(b))),
+            (Some(b), Some(c)) => Some(Deadline::new(c, b)),
             (Some(_), None) => {
                 return Err(Error::UnsupportedEffect { effect: "solver time budget without a clock (Sim::set_clock)" })
             }
@@ -229,7 +229,7 @@ impl Refiner {
             pinned: input.pinned,
             targets: &self.predicted,
         };
-        let mut stop = || deadline.is_some_and(|(c, at)| c.now_ns() >= at);
+        let mut stop = || deadline.as_mut().is_some_and(Deadline::stop_before_next);
         let report = self.solver.refine_until(
             &self.cloth,
             &self.objective,

@@ -357,8 +357,8 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
         let _ = writeln!(
             s,
             "\"solver step f32 within t ms\" rows are the solver step mode with a time budget \
-             (`StepMode::SolverBudget`): each step's L-BFGS stops once t ms have passed since its solve began \
-             (after at least one iteration), so their figures depend on the machine that ran the report.\n"
+             (`StepMode::SolverBudget`): each step's L-BFGS starts no iteration that it predicts would end \
+             past t ms (at least one runs), so their figures depend on the machine that ran the report.\n"
         );
     }
     if !a.solver.is_empty() {
