@@ -881,3 +881,17 @@ fn body_query_tiles_refuse_a_non_finite_query_by_its_index() {
     let err = grid.nearest_hinted(&qs, &hints, &mut nearest).unwrap_err();
     assert_eq!(err, crate::Error::NonFinite { what: "query point", index: 19 });
 }
+
+/// The grid's scans follow the kernels' tier (one setting for every SIMD path): capped at
+/// scalar, a new grid scans portably; uncapped, it uses AVX2 exactly when the tier has it.
+#[test]
+fn body_grid_scans_follow_the_kernel_tier() {
+    use crate::kernels::{force_tier, Kernels, Tier};
+    let before = crate::kernels::tier_cap();
+    force_tier(Some(Tier::Scalar));
+    let capped = PointGrid::new(10, 100).unwrap().uses_avx2();
+    force_tier(before);
+    assert!(!capped, "a grid made under the scalar cap scans with AVX2");
+    let now = PointGrid::new(10, 100).unwrap().uses_avx2();
+    assert_eq!(now, Kernels::best().tier() >= Tier::Avx2Fma);
+}

@@ -124,7 +124,8 @@ pub fn force_tier(cap: Option<Tier>) {
     CAP.store(cap.map_or(255, |t| t as u8), Ordering::Relaxed);
 }
 
-fn tier_cap() -> Option<Tier> {
+/// The cap in force ([`force_tier`]'s, else `HOOD_KERNEL_TIER`'s), if any.
+pub(crate) fn tier_cap() -> Option<Tier> {
     let v = CAP.load(Ordering::Relaxed);
     if v == 0 {
         #[cfg(feature = "std")]

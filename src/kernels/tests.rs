@@ -148,10 +148,13 @@ fn kernels_report_tiers() {
 
 #[test]
 fn kernels_force_tier_caps_best() {
+    // Restores the cap it found (a run under HOOD_KERNEL_TIER keeps it for the other tests).
+    let before = super::tier_cap();
     force_tier(Some(Tier::Scalar));
     assert_eq!(Kernels::best().tier(), Tier::Scalar);
     force_tier(None);
     assert_eq!(Kernels::best().tier(), detected_tier());
+    force_tier(before);
     assert_eq!(Tier::from_name("AVX2"), Some(Tier::Avx2Fma));
 }
 

@@ -5,8 +5,8 @@
 //! along x are one contiguous range after the counting sort; cells are [`X_SPLIT`] times thinner
 //! along x (edge [`PointGrid::cell_size`] along y and z, metres), which trims each row to the
 //! search ball's chord at no cost in rows. Coordinates are stored one array per axis, padded, and
-//! scanned eight points at a time (AVX2 where the CPU has it, checked once; a portable twin
-//! otherwise), each lane keeping its lexicographically lowest `(squared distance, index)`.
+//! scanned eight points at a time (AVX2 where the kernels' tier allows it, read when the grid is made; a
+//! portable twin otherwise), each lane keeping its lexicographically lowest `(squared distance, index)`.
 //!
 //! A search with a bound (a radius, a hint's distance or a seed's) that spans few rows scans them
 //! from the query's row outwards, trimming each row to the chord of the shrinking ball. A larger
@@ -25,6 +25,7 @@
 //! lowest point index wins. Results do not depend on the grid resolution.
 
 use crate::error::{Error, Result};
+use crate::kernels::{Kernels, Tier};
 use crate::math::finite3;
 use crate::sim::par::{split, Disjoint};
 use crate::sim::Executor;
@@ -166,6 +167,12 @@ impl PointGrid {
         }
         self.cells_per_point = cells_per_point;
         Ok(())
+    }
+
+    /// Whether the scans use AVX2.
+    #[cfg(test)]
+    pub(super) fn uses_avx2(&self) -> bool {
+        self.avx2
     }
 
     /// Uses the portable scans even where AVX2 exists (to test the two against each other).
@@ -1369,17 +1376,11 @@ fn scan_portable((xs, ys, zs, idx): ScanPoints<'_>, q: [f32; 3], lanes: &mut Lan
     lanes.bound()
 }
 
-/// Whether the scans may use AVX2: checked at run time under `std`, else by the compile-time
-/// target features.
+/// Whether the scans may use AVX2: when the kernels' tier ([`Kernels::best`], probed once and
+/// capped by `HOOD_KERNEL_TIER` / [`force_tier`](crate::kernels::force_tier)) is AVX2 or above,
+/// so one setting picks the SIMD paths of the whole library.
 pub(super) fn has_avx2() -> bool {
-    #[cfg(all(target_arch = "x86_64", feature = "std"))]
-    {
-        std::arch::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(all(target_arch = "x86_64", feature = "std")))]
-    {
-        cfg!(target_feature = "avx2")
-    }
+    Kernels::best().tier() >= Tier::Avx2Fma
 }
 
 #[cfg(target_arch = "x86_64")]
