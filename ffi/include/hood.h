@@ -404,9 +404,14 @@ HOOD_API hood_status HOOD_CALL hood_sim_step(hood_sim *sim, const float *body_ne
 
 /* What the last successful hood_sim_step did, as HOOD_STEP_* flags (0 before the first step; a
  * refused step leaves them). A teleported or sleeping step does nothing else; the other flags may
- * combine. Teleports by hood_sim_teleport, resets and loaded states are not steps. */
-#define HOOD_STEP_TELEPORTED 1u    /* the body jumped beyond teleport_threshold: the garment was
-                                      moved by the body's rigid motion instead of stepped */
+ * combine. The calls that place the garment without a step report as follows: after
+ * hood_sim_teleport, HOOD_STEP_TELEPORTED alone (the garment moved as an automatic teleport moves
+ * it); after hood_sim_reset and hood_sim_load_state, 0, as before the first step (no step has run
+ * from the new state: a loaded state does not bring the saving sim's flags). Refused, these calls
+ * leave the flags too. After hood_driver_update: the flags of the last model step it ran. */
+#define HOOD_STEP_TELEPORTED 1u    /* the garment was moved rigidly instead of stepped: the body
+                                      jumped beyond teleport_threshold (its best-fit rigid motion),
+                                      or hood_sim_teleport was called */
 #define HOOD_STEP_SLEPT 2u         /* sleeping: body and garment at rest, the step was skipped */
 #define HOOD_STEP_STARTUP 4u       /* the start-up (relaxation) pass ran before the regular one */
 #define HOOD_STEP_SPEED_LIMITED 8u /* the body's centroid moved beyond speed_limit: the garment was
@@ -432,7 +437,7 @@ HOOD_API hood_status HOOD_CALL hood_sim_set_pin_targets(hood_sim *sim, const flo
 /* Restarts from `positions` (3 * n_vertices floats) with zero velocity; the start-up step runs
  * again if configured. `body_positions` (optional, NULL with 0 to keep the current body): the
  * body's vertices now, used as both previous and current frame (a body at rest). Pinned
- * vertices' targets become their given positions. */
+ * vertices' targets become their given positions. hood_sim_last_effects then gives 0. */
 HOOD_API hood_status HOOD_CALL hood_sim_reset(hood_sim *sim, const float *positions, size_t n_vertices,
                                               const float *body_positions, size_t n_body_vertices);
 
@@ -446,7 +451,7 @@ HOOD_API hood_status HOOD_CALL hood_sim_reset(hood_sim *sim, const float *positi
  * hood_sim_load_state refuses bytes that are not a saved state of this format, fail their
  * checksum or are truncated (HOOD_ERR_CORRUPT_DATA), come from another garment or body
  * (HOOD_ERR_SIZE_MISMATCH) or hold a non-finite value (HOOD_ERR_NON_FINITE), and then changes
- * nothing. */
+ * nothing. After a load, hood_sim_last_effects gives 0 (the flags are not part of the state). */
 HOOD_API hood_status HOOD_CALL hood_sim_state_size(const hood_sim *sim, size_t *out);
 HOOD_API hood_status HOOD_CALL hood_sim_save_state(const hood_sim *sim, uint8_t *out, size_t len);
 HOOD_API hood_status HOOD_CALL hood_sim_load_state(hood_sim *sim, const uint8_t *bytes, size_t len);
@@ -458,7 +463,7 @@ HOOD_API hood_status HOOD_CALL hood_sim_load_state(hood_sim *sim, const uint8_t 
  * for the identity. `translation`: 3 floats (m), NULL for none. The body is then at rest at
  * `body_now` (3 * n_body_vertices floats: its vertices now, as previous and current frame), or,
  * with NULL and 0, at its current vertices moved by the same motion. Later hood_sim_step calls
- * pass the body in the moved frame. */
+ * pass the body in the moved frame. hood_sim_last_effects then gives HOOD_STEP_TELEPORTED. */
 HOOD_API hood_status HOOD_CALL hood_sim_teleport(hood_sim *sim, const float *rotation, const float *translation,
                                                  const float *body_now, size_t n_body_vertices);
 

@@ -111,7 +111,8 @@ pub const HOOD_EFFECT_COLLISION_PROJECTION: u32 = 128;
 pub const HOOD_EFFECT_REFINE: u32 = 256;
 const ALL_EFFECTS: u32 = 511;
 
-/// Step flag: the body jumped; the garment was moved rigidly instead of stepped.
+/// Step flag: the garment was moved rigidly instead of stepped (a body jump, or
+/// `hood_sim_teleport`).
 pub const HOOD_STEP_TELEPORTED: u32 = 1;
 /// Step flag: sleeping; the step was skipped.
 pub const HOOD_STEP_SLEPT: u32 = 2;
@@ -1637,7 +1638,8 @@ pub unsafe extern "C" fn hood_sim_body_survey(sim: *const hood_sim, out: *mut ho
     })
 }
 
-/// What the last successful step did, as `HOOD_STEP_*` flags (see the header).
+/// What the last successful step did, as `HOOD_STEP_*` flags (see the header; teleports, resets
+/// and loaded states report as [`Sim::last_effects`] does).
 ///
 /// # Safety
 /// `sim` is NULL or a handle (checked); `flags` is NULL or writable.

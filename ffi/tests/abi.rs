@@ -1681,3 +1681,53 @@ fn an_allocator_after_the_first_allocation_is_refused() {
         assert_eq!(hood_set_allocator(&hood_allocator { free: None, ..a }), HOOD_ERR_NULL_POINTER);
     }
 }
+
+/// The calls that place the garment without a step: a teleport reads as a teleported step;
+/// a reset or a loaded state as no step yet; refused, they leave the flags.
+#[test]
+fn last_effects_after_teleport_reset_and_load_state() {
+    let l = load(8, 21);
+    let sc = scene(5);
+    let n = sc.rest.len();
+    let mut out = vec![[0.0f32; 3]; n];
+    let sim = sim_with(&sc, l.model, |_| {});
+    let still = sc.body_at(0, [0.0; 3]);
+    assert_eq!(step(sim, &still, &mut out), HOOD_OK);
+    assert_eq!(last_effects(sim), HOOD_STEP_STARTUP);
+    let mut len = 0usize;
+    // SAFETY: a live sim; writable out.
+    assert_eq!(unsafe { hood_sim_state_size(sim, &mut len) }, HOOD_OK);
+    let mut saved = vec![0u8; len];
+    // SAFETY: `len` writable bytes.
+    assert_eq!(unsafe { hood_sim_save_state(sim, saved.as_mut_ptr(), len) }, HOOD_OK);
+    let t = [0.5f32, 0.0, 0.0];
+    let bad_rotation = [2.0f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    // SAFETY: a live sim; 9 and 3 floats; NULL body with 0 keeps the current one (moved).
+    unsafe {
+        assert_eq!(hood_sim_teleport(sim, null(), t.as_ptr(), null(), 0), HOOD_OK, "{}", last_error());
+        assert_eq!(last_effects(sim), HOOD_STEP_TELEPORTED);
+        assert_eq!(step(sim, &sc.body_at(0, t), &mut out), HOOD_OK);
+        assert_eq!(last_effects(sim), 0, "a plain step after the teleport");
+        assert_eq!(hood_sim_teleport(sim, bad_rotation.as_ptr(), null(), null(), 0), HOOD_ERR_OUT_OF_RANGE);
+        assert_eq!(last_effects(sim), 0, "a refused teleport leaves the flags");
+        assert_eq!(hood_sim_teleport(sim, null(), t.as_ptr(), null(), 0), HOOD_OK);
+        // A refused load leaves the flags; a load clears them.
+        assert_eq!(hood_sim_load_state(sim, saved.as_ptr(), len - 1), HOOD_ERR_CORRUPT_DATA);
+        assert_eq!(last_effects(sim), HOOD_STEP_TELEPORTED);
+        assert_eq!(hood_sim_load_state(sim, saved.as_ptr(), len), HOOD_OK, "{}", last_error());
+        assert_eq!(last_effects(sim), 0);
+        // A reset likewise (after an automatic teleport, a jump of a metre).
+        assert_eq!(step(sim, &sc.body_at(1, [1.0, 0.0, 0.0]), &mut out), HOOD_OK);
+        assert_eq!(last_effects(sim), HOOD_STEP_TELEPORTED);
+        let mut nan = sc.rest.clone();
+        nan[2][0] = f32::NAN;
+        assert_eq!(hood_sim_reset(sim, nan.as_ptr().cast(), n, null(), 0), HOOD_ERR_NON_FINITE);
+        assert_eq!(last_effects(sim), HOOD_STEP_TELEPORTED);
+        assert_eq!(hood_sim_reset(sim, sc.rest.as_ptr().cast(), n, still.as_ptr().cast(), still.len()), HOOD_OK);
+        assert_eq!(last_effects(sim), 0);
+        // The reset sim starts over: its next step runs the start-up pass again.
+        assert_eq!(step(sim, &still, &mut out), HOOD_OK);
+        assert_eq!(last_effects(sim), HOOD_STEP_STARTUP);
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+    }
+}

@@ -515,7 +515,8 @@ impl<'m> Sim<'m> {
         &self.state
     }
 
-    /// Replaces the state (e.g. a saved one, or a garment placed on a posed body).
+    /// Replaces the state (e.g. a saved one, or a garment placed on a posed body). No step has
+    /// run from it: [`Sim::last_effects`] reads all false until the next step.
     ///
     /// # Errors
     /// [`Error::SizeMismatch`] for wrong lengths; [`Error::NonFinite`]. The state is unchanged
@@ -541,6 +542,8 @@ impl<'m> Sim<'m> {
         self.rest_frames = 0;
         // The state is in world coordinates: the speed limit's frame of reference starts anew.
         self.last_carry = [0.0; 3];
+        // No step has run from this state yet.
+        self.last_effects = StepEffects::default();
         if self.cfg.normals {
             vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
         }
@@ -622,8 +625,8 @@ impl<'m> Sim<'m> {
                 };
             if jump {
                 let motion = best_rigid_motion(&self.state.body_pos, body_next);
+                // Reports itself in `last_effects`.
                 self.teleport(&motion, body_next)?;
-                self.last_effects = StepEffects { teleported: true, ..StepEffects::default() };
                 return Ok(&self.state.pos);
             }
         }
@@ -680,7 +683,8 @@ impl<'m> Sim<'m> {
 
     /// Moves the garment (positions, velocities, pin targets) by `motion` without simulating,
     /// and puts the body at `body_now` at rest (previous = current). For a body that jumps
-    /// (a cut, a respawn): [`SimConfig::teleport`] does this by itself for large jumps.
+    /// (a cut, a respawn): [`SimConfig::teleport`] does this by itself for large jumps. Either
+    /// way [`Sim::last_effects`] then reads [`StepEffects::teleported`] alone.
     ///
     /// # Errors
     /// [`Error::SizeMismatch`], [`Error::NonFinite`] for bad body input (state unchanged).
@@ -709,6 +713,7 @@ impl<'m> Sim<'m> {
             self.state.body_prev.copy_from_slice(body_now);
         }
         self.last_carry = [0.0; 3];
+        self.last_effects = StepEffects { teleported: true, ..StepEffects::default() };
         if self.cfg.normals {
             vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
         }

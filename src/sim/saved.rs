@@ -94,7 +94,7 @@ impl Sim<'_> {
 
     /// Restores a state [`Sim::save_state`] wrote, from a sim of the same garment and body
     /// (vertex counts are checked; the configuration is this sim's). Allocates nothing; on
-    /// error the state is unchanged.
+    /// error the state is unchanged. [`Sim::last_effects`] reads all false until the next step.
     ///
     /// # Errors
     /// [`Error::CorruptData`] for bytes that are not a saved state of this version, fail their
@@ -158,6 +158,8 @@ impl Sim<'_> {
         s.started = flags & 1 == 1;
         self.rest_frames = rest_frames;
         self.last_carry = carry;
+        // A report of this sim's last step, not part of the state: none has run from it yet.
+        self.last_effects = super::StepEffects::default();
         if self.cfg.normals {
             crate::mesh::vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
         }
