@@ -441,6 +441,22 @@ HOOD_API hood_status HOOD_CALL hood_sim_set_pin_targets(hood_sim *sim, const flo
 HOOD_API hood_status HOOD_CALL hood_sim_reset(hood_sim *sim, const float *positions, size_t n_vertices,
                                               const float *body_positions, size_t n_body_vertices);
 
+/* Places a garment authored in the rest pose on the body, as the Rust scenes start theirs
+ * (hood::scene::push_out_of, bitwise): every unpinned vertex closer than 2 mm
+ * (hood::scene::INITIAL_CLEARANCE) to the plane of its nearest body face (the face whose centroid
+ * is nearest; omitted vertices do not matter here), or behind that plane, moves along the face's
+ * normal to 2 mm in front of it; every other vertex stays. `body`: as for hood_sim_new, at the
+ * frame the sim starts from (wound inside out: HOOD_ERR_INSIDE_OUT). `positions`: 3 * n_vertices
+ * floats, all finite (else HOOD_ERR_NON_FINITE), read and overwritten in place; they must not
+ * overlap the body's arrays or `pinned` (HOOD_ERR_BAD_POINTER). `pinned` (optional, NULL for
+ * none): n_vertices flags, nonzero = the vertex stays. `moved` (optional, NULL to ignore):
+ * receives how many vertices moved. On error neither `positions` nor `moved` is written. Needs no
+ * handle; any thread. Typical use: hood_sim_new with the garment, then hood_sim_reset from the
+ * pushed-out positions (the garment's rest shape, which sets its cloth's lengths, stays as
+ * authored). */
+HOOD_API hood_status HOOD_CALL hood_garment_push_out(const hood_body_desc *body, float *positions, size_t n_vertices,
+                                                     const uint8_t *pinned, size_t *moved);
+
 /* The whole state between steps as bytes, for save games, rollback netcode and LOD swaps:
  * garment positions and velocities, pin targets, the body's previous and current frames, whether
  * the start-up step has run, the sleeping count and the speed limit's carry (a versioned,

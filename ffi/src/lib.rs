@@ -1343,6 +1343,31 @@ impl Drop for SimCount<'_> {
     }
 }
 
+/// Reads a body descriptor: the struct as given, the mesh (with its omitted flags) and the
+/// first-frame positions.
+///
+/// # Safety
+/// `body` is NULL (refused) or holds the `struct_size` bytes it states, and its arrays hold the
+/// documented counts, unchanged during the call.
+unsafe fn read_body<'a>(body: *const hood_body_desc) -> Result<(hood_body_desc, BodyMesh, &'a [[f32; 3]])> {
+    // SAFETY: `struct_size` readable bytes (caller); NULL is refused.
+    let b = unsafe { read_struct(body, "body")? };
+    require(b.positions, "body positions")?;
+    require(b.indices, "body indices")?;
+    // SAFETY: counts are the caller's promise.
+    let pos = unsafe { points(b.positions, b.n_vertices, "body positions")? };
+    // SAFETY: as above.
+    let faces = unsafe { slice(b.indices as *const [u32; 3], b.n_faces, "body indices")? };
+    let mut mesh = BodyMesh::new(b.n_vertices, faces)?;
+    if !b.omitted.is_null() {
+        // SAFETY: as above.
+        let om: Vec<bool> =
+            unsafe { slice(b.omitted, b.n_vertices, "body omitted")? }.iter().map(|&o| o != 0).collect();
+        mesh = mesh.with_omitted(&om)?;
+    }
+    Ok((b, mesh, pos))
+}
+
 /// Creates a sim (see the header).
 ///
 /// # Safety
@@ -1371,21 +1396,8 @@ pub unsafe extern "C" fn hood_sim_new(
         let body_parts = if body.is_null() {
             None
         } else {
-            // SAFETY: non-null; `struct_size` readable bytes (caller).
-            let b = unsafe { read_struct(body, "body")? };
-            require(b.positions, "body positions")?;
-            require(b.indices, "body indices")?;
-            // SAFETY: counts are the caller's promise.
-            let pos = unsafe { points(b.positions, b.n_vertices, "body positions")? };
-            // SAFETY: as above.
-            let faces = unsafe { slice(b.indices as *const [u32; 3], b.n_faces, "body indices")? };
-            let mut mesh = BodyMesh::new(b.n_vertices, faces)?;
-            if !b.omitted.is_null() {
-                // SAFETY: as above.
-                let om: Vec<bool> =
-                    unsafe { slice(b.omitted, b.n_vertices, "body omitted")? }.iter().map(|&o| o != 0).collect();
-                mesh = mesh.with_omitted(&om)?;
-            }
+            // SAFETY: the caller's promise.
+            let (_, mesh, pos) = unsafe { read_body(body)? };
             Some((mesh, pos))
         };
         // Count the sim in the model under the registry lock, so that `hood_model_free` on
@@ -1797,6 +1809,63 @@ pub unsafe extern "C" fn hood_sim_reset(
         s.sim.set_state(&state)?;
         // Pins hold where the garment was placed (always finite: `set_state` checked them).
         s.sim.set_pin_targets(pos)?;
+        Ok(())
+    })
+}
+
+/// Pushes a garment's unpinned vertices out of the body at its first frame, in place (see the
+/// header): [`hood::scene::push_out_of`] on the caller's arrays.
+///
+/// # Safety
+/// `body` is NULL or holds the `struct_size` bytes it states, with arrays of the stated counts;
+/// `positions` is NULL or holds `3 * n_vertices` floats; `pinned` is NULL or holds `n_vertices`
+/// bytes; `moved` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn hood_garment_push_out(
+    body: *const hood_body_desc,
+    positions: *mut f32,
+    n_vertices: usize,
+    pinned: *const u8,
+    moved: *mut usize,
+) -> hood_status {
+    guard(|| {
+        require(body, "body")?;
+        require(positions, "positions")?;
+        // SAFETY: the caller's promise.
+        let (b, mesh, body_pos) = unsafe { read_body(body)? };
+        // The in/out array overlaps no input (checked before any of it is read as a slice).
+        let point = size_of::<[f32; 3]>();
+        let out = (positions.cast_const().cast::<u8>(), n_vertices.saturating_mul(point));
+        for (input, len) in [
+            (b.positions.cast::<u8>(), b.n_vertices.saturating_mul(point)),
+            (b.indices.cast::<u8>(), b.n_faces.saturating_mul(size_of::<[u32; 3]>())),
+            (b.omitted, if b.omitted.is_null() { 0 } else { b.n_vertices }),
+            (pinned, if pinned.is_null() { 0 } else { n_vertices }),
+        ] {
+            disjoint(input, len, out.0, out.1, "positions")?;
+        }
+        if mesh.survey(body_pos)?.inside_out() {
+            return Err(Error::InsideOut { what: "body" }.into());
+        }
+        // SAFETY: `3 * n_vertices` readable floats (caller), overlapping no other input.
+        let mut x = unsafe { points(positions, n_vertices, "positions")? }.to_vec();
+        if let Some(i) = x.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+            return Err(Error::NonFinite { what: "garment position", index: i }.into());
+        }
+        let pins: Vec<bool> = if pinned.is_null() {
+            Vec::new()
+        } else {
+            // SAFETY: `n_vertices` readable bytes (caller).
+            unsafe { slice(pinned, n_vertices, "pinned")? }.iter().map(|&p| p != 0).collect()
+        };
+        let count = hood::scene::push_out_of(&mesh, body_pos, &mut x, &pins)?;
+        // Written only now, on success.
+        // SAFETY: `3 * n_vertices` writable floats (caller), overlapping no input (checked).
+        unsafe { points_mut(positions, n_vertices, "positions")? }.copy_from_slice(&x);
+        if !moved.is_null() {
+            // SAFETY: non-null; writable by the caller's promise.
+            unsafe { write_out(moved, count) };
+        }
         Ok(())
     })
 }

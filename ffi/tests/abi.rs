@@ -1682,6 +1682,158 @@ fn an_allocator_after_the_first_allocation_is_refused() {
     }
 }
 
+/// `hood_garment_push_out` on caller arrays; `moved` starts at a sentinel.
+fn push_out(body: *const hood_body_desc, x: &mut [[f32; 3]], pinned: *const u8, moved: &mut usize) -> hood_status {
+    // SAFETY: `x` holds its length in points; `pinned` is NULL or holds as many flags.
+    unsafe { hood_garment_push_out(body, x.as_mut_ptr().cast(), x.len(), pinned, moved) }
+}
+
+/// The scene's cloth lowered into the body's top (y = 0.25 inside a body 0.3 high), pinned at
+/// its two outer corners and at one vertex inside the body.
+fn cloth_in_body(sc: &Scene) -> (Vec<[f32; 3]>, Vec<u8>) {
+    let x: Vec<[f32; 3]> = sc.rest.iter().map(|p| [p[0], 0.25, p[2]]).collect();
+    let mut pinned = sc.pinned.clone();
+    let r2 = |p: &[f32; 3]| p[0] * p[0] + p[2] * p[2];
+    let inner = (0..x.len()).min_by(|&a, &b| r2(&x[a]).total_cmp(&r2(&x[b]))).unwrap();
+    pinned[inner] = 1;
+    (x, pinned)
+}
+
+fn bits(x: &[[f32; 3]]) -> Vec<[u32; 3]> {
+    x.iter().map(|p| p.map(f32::to_bits)).collect()
+}
+
+#[test]
+fn garment_push_out_moves_cloth_out_of_the_body_as_rust_does() {
+    use hood::scene::INITIAL_CLEARANCE;
+    let sc = scene(9);
+    let bd = sc.body_desc();
+    let (start, pinned) = cloth_in_body(&sc);
+    let n = start.len();
+    // The Rust function on the same input, and the faces it pushes along (nearest by centroid).
+    let mesh = hood::body::BodyMesh::new(sc.body.len(), &sc.body_faces).unwrap();
+    let pins: Vec<bool> = pinned.iter().map(|&p| p != 0).collect();
+    let mut want = start.clone();
+    let want_moved = hood::scene::push_out_of(&mesh, &sc.body, &mut want, &pins).unwrap();
+    let mut frame = hood::body::BodyFrame::new(&mesh).unwrap();
+    frame.update(&mesh, &sc.body).unwrap();
+    let mut near = vec![hood::body::Nearest { index: 0, distance: 0.0 }; n];
+    frame.nearest_faces(&start, &mut near).unwrap();
+    let faces = hood::physics::FaceFrame { centroids: frame.centroids(), normals: frame.face_normals() };
+    let plane = |p: [f32; 3], i: usize| hood::physics::plane_distance(p, near[i].index as usize, faces);
+    let inside = |x: &[[f32; 3]], i: usize| {
+        let p = x[i].map(f64::from);
+        hood::body::winding_number_exact(&sc.body_faces, &sc.body, p).abs() > 0.5
+    };
+
+    let mut x = start.clone();
+    let mut moved = usize::MAX;
+    assert_eq!(push_out(&bd, &mut x, pinned.as_ptr(), &mut moved), HOOD_OK, "{}", last_error());
+    assert_eq!(bits(&x), bits(&want), "the C result differs from hood::scene::push_out_of");
+    assert_eq!(moved, want_moved);
+    let changed = (0..n).filter(|&i| x[i] != start[i]).count();
+    assert_eq!(moved, changed, "moved counts the vertices that moved");
+    let was_inside = (0..n).filter(|&i| !pins[i] && inside(&start, i)).count();
+    assert!(was_inside >= 4 && moved >= was_inside, "{was_inside} unpinned vertices inside, {moved} moved");
+    for i in 0..n {
+        if pins[i] {
+            assert_eq!(x[i].map(f32::to_bits), start[i].map(f32::to_bits), "pinned vertex {i} moved");
+        } else {
+            let d = plane(x[i], i);
+            assert!(d >= INITIAL_CLEARANCE - 1e-6, "vertex {i}: {d} m in front of its face");
+            assert!(!inside(&x, i), "vertex {i} is still inside the body");
+            if x[i] != start[i] {
+                assert!(plane(start[i], i) < INITIAL_CLEARANCE, "vertex {i} moved from {} m", plane(start[i], i));
+            }
+        }
+    }
+    // The pinned vertex inside stays inside.
+    assert!((0..n).any(|i| pins[i] && inside(&x, i)));
+    // `moved` and `pinned` are optional; without pins every vertex inside moves.
+    let mut y = start.clone();
+    // SAFETY: `y` holds n points.
+    assert_eq!(unsafe { hood_garment_push_out(&bd, y.as_mut_ptr().cast(), n, pinned.as_ptr(), null_mut()) }, HOOD_OK);
+    assert_eq!(bits(&y), bits(&x));
+    let mut y = start.clone();
+    let mut unpinned = start.clone();
+    let unpinned_moved = hood::scene::push_out_of(&mesh, &sc.body, &mut unpinned, &[]).unwrap();
+    assert_eq!(push_out(&bd, &mut y, null(), &mut moved), HOOD_OK);
+    assert_eq!((bits(&y), moved), (bits(&unpinned), unpinned_moved));
+    assert!(moved > changed && (0..n).all(|i| !inside(&y, i)), "the pinned vertex inside moves too");
+    // Zero vertices: nothing to do.
+    // SAFETY: zero points at a valid address.
+    assert_eq!(unsafe { hood_garment_push_out(&bd, y.as_mut_ptr().cast(), 0, null(), &mut moved) }, HOOD_OK);
+    assert_eq!(moved, 0);
+}
+
+#[test]
+fn garment_push_out_refuses_bad_input_and_writes_nothing() {
+    let sc = scene(9);
+    let bd = sc.body_desc();
+    let (start, pinned) = cloth_in_body(&sc);
+    let n = start.len();
+    // Calls on a copy of the cloth; a refusal must leave it and `moved` alone.
+    let call = |body: *const hood_body_desc, x: &mut [[f32; 3]], pinned: *const u8| {
+        let before = bits(x);
+        let mut moved = usize::MAX;
+        let s = push_out(body, x, pinned, &mut moved);
+        if s != HOOD_OK {
+            assert_eq!(bits(x), before, "positions written on error ({s})");
+            assert_eq!(moved, usize::MAX, "moved written on error ({s})");
+        }
+        s
+    };
+    let fresh = || start.clone();
+    assert_eq!(call(&bd, &mut fresh(), pinned.as_ptr()), HOOD_OK, "{}", last_error());
+    // NULL pointers.
+    assert_eq!(call(null(), &mut fresh(), null()), HOOD_ERR_NULL_POINTER);
+    let mut moved = 7usize;
+    // SAFETY: NULL positions are what the library must catch.
+    assert_eq!(unsafe { hood_garment_push_out(&bd, null_mut(), n, null(), &mut moved) }, HOOD_ERR_NULL_POINTER);
+    assert_eq!(moved, 7);
+    for b in [hood_body_desc { positions: null(), ..bd }, hood_body_desc { indices: null(), ..bd }] {
+        assert_eq!(call(&b, &mut fresh(), null()), HOOD_ERR_NULL_POINTER);
+        assert!(last_error().contains("body"), "{}", last_error());
+    }
+    // Wrong sizes: struct_size, faces naming vertices past n_vertices, no faces, an absurd count.
+    check_struct_size_rule(bd, size_of::<hood_body_desc>(), |b| call(b, &mut fresh(), null()));
+    assert_eq!(call(&hood_body_desc { n_vertices: 10, ..bd }, &mut fresh(), null()), HOOD_ERR_INDEX_OUT_OF_RANGE);
+    assert_eq!(call(&hood_body_desc { n_faces: 0, ..bd }, &mut fresh(), null()), HOOD_ERR_EMPTY);
+    let mut x = fresh();
+    // SAFETY: refused before the count is used to read (its byte size overflows).
+    let s = unsafe { hood_garment_push_out(&bd, x.as_mut_ptr().cast(), usize::MAX / 4, null(), &mut moved) };
+    assert_eq!(s, HOOD_ERR_OUT_OF_RANGE, "{}", last_error());
+    assert_eq!((bits(&x), moved), (bits(&start), 7));
+    // Non-finite garment positions (a pinned one too) and body positions.
+    for (i, v) in [(5, f32::NAN), (0, f32::INFINITY), (n - 1, f32::NEG_INFINITY)] {
+        let mut x = fresh();
+        x[i][1] = v;
+        assert_eq!(call(&bd, &mut x, pinned.as_ptr()), HOOD_ERR_NON_FINITE);
+        assert!(last_error().contains(&format!("garment position {i}")), "{}", last_error());
+    }
+    let mut body = sc.body.clone();
+    body[3][2] = f32::NAN;
+    let nan_body = common::body_desc(&body, &sc.body_faces);
+    assert_eq!(call(&nan_body, &mut fresh(), null()), HOOD_ERR_NON_FINITE);
+    assert!(last_error().contains("body vertex 3"), "{}", last_error());
+    // A body wound inside out would push the cloth into it.
+    let flipped: Vec<[u32; 3]> = sc.body_faces.iter().map(|f| [f[0], f[2], f[1]]).collect();
+    let inside_out = hood_body_desc { indices: flipped.as_ptr().cast(), ..bd };
+    assert_eq!(call(&inside_out, &mut fresh(), null()), HOOD_ERR_INSIDE_OUT);
+    // The in/out array overlapping an input, or misaligned.
+    let mut body = sc.body.clone();
+    let aliased = common::body_desc(&body, &sc.body_faces);
+    assert_eq!(call(&aliased, &mut body[2..2 + n.min(20)], null()), HOOD_ERR_BAD_POINTER);
+    let mut x = fresh();
+    let flags = x.as_ptr().cast::<u8>();
+    assert_eq!(call(&bd, &mut x, flags), HOOD_ERR_BAD_POINTER);
+    let mut raw = vec![0.0f32; 3 * n + 1];
+    let odd = raw.as_mut_ptr().cast::<u8>().wrapping_add(1).cast::<f32>();
+    // SAFETY: refused before `odd` is read (misaligned).
+    assert_eq!(unsafe { hood_garment_push_out(&bd, odd, n, null(), &mut moved) }, HOOD_ERR_BAD_POINTER);
+    assert!(raw.iter().all(|&v| v == 0.0) && moved == 7);
+}
+
 /// The calls that place the garment without a step: a teleport reads as a teleported step;
 /// a reset or a loaded state as no step yet; refused, they leave the flags.
 #[test]

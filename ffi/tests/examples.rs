@@ -7,11 +7,13 @@ use common::*;
 use std::path::Path;
 use std::process::Command;
 
-/// The report of an example run: steps, and the final bounding box.
+/// The report of an example run: steps, the final bounding box, and the vertices pushed out of
+/// the body at the start (C example only).
 struct Report {
     steps: usize,
     min: [f64; 3],
     max: [f64; 3],
+    pushed: Option<usize>,
 }
 
 fn parse(stdout: &str) -> Report {
@@ -26,7 +28,8 @@ fn parse(stdout: &str) -> Report {
         .map(|w| w.parse().unwrap_or(f64::NAN))
         .collect();
     assert_eq!(nums.len(), 6, "{stdout}");
-    Report { steps, min: [nums[0], nums[1], nums[2]], max: [nums[3], nums[4], nums[5]] }
+    let pushed = stdout.lines().find_map(|l| l.strip_prefix("pushed out: ")?.strip_suffix(" vertices")?.parse().ok());
+    Report { steps, min: [nums[0], nums[1], nums[2]], max: [nums[3], nums[4], nums[5]], pushed }
 }
 
 fn run(exe: &Path, model: &Path, grid: usize) -> Report {
@@ -56,7 +59,10 @@ fn c_example_builds_and_drapes() {
     let model = model_file(&dir, 16, 7);
     let exe = dir.join("drape");
     compile("cc", C_FLAGS, &example("drape.c"), &exe);
-    check_report(&run(&exe, &model, 16));
+    let r = run(&exe, &model, 16);
+    check_report(&r);
+    // The cloth starts 2 cm above the body: the push-out leaves it.
+    assert_eq!(r.pushed, Some(0));
 }
 
 #[test]
