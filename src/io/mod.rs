@@ -3,6 +3,7 @@
 //! [`crate::Error::Io`].
 
 pub mod bvh;
+pub mod export;
 pub mod json;
 pub mod makehuman;
 pub mod obj;

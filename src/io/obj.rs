@@ -1,8 +1,9 @@
-//! Wavefront OBJ: a reader for positions, polygons (fan-triangulated) and groups; group
-//! extraction; connected components; a writer.
+//! Wavefront OBJ: a reader for positions, texture coordinates, normals, polygons (kept corner by
+//! corner and fan-triangulated) and groups; group extraction; connected components; a writer.
+//! [`crate::io::export::ObjTemplate`] writes a file again with new positions.
 //!
-//! Read: `v x y z [...]` (extra components such as `w` or vertex colours are ignored), `vt`/`vn`
-//! (counted so that face references to them are checked, otherwise ignored), `f` with `v`,
+//! Read: `v x y z [...]` (extra components such as `w` or vertex colours are ignored), `vt u [v
+//! [w]]` (`v` 0 when missing, `w` ignored), `vn x y z`, `f` with `v`,
 //! `v/vt`, `v//vn` or `v/vt/vn` corners (the forms may mix), 1-based or negative (relative)
 //! indices, polygons fan-triangulated as `(a,b,c), (a,c,d), ...`; `g` and `o` set the current
 //! group (see [`Obj::groups`]); `#` starts a comment; a line ending in `\` continues on the next.
@@ -23,6 +24,15 @@ use std::vec::Vec;
 pub struct Obj {
     /// Vertex positions in file units.
     pub positions: Vec<[f32; 3]>,
+    /// Texture coordinates (`vt`), in file order.
+    pub uvs: Vec<[f32; 2]>,
+    /// Normals (`vn`) as written (not normalised), in file order.
+    pub normals: Vec<[f32; 3]>,
+    /// The corners of every `f` statement, polygon after polygon (`face_sizes` says how many
+    /// each has), as written: 0-based indices into `positions`, `uvs` and `normals`.
+    pub corners: Vec<Corner>,
+    /// Corners per `f` statement, in file order.
+    pub face_sizes: Vec<u32>,
     /// Triangles (polygons fan-triangulated), 0-based indices into `positions`. Kept as read: a
     /// polygon that repeats a vertex gives triangles that do too (see [`crate::mesh::repair`]).
     pub triangles: Vec<[u32; 3]>,
@@ -38,18 +48,27 @@ pub struct Obj {
     pub n_polygons: usize,
 }
 
+/// One corner of an OBJ face: 0-based indices of its position, texture coordinate and normal.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Corner {
+    /// Index into [`Obj::positions`].
+    pub v: u32,
+    /// Index into [`Obj::uvs`], if the corner names one.
+    pub vt: Option<u32>,
+    /// Index into [`Obj::normals`], if the corner names one.
+    pub vn: Option<u32>,
+}
+
 impl Obj {
     /// Parses OBJ text.
     ///
     /// # Errors
-    /// [`Error::Parse`] with format `"obj"` and the 1-based line of the statement: a vertex
-    /// without three numbers, a non-finite coordinate, a face with fewer than three corners, a
+    /// [`Error::Parse`] with format `"obj"` and the 1-based line of the statement: a vertex or
+    /// normal without three numbers, a texture coordinate without one, a non-finite number, a face with fewer than three corners, a
     /// malformed corner, index 0, or an index past the elements defined so far.
     pub fn parse(text: &str) -> Result<Obj> {
         let mut obj = Obj::default();
-        let (mut n_vt, mut n_vn) = (0usize, 0usize);
         let mut current_group: Option<u32> = None;
-        let mut corners: Vec<u32> = Vec::new();
         let mut logical = String::new();
         let mut lines = text.lines().enumerate().peekable();
         while let Some((i, raw)) = lines.next() {
@@ -81,28 +100,23 @@ impl Obj {
             let Some(keyword) = tokens.next() else { continue };
             let err = |m: String| Error::parse("obj", start_line, m);
             match keyword {
-                "v" => {
-                    let mut p = [0.0f32; 3];
-                    for (a, c) in p.iter_mut().enumerate() {
-                        let t = tokens.next().ok_or_else(|| err(format!("vertex has {a} coordinates, needs 3")))?;
-                        *c = t.parse::<f32>().map_err(|_| err(format!("bad vertex coordinate '{t}'")))?;
-                        if !c.is_finite() {
-                            return Err(err(format!("non-finite vertex coordinate '{t}'")));
-                        }
-                    }
-                    obj.positions.push(p);
+                "v" => obj.positions.push(numbers(&mut tokens, 3, "vertex").map_err(&err)?),
+                "vt" => {
+                    let [u, v, _] = numbers(&mut tokens, 1, "texture").map_err(&err)?;
+                    obj.uvs.push([u, v]);
                 }
-                "vt" => n_vt += 1,
-                "vn" => n_vn += 1,
+                "vn" => obj.normals.push(numbers(&mut tokens, 3, "normal").map_err(&err)?),
                 "f" => {
-                    corners.clear();
+                    let first = obj.corners.len();
                     for t in tokens {
-                        let v = parse_corner(t, obj.positions.len(), n_vt, n_vn).map_err(&err)?;
-                        corners.push(v);
+                        let c = parse_corner(t, obj.positions.len(), obj.uvs.len(), obj.normals.len()).map_err(&err)?;
+                        obj.corners.push(c);
                     }
-                    if corners.len() < 3 {
-                        return Err(err(format!("face has {} corners, needs at least 3", corners.len())));
+                    let n = obj.corners.len() - first;
+                    if n < 3 {
+                        return Err(err(format!("face has {n} corners, needs at least 3")));
                     }
+                    obj.face_sizes.push(n as u32);
                     let g = match current_group {
                         Some(g) => g,
                         None => {
@@ -112,8 +126,9 @@ impl Obj {
                         }
                     };
                     let poly = obj.n_polygons as u32;
-                    for k in 1..corners.len() - 1 {
-                        obj.triangles.push([corners[0], corners[k], corners[k + 1]]);
+                    let v = |k: usize| obj.corners[first + k].v;
+                    for k in 1..n - 1 {
+                        obj.triangles.push([v(0), v(k), v(k + 1)]);
                         obj.triangle_group.push(g);
                         obj.triangle_polygon.push(poly);
                     }
@@ -198,8 +213,30 @@ fn group_id(groups: &mut Vec<String>, name: &str) -> u32 {
     }
 }
 
-/// One face corner `v`, `v/vt`, `v//vn` or `v/vt/vn`: the 0-based position index.
-fn parse_corner(t: &str, n_v: usize, n_vt: usize, n_vn: usize) -> core::result::Result<u32, String> {
+/// The first three numbers of a statement (at least `needed` of them; the others 0), finite.
+fn numbers<'a>(
+    tokens: &mut impl Iterator<Item = &'a str>,
+    needed: usize,
+    what: &str,
+) -> core::result::Result<[f32; 3], String> {
+    let mut p = [0.0f32; 3];
+    for (a, c) in p.iter_mut().enumerate() {
+        let Some(t) = tokens.next() else {
+            if a < needed {
+                return Err(format!("{what} has {a} coordinates, needs {needed}"));
+            }
+            break;
+        };
+        *c = t.parse::<f32>().map_err(|_| format!("bad {what} coordinate '{t}'"))?;
+        if !c.is_finite() {
+            return Err(format!("non-finite {what} coordinate '{t}'"));
+        }
+    }
+    Ok(p)
+}
+
+/// One face corner `v`, `v/vt`, `v//vn` or `v/vt/vn`, 0-based.
+fn parse_corner(t: &str, n_v: usize, n_vt: usize, n_vn: usize) -> core::result::Result<Corner, String> {
     let mut parts = t.split('/');
     let v = parts.next().unwrap_or("");
     let vt = parts.next();
@@ -207,17 +244,17 @@ fn parse_corner(t: &str, n_v: usize, n_vt: usize, n_vn: usize) -> core::result::
     if parts.next().is_some() {
         return Err(format!("bad face corner '{t}' (more than v/vt/vn)"));
     }
-    let pos = resolve(v, n_v, "vertex", t)?;
+    let mut corner = Corner { v: resolve(v, n_v, "vertex", t)?, vt: None, vn: None };
     if let Some(vt) = vt {
         // "v//vn" has an empty texture part; "v/" alone is malformed.
         if !(vt.is_empty() && vn.is_some()) {
-            resolve(vt, n_vt, "texture coordinate", t)?;
+            corner.vt = Some(resolve(vt, n_vt, "texture coordinate", t)?);
         }
     }
     if let Some(vn) = vn {
-        resolve(vn, n_vn, "normal", t)?;
+        corner.vn = Some(resolve(vn, n_vn, "normal", t)?);
     }
-    Ok(pos)
+    Ok(corner)
 }
 
 /// A 1-based or negative (relative to the `count` defined so far) index to 0-based.

@@ -137,3 +137,24 @@ fn obj_errors_name_the_line() {
     let obj = Obj::parse("# c\n\n   \nmtllib x.mtl\nl 1 2\n").unwrap();
     assert!(obj.positions.is_empty() && obj.triangles.is_empty());
 }
+
+#[test]
+fn obj_keeps_texture_coordinates_normals_and_corners() {
+    let text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0.25 0.5\nvt 1 0 0\nvt 0.5\nvn 0 0 2\n\
+                f 1/1/1 2/2/1 3/3/1 4/1/1\nf 1 3//1 -1/-2\n";
+    let obj = Obj::parse(text).unwrap();
+    assert_eq!(obj.uvs, vec![[0.25, 0.5], [1.0, 0.0], [0.5, 0.0]]);
+    assert_eq!(obj.normals, vec![[0.0, 0.0, 2.0]]);
+    assert_eq!(obj.face_sizes, vec![4, 3]);
+    let c = |v, vt, vn| Corner { v, vt, vn };
+    assert_eq!(
+        obj.corners[..4],
+        [c(0, Some(0), Some(0)), c(1, Some(1), Some(0)), c(2, Some(2), Some(0)), c(3, Some(0), Some(0))]
+    );
+    assert_eq!(obj.corners[4..], [c(0, None, None), c(2, None, Some(0)), c(3, Some(1), None)]);
+    assert_eq!(obj.triangles, vec![[0, 1, 2], [0, 2, 3], [0, 2, 3]]);
+    let (line, message) = parse_err("vt\n");
+    assert_eq!((line, message.as_str()), (1, "texture has 0 coordinates, needs 1"));
+    let (line, message) = parse_err("v 0 0 0\nvn 0 x 1\n");
+    assert_eq!((line, message.as_str()), (2, "bad normal coordinate 'x'"));
+}
