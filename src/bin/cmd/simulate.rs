@@ -1,10 +1,11 @@
-//! `hood simulate`: run a model on a scene, write an OBJ sequence and a PNG preview strip, print
-//! per-step timing and the objective.
+//! `hood simulate`: run a model on a scene, write an OBJ sequence (or point caches, a USD stage)
+//! and a PNG preview strip, print per-step timing and the objective.
 
 use crate::objective::ObjectiveArg;
 use clap::Args;
 use hood::eval::{common_state_gaps, rollout_observed, strip_images, Animation, FrameRecord, Method, Playback};
 use hood::eval::{Reference, RolloutOptions, Summary};
+use hood::io::export::{mdd, pc2, usda, write_file, ExportMesh, ObjTemplate};
 use hood::io::obj::Obj;
 use hood::mesh::{Garment, GarmentDesc};
 use hood::model::ModelBytes;
@@ -46,7 +47,7 @@ pub struct SimulateArgs {
     /// Frames to simulate (30 per second).
     #[arg(long, default_value_t = 90)]
     frames: usize,
-    /// Output folder (OBJ sequence `garment_NNNN.obj`, `body_NNNN.obj`, `preview.png`).
+    /// Output folder (`preview.png` and what --export names).
     #[arg(long, short, default_value = "hood-out")]
     out: PathBuf,
     /// Threads of the step.
@@ -112,9 +113,31 @@ pub struct SimulateArgs {
     /// Frames in the preview strip.
     #[arg(long, default_value_t = 6)]
     strip: usize,
-    /// Do not write the OBJ sequence.
+    /// What to write, repeatable or comma-separated: obj (the OBJ sequence `garment_NNNN.obj`,
+    /// `body_NNNN.obj`), pc2 and mdd (point caches `garment.pc2` / `garment.mdd` with
+    /// `garment.obj`, the frame-0 mesh they apply to, and the same for the body), usda
+    /// (`scene.usda`: the garment and body meshes with time-sampled points). All in metres, y up,
+    /// 30 frames per second; a --garment-obj keeps its texture coordinates, groups and materials.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "obj")]
+    export: Vec<Export>,
+    /// Do not write the OBJ sequence (as leaving obj out of --export).
     #[arg(long)]
     no_obj: bool,
+    /// Write no body files (and no body in `scene.usda`).
+    #[arg(long)]
+    no_body: bool,
+}
+
+/// A point-cache writer: frames into bytes.
+type CacheWriter = fn(&mut Vec<u8>, &[Vec<[f32; 3]>]) -> Result<()>;
+
+/// An export of `hood simulate`.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Export {
+    Obj,
+    Pc2,
+    Mdd,
+    Usda,
 }
 
 fn random_model(h: usize) -> Result<ModelBytes> {
@@ -338,26 +361,70 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         ..SimConfig::default()
     };
     let faces = anim.garment().faces().to_vec();
-    let body_faces = anim.body_mesh().map(|b| b.faces().to_vec());
-    let write_obj = |stem: &str, f: usize, pos: &[[f32; 3]], tris: &[[u32; 3]]| -> Result<()> {
-        hood::io::obj::write(a.out.join(format!("{stem}_{f:04}.obj")), pos, tris, None)
-    };
-    if !a.no_obj {
-        write_obj("garment", 0, &anim.initial_garment()?, &faces)?;
-        if let Some(bf) = &body_faces {
-            write_obj("body", 0, anim.body_frame(0), bf)?;
+    let body_faces = if a.no_body { None } else { anim.body_mesh().map(|b| b.faces().to_vec()) };
+    // A garment from a file is written as that file with new positions.
+    let template = a.garment_obj.as_ref().map(ObjTemplate::read).transpose()?;
+    let write_garment = |path: &Path, pos: &[[f32; 3]]| -> Result<()> {
+        match &template {
+            Some(t) => write_file(path, |w| t.write(w, pos)),
+            None => hood::io::obj::write(path, pos, &faces, None),
         }
+    };
+    let sequence = a.export.contains(&Export::Obj) && !a.no_obj;
+    let caches = a.export.iter().any(|e| *e != Export::Obj);
+    let write_sequence = |f: usize, pos: &[[f32; 3]]| -> Result<()> {
+        write_garment(&a.out.join(format!("garment_{f:04}.obj")), pos)?;
+        if let Some(bf) = &body_faces {
+            hood::io::obj::write(a.out.join(format!("body_{f:04}.obj")), anim.body_frame(f), bf, None)?;
+        }
+        Ok(())
+    };
+    let initial = anim.initial_garment()?;
+    if sequence {
+        write_sequence(0, &initial)?;
     }
+    let mut garment_frames = if caches { vec![initial] } else { Vec::new() };
     let r = rollout_observed(&model, &*anim, frames, cfg, &opts, &mut |rec, pos| {
         print_frame(rec, frames);
-        if !a.no_obj {
-            write_obj("garment", rec.frame, pos, &faces)?;
-            if let Some(bf) = &body_faces {
-                write_obj("body", rec.frame, anim.body_frame(rec.frame), bf)?;
-            }
+        if sequence {
+            write_sequence(rec.frame, pos)?;
+        }
+        if caches {
+            garment_frames.push(pos.to_vec());
         }
         Ok(())
     })?;
+    if caches {
+        let body = body_faces.as_ref().map(|bf| {
+            let frames: Vec<Vec<[f32; 3]>> = (0..garment_frames.len()).map(|f| anim.body_frame(f).to_vec()).collect();
+            (bf, frames)
+        });
+        write_garment(&a.out.join("garment.obj"), &garment_frames[0])?;
+        if let Some((bf, frames)) = &body {
+            hood::io::obj::write(a.out.join("body.obj"), &frames[0], bf, None)?;
+        }
+        for e in &a.export {
+            let (ext, write): (&str, CacheWriter) = match e {
+                Export::Pc2 => ("pc2", |w, f| pc2::write(w, f)),
+                Export::Mdd => ("mdd", |w, f| mdd::write(w, f)),
+                _ => continue,
+            };
+            write_file(&a.out.join(format!("garment.{ext}")), |w| write(w, &garment_frames))?;
+            if let Some((_, frames)) = &body {
+                write_file(&a.out.join(format!("body.{ext}")), |w| write(w, frames))?;
+            }
+        }
+        if a.export.contains(&Export::Usda) {
+            let garment_mesh =
+                template.as_ref().map_or_else(|| ExportMesh::from_triangles(&faces), |t| ExportMesh::from_obj(t.obj()));
+            let body_mesh = body.as_ref().map(|(bf, frames)| (ExportMesh::from_triangles(bf), frames));
+            let mut meshes = vec![usda::UsdMesh { name: "garment", mesh: &garment_mesh, frames: &garment_frames }];
+            if let Some((mesh, frames)) = &body_mesh {
+                meshes.push(usda::UsdMesh { name: "body", mesh, frames });
+            }
+            write_file(&a.out.join("scene.usda"), |w| usda::write(w, &meshes))?;
+        }
+    }
     let strip = a.out.join("preview.png");
     hood::io::png::write_strip(&strip, &strip_images(&*anim, &r.kept, 240, 420))?;
     let s = &r.summary;
@@ -408,10 +475,20 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         }
         print_gap_by_term("from common states, by term", c);
     }
-    say!(
-        "wrote {}{}",
-        strip.display(),
-        if a.no_obj { String::new() } else { format!(" and the OBJ sequence in {}", a.out.display()) }
-    );
+    let mut wrote: Vec<String> = a
+        .export
+        .iter()
+        .filter(|e| **e != Export::Obj || sequence)
+        .map(|e| match e {
+            Export::Obj => "the OBJ sequence".to_string(),
+            Export::Pc2 => "garment.pc2".to_string(),
+            Export::Mdd => "garment.mdd".to_string(),
+            Export::Usda => "scene.usda".to_string(),
+        })
+        .collect();
+    wrote.dedup();
+    let also =
+        if wrote.is_empty() { String::new() } else { format!(" and {} in {}", wrote.join(", "), a.out.display()) };
+    say!("wrote {}{also}", strip.display());
     Ok(())
 }
