@@ -5,7 +5,6 @@
 
 use hood::io::export::{mdd, pc2, usda, ExportMesh, ObjTemplate};
 use hood::io::obj::Obj;
-use std::path::Path;
 
 /// A grid of `n` x `n` vertices, `h` apart, at height `y`: quads with texture coordinates, two
 /// groups (the last row of quads in `hem`), a material and per-corner normals.
@@ -192,7 +191,7 @@ fn export_usda_opens_in_the_usd_library() {
 fn export_cli_simulate_writes_every_format() {
     let out = std::env::temp_dir().join(format!("hood-export-cli-test-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let hood = |args: &[&str], dir: &Path| {
+    let hood = |args: &[&str], dir: &std::path::Path| {
         let o = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
             .args(["simulate", "--random-model", "16", "--frames", "3", "--strip", "2"])
             .args(args)
