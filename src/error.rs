@@ -79,7 +79,8 @@ pub enum Error {
         /// Why.
         reason: &'static str,
     },
-    /// The scene asks for an effect the model was not trained with, or the build lacks.
+    /// The scene asks for an effect that the model was not trained with, that the configuration
+    /// excludes, or that this build lacks.
     UnsupportedEffect {
         /// Which effect.
         effect: &'static str,

@@ -134,7 +134,7 @@ typedef uint32_t hood_status;
 #define HOOD_ERR_OUT_OF_RANGE 8u       /* a value is outside its documented range */
 #define HOOD_ERR_CAPACITY_EXCEEDED 9u  /* a capacity fixed at creation was exceeded */
 #define HOOD_ERR_INCOMPATIBLE_MODEL 10u /* the model cannot run this garment/body/config */
-#define HOOD_ERR_UNSUPPORTED_EFFECT 11u /* an effect the model was not trained with */
+#define HOOD_ERR_UNSUPPORTED_EFFECT 11u /* an effect the model, the configuration or this build does not support */
 #define HOOD_ERR_CORRUPT_DATA 12u      /* model bytes corrupt, truncated, misaligned, other version */
 #define HOOD_ERR_PARSE 13u             /* a text input could not be parsed */
 #define HOOD_ERR_IO 14u                /* an operating-system I/O failure */

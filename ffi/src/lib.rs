@@ -671,7 +671,7 @@ fn status_text(code: hood_status) -> &'static CStr {
         HOOD_ERR_OUT_OF_RANGE => c"HOOD_ERR_OUT_OF_RANGE: a value is outside its documented range",
         HOOD_ERR_CAPACITY_EXCEEDED => c"HOOD_ERR_CAPACITY_EXCEEDED: a capacity fixed at creation was exceeded",
         HOOD_ERR_INCOMPATIBLE_MODEL => c"HOOD_ERR_INCOMPATIBLE_MODEL: the model cannot run this garment/body/config",
-        HOOD_ERR_UNSUPPORTED_EFFECT => c"HOOD_ERR_UNSUPPORTED_EFFECT: an effect the model was not trained with",
+        HOOD_ERR_UNSUPPORTED_EFFECT => c"HOOD_ERR_UNSUPPORTED_EFFECT: an effect the model, the configuration or this build does not support",
         HOOD_ERR_CORRUPT_DATA => {
             c"HOOD_ERR_CORRUPT_DATA: model bytes corrupt, truncated, misaligned, other version"
         }
