@@ -362,10 +362,12 @@ fn aligned<T>(p: *const T, what: &'static str) -> Result<()> {
 /// Refuses an output array of `out_len` elements of `T` that overlaps an input of `in_len`
 /// (Rust may not hold a shared and a mutable view of the same memory at once).
 fn disjoint<T>(input: *const T, in_len: usize, out: *const T, out_len: usize, what: &'static str) -> Result<()> {
+    // A length whose byte size overflows is refused as such, not reported as an overlap.
+    byte_len_ok::<T>(in_len)?;
+    byte_len_ok::<T>(out_len)?;
     let size = size_of::<T>();
     let (a, b) = (input as usize, out as usize);
-    let (a_end, b_end) =
-        (a.saturating_add(in_len.saturating_mul(size)), b.saturating_add(out_len.saturating_mul(size)));
+    let (a_end, b_end) = (a.saturating_add(in_len * size), b.saturating_add(out_len * size));
     if in_len == 0 || out_len == 0 || a_end <= b || b_end <= a {
         Ok(())
     } else {
@@ -1834,8 +1836,9 @@ pub unsafe extern "C" fn hood_garment_push_out(
         // SAFETY: the caller's promise.
         let (b, mesh, body_pos) = unsafe { read_body(body)? };
         // The in/out array overlaps no input (checked before any of it is read as a slice).
+        byte_len_ok::<[f32; 3]>(n_vertices)?;
         let point = size_of::<[f32; 3]>();
-        let out = (positions.cast_const().cast::<u8>(), n_vertices.saturating_mul(point));
+        let out = (positions.cast_const().cast::<u8>(), n_vertices * point);
         for (input, len) in [
             (b.positions.cast::<u8>(), b.n_vertices.saturating_mul(point)),
             (b.indices.cast::<u8>(), b.n_faces.saturating_mul(size_of::<[u32; 3]>())),
@@ -2226,6 +2229,22 @@ mod tests {
             assert_eq!(hood_garment_free(garment), HOOD_OK);
         }
         sim
+    }
+
+    /// A length whose byte size overflows is refused as out of range wherever the arrays lie,
+    /// never mistaken for an overlap (a saturated end would overlap everything above it).
+    #[test]
+    fn overflowing_lengths_are_out_of_range_not_overlaps() {
+        let data = [0u64; 4];
+        let (low, high) = (data.as_ptr(), data[3..].as_ptr());
+        for (input, output) in [(low, high), (high, low)] {
+            for (a, b) in [(1, usize::MAX / 4), (usize::MAX / 4, 1)] {
+                let e = disjoint(input, a, output, b, "out").unwrap_err();
+                assert!(matches!(e, Failure::Hood(Error::OutOfRange { .. })), "{a} {b}");
+            }
+        }
+        assert!(disjoint(low, 3, high, 1, "out").is_ok());
+        assert!(matches!(disjoint(low, 4, high, 1, "out"), Err(Failure::Pointer("out", _))));
     }
 
     /// The calls on a sim, the step first, need neither the handle registry's lock nor the sim
