@@ -9,7 +9,6 @@ pub mod makehuman;
 pub mod obj;
 pub mod png;
 pub mod safetensors;
-pub mod zlib;
 
 use crate::error::{Error, Result};
 use std::path::Path;

@@ -1,15 +1,14 @@
-//! Reader and writer for the safetensors format (8-byte little-endian header length, a JSON
-//! header naming each tensor's dtype, shape and byte range, then the raw little-endian data).
-//! Used for the reference implementation's checkpoints and for the parity fixtures.
+//! Safetensors files (through the `safetensors` crate): the reference implementation's
+//! checkpoints, the parity fixtures and the trainer's checkpoints. [`SafeTensors`] holds a file
+//! validated once and converts its tensors to the element types `hood` computes in.
 
 use crate::error::{Error, Result};
-use crate::io::json::Json;
 use std::format;
 use std::path::Path;
 use std::string::{String, ToString};
 use std::vec::Vec;
 
-/// Element types `hood` reads.
+/// Element types `hood` reads (files with other types are refused when opened).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Dtype {
     /// IEEE single.
@@ -31,16 +30,17 @@ pub enum Dtype {
 }
 
 impl Dtype {
-    fn parse(s: &str) -> Option<Dtype> {
-        Some(match s {
-            "F32" => Dtype::F32,
-            "F64" => Dtype::F64,
-            "F16" => Dtype::F16,
-            "BF16" => Dtype::BF16,
-            "I64" => Dtype::I64,
-            "I32" => Dtype::I32,
-            "U8" => Dtype::U8,
-            "BOOL" => Dtype::Bool,
+    fn from_file(d: safetensors::Dtype) -> Option<Dtype> {
+        use safetensors::Dtype as D;
+        Some(match d {
+            D::F32 => Dtype::F32,
+            D::F64 => Dtype::F64,
+            D::F16 => Dtype::F16,
+            D::BF16 => Dtype::BF16,
+            D::I64 => Dtype::I64,
+            D::I32 => Dtype::I32,
+            D::U8 => Dtype::U8,
+            D::BOOL => Dtype::Bool,
             _ => return None,
         })
     }
@@ -122,10 +122,6 @@ pub struct SafeTensors {
     metadata: Vec<(String, String)>,
 }
 
-fn corrupt(reason: &'static str) -> Error {
-    Error::CorruptData { reason }
-}
-
 impl SafeTensors {
     /// Reads and validates a file.
     ///
@@ -137,63 +133,35 @@ impl SafeTensors {
         SafeTensors::from_bytes(bytes)
     }
 
-    /// Validates the header of `bytes` (every range inside the data and matching its shape).
+    /// Validates `bytes` (the header, and every tensor's byte range inside the data and
+    /// matching its shape).
     ///
     /// # Errors
-    /// [`Error::CorruptData`] for a truncated or inconsistent file, [`Error::Parse`] for a bad header.
+    /// [`Error::Parse`] (format `"safetensors"`) for a truncated or inconsistent file, or a
+    /// tensor of an element type `hood` does not read.
     pub fn from_bytes(bytes: Vec<u8>) -> Result<SafeTensors> {
-        let len_bytes: [u8; 8] = bytes
-            .get(..8)
-            .ok_or(corrupt("safetensors: shorter than its header length"))?
-            .try_into()
-            .map_err(|_| corrupt("safetensors: header length"))?;
-        let header_len = u64::from_le_bytes(len_bytes);
-        let data_start = 8usize
-            .checked_add(usize::try_from(header_len).map_err(|_| corrupt("safetensors: header too long"))?)
-            .filter(|&e| e <= bytes.len())
-            .ok_or(corrupt("safetensors: header runs past the end of the file"))?;
-        let text = core::str::from_utf8(&bytes[8..data_start]).map_err(|_| corrupt("safetensors: header not UTF-8"))?;
-        let header = Json::parse(text)?;
-        let members = header.as_object().ok_or(corrupt("safetensors: header is not an object"))?;
-        let data_len = bytes.len() - data_start;
+        let (header_len, meta) = safetensors::SafeTensors::read_metadata(&bytes)
+            .map_err(|e| Error::parse("safetensors", 0, e.to_string()))?;
         let mut tensors = Vec::new();
-        let mut metadata = Vec::new();
-        for (name, v) in members {
-            if name == "__metadata__" {
-                for (k, m) in v.as_object().unwrap_or(&[]) {
-                    metadata.push((k.clone(), m.as_str().unwrap_or_default().to_string()));
-                }
-                continue;
-            }
-            let bad = |m: &str| Error::parse("safetensors", 0, format!("tensor '{name}': {m}"));
-            let dtype = v.get("dtype").and_then(Json::as_str).and_then(Dtype::parse).ok_or_else(|| bad("dtype"))?;
-            let shape: Vec<usize> = v
-                .get("shape")
-                .and_then(Json::as_f64_vec)
-                .ok_or_else(|| bad("shape"))?
-                .iter()
-                .map(|&d| d as usize)
-                .collect();
-            let off = v.get("data_offsets").and_then(Json::as_f64_vec).ok_or_else(|| bad("data_offsets"))?;
-            let (a, b) = match off[..] {
-                [a, b] if a >= 0.0 && b >= a => (a as usize, b as usize),
-                _ => return Err(bad("data_offsets")),
-            };
-            let numel = shape.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d)).ok_or_else(|| bad("shape"))?;
-            if b > data_len || numel.checked_mul(dtype.size()) != Some(b - a) {
-                return Err(corrupt("safetensors: a tensor's byte range disagrees with its shape or the file size"));
-            }
-            tensors.push((name.clone(), TensorInfo { dtype, shape, range: (a, b) }));
+        for name in meta.offset_keys() {
+            let Some(info) = meta.info(&name) else { continue };
+            let dtype = Dtype::from_file(info.dtype).ok_or_else(|| {
+                Error::parse("safetensors", 0, format!("tensor '{name}': element type {} not read", info.dtype))
+            })?;
+            tensors.push((name, TensorInfo { dtype, shape: info.shape.clone(), range: info.data_offsets }));
         }
-        Ok(SafeTensors { bytes, data_start, tensors, metadata })
+        let mut metadata: Vec<(String, String)> =
+            meta.metadata().iter().flatten().map(|(k, v)| (k.clone(), v.clone())).collect();
+        metadata.sort();
+        Ok(SafeTensors { bytes, data_start: 8 + header_len, tensors, metadata })
     }
 
-    /// Names and descriptions of all tensors, in header order.
+    /// Names and descriptions of all tensors, in the order of their data.
     pub fn tensors(&self) -> &[(String, TensorInfo)] {
         &self.tensors
     }
 
-    /// The `__metadata__` entries.
+    /// The `__metadata__` entries, sorted by key.
     pub fn metadata(&self) -> &[(String, String)] {
         &self.metadata
     }
@@ -211,12 +179,18 @@ impl SafeTensors {
     }
 
     /// The raw little-endian bytes of tensor `name`.
+    ///
+    /// # Errors
+    /// As [`info`](Self::info).
     pub fn bytes(&self, name: &str) -> Result<(&TensorInfo, &[u8])> {
         let info = self.info(name)?;
         Ok((info, &self.bytes[self.data_start + info.range.0..self.data_start + info.range.1]))
     }
 
     /// Tensor `name` converted to `f32` (from F32, F64, F16, BF16, or integer types).
+    ///
+    /// # Errors
+    /// As [`info`](Self::info).
     pub fn f32(&self, name: &str) -> Result<Tensor<f32>> {
         self.convert(name, |dtype, c| match dtype {
             Dtype::F32 => f32::from_le_bytes([c[0], c[1], c[2], c[3]]),
@@ -230,6 +204,9 @@ impl SafeTensors {
     }
 
     /// Tensor `name` converted to `f64`.
+    ///
+    /// # Errors
+    /// As [`info`](Self::info).
     pub fn f64(&self, name: &str) -> Result<Tensor<f64>> {
         let t = self.f32(name)?;
         if self.info(name)?.dtype == Dtype::F64 {
@@ -239,6 +216,9 @@ impl SafeTensors {
     }
 
     /// Tensor `name` converted to `i64` (integer and boolean types only).
+    ///
+    /// # Errors
+    /// As [`info`](Self::info); [`Error::Parse`] for a floating-point tensor.
     pub fn i64(&self, name: &str) -> Result<Tensor<i64>> {
         let dtype = self.info(name)?.dtype;
         if matches!(dtype, Dtype::F32 | Dtype::F64 | Dtype::F16 | Dtype::BF16) {
@@ -274,65 +254,28 @@ pub enum TensorData<'a> {
 /// # Errors
 /// [`Error::SizeMismatch`] when a shape does not match its data length.
 pub fn to_bytes(tensors: &[(&str, &[usize], TensorData<'_>)], metadata: &[(&str, &str)]) -> Result<Vec<u8>> {
-    fn esc(s: &str) -> String {
-        s.chars()
-            .flat_map(|c| match c {
-                '"' => "\\\"".chars().collect::<Vec<_>>(),
-                '\\' => "\\\\".chars().collect(),
-                c if (c as u32) < 0x20 => format!("\\u{:04x}", c as u32).chars().collect(),
-                c => std::vec![c],
-            })
-            .collect()
-    }
-    let mut header = String::from("{");
-    if !metadata.is_empty() {
-        header.push_str("\"__metadata__\":{");
-        let items: Vec<String> = metadata.iter().map(|(k, v)| format!("\"{}\":\"{}\"", esc(k), esc(v))).collect();
-        header.push_str(&items.join(","));
-        header.push_str("},");
-    }
-    let mut data = Vec::new();
-    let mut items = Vec::new();
+    let mut owned = Vec::with_capacity(tensors.len());
     for (name, shape, t) in tensors {
         let numel: usize = shape.iter().product();
-        let (dtype, len, start) = match t {
-            TensorData::F32(v) => {
-                let s = data.len();
-                v.iter().for_each(|x| data.extend_from_slice(&x.to_le_bytes()));
-                ("F32", v.len(), s)
-            }
-            TensorData::F64(v) => {
-                let s = data.len();
-                v.iter().for_each(|x| data.extend_from_slice(&x.to_le_bytes()));
-                ("F64", v.len(), s)
-            }
-            TensorData::I64(v) => {
-                let s = data.len();
-                v.iter().for_each(|x| data.extend_from_slice(&x.to_le_bytes()));
-                ("I64", v.len(), s)
-            }
+        let (dtype, len, bytes): (_, _, Vec<u8>) = match t {
+            TensorData::F32(v) => (safetensors::Dtype::F32, v.len(), v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+            TensorData::F64(v) => (safetensors::Dtype::F64, v.len(), v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+            TensorData::I64(v) => (safetensors::Dtype::I64, v.len(), v.iter().flat_map(|x| x.to_le_bytes()).collect()),
         };
         if len != numel {
             return Err(Error::SizeMismatch { what: "tensor data for its shape", expected: numel, got: len });
         }
-        let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-        items.push(format!(
-            "\"{}\":{{\"dtype\":\"{dtype}\",\"shape\":[{}],\"data_offsets\":[{start},{}]}}",
-            esc(name),
-            dims.join(","),
-            data.len()
-        ));
+        owned.push((*name, dtype, shape.to_vec(), bytes));
     }
-    header.push_str(&items.join(","));
-    header.push('}');
-    while (8 + header.len()) % 8 != 0 {
-        header.push(' ');
+    let mut views = Vec::with_capacity(owned.len());
+    for (name, dtype, shape, bytes) in &owned {
+        let view = safetensors::tensor::TensorView::new(*dtype, shape.clone(), bytes)
+            .map_err(|e| Error::parse("safetensors", 0, format!("tensor '{name}': {e}")))?;
+        views.push((*name, view));
     }
-    let mut out = Vec::with_capacity(8 + header.len() + data.len());
-    out.extend_from_slice(&(header.len() as u64).to_le_bytes());
-    out.extend_from_slice(header.as_bytes());
-    out.extend_from_slice(&data);
-    Ok(out)
+    let info = (!metadata.is_empty()).then(|| metadata.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect());
+    safetensors::serialize(views.iter().map(|(n, v)| (*n, v)), info)
+        .map_err(|e| Error::parse("safetensors", 0, format!("writing: {e}")))
 }
 
 #[cfg(test)]
@@ -359,6 +302,29 @@ mod tests {
         for cut in 0..bytes.len() {
             assert!(SafeTensors::from_bytes(bytes[..cut].to_vec()).is_err(), "truncated at {cut} accepted");
         }
+    }
+
+    #[test]
+    fn safetensors_reads_what_the_crate_writes_and_refuses_unread_types() {
+        use safetensors::tensor::TensorView;
+        let h: Vec<u8> = [1.5f32, -0.25].iter().flat_map(|&x| half::f16::from_f32(x).to_le_bytes()).collect();
+        let flags = [1u8, 0, 1];
+        let views = [
+            ("half", TensorView::new(safetensors::Dtype::F16, std::vec![2], &h).unwrap()),
+            ("flags", TensorView::new(safetensors::Dtype::BOOL, std::vec![3], &flags).unwrap()),
+        ];
+        let bytes = safetensors::serialize(views.iter().map(|(n, v)| (*n, v)), None).unwrap();
+        let st = SafeTensors::from_bytes(bytes).unwrap();
+        assert_eq!(st.f32("half").unwrap().data, [1.5, -0.25]);
+        assert_eq!(st.i64("flags").unwrap().data, [1, 0, 1]);
+        assert_eq!(st.info("flags").unwrap().dtype, Dtype::Bool);
+        assert!(st.metadata().is_empty());
+
+        let wide = [0u8; 4];
+        let view = TensorView::new(safetensors::Dtype::U16, std::vec![2], &wide).unwrap();
+        let bytes = safetensors::serialize([("u16", &view)], None).unwrap();
+        let e = SafeTensors::from_bytes(bytes).unwrap_err();
+        assert!(std::format!("{e}").contains("u16"), "{e}");
     }
 
     #[test]
