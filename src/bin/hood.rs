@@ -317,33 +317,53 @@ fn print_row(r: &BenchRow, header: bool) {
     );
 }
 
+/// `hood bench --json`: the machine's peak and one object per row.
 fn to_json(rows: &[BenchRow], peak: &hood::kernels::peak::Peak) -> String {
-    let items: Vec<String> = rows
+    #[derive(serde::Serialize)]
+    struct Peak {
+        tier: &'static str,
+        f32_gflops: f64,
+        bf16_gflops: f64,
+    }
+    #[derive(serde::Serialize)]
+    struct Row<'a> {
+        workload: &'a str,
+        vertices: usize,
+        body_edges: usize,
+        latent: usize,
+        blocks: usize,
+        precision: &'static str,
+        threads: usize,
+        median_ms: f64,
+        min_ms: f64,
+        flops: u64,
+        gflops: f64,
+        peak_gflops: f64,
+        efficiency: f64,
+    }
+    #[derive(serde::Serialize)]
+    struct Bench<'a> {
+        peak: Peak,
+        rows: Vec<Row<'a>>,
+    }
+    let rows = rows
         .iter()
-        .map(|r| {
-            format!(
-                "{{\"workload\":\"{}\",\"vertices\":{},\"body_edges\":{},\"latent\":{},\"blocks\":{},\"precision\":\"{}\",\"threads\":{},\"median_ms\":{:.4},\"min_ms\":{:.4},\"flops\":{},\"gflops\":{:.3},\"peak_gflops\":{:.3},\"efficiency\":{:.4}}}",
-                r.workload,
-                r.vertices,
-                r.body_edges,
-                r.latent,
-                r.blocks,
-                if r.precision == Precision::Bf16 { "bf16" } else { "f32" },
-                r.threads,
-                r.median_ms,
-                r.min_ms,
-                r.flops,
-                r.gflops,
-                r.peak_gflops,
-                r.efficiency
-            )
+        .map(|r| Row {
+            workload: &r.workload,
+            vertices: r.vertices,
+            body_edges: r.body_edges,
+            latent: r.latent,
+            blocks: r.blocks,
+            precision: if r.precision == Precision::Bf16 { "bf16" } else { "f32" },
+            threads: r.threads,
+            median_ms: r.median_ms,
+            min_ms: r.min_ms,
+            flops: r.flops,
+            gflops: r.gflops,
+            peak_gflops: r.peak_gflops,
+            efficiency: r.efficiency,
         })
         .collect();
-    format!(
-        "{{\"peak\":{{\"tier\":\"{}\",\"f32_gflops\":{:.3},\"bf16_gflops\":{:.3}}},\"rows\":[{}]}}",
-        peak.tier.name(),
-        peak.f32_gflops,
-        peak.bf16_gflops,
-        items.join(",")
-    )
+    let peak = Peak { tier: peak.tier.name(), f32_gflops: peak.f32_gflops, bf16_gflops: peak.bf16_gflops };
+    hood::io::json::to_line(&Bench { peak, rows })
 }

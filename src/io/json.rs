@@ -1,291 +1,154 @@
-//! A small JSON reader (RFC 8259) for the few JSON inputs `hood` reads: MakeHuman rigs and
-//! weights, safetensors headers, configuration files. Numbers are `f64`; objects keep their key
-//! order.
+//! JSON through `serde_json`: documents parsed with errors that name the line, arrays of
+//! numbers, and records written one per line (training logs, `--json` outputs).
+//!
+//! JSON has no NaN or infinity: a non-finite number is written as `null` and [`number`] reads
+//! `null` back as NaN. [`parse_lenient`] also reads the bare `NaN`, `inf` and `-inf` tokens
+//! that training logs of earlier versions hold.
 
 use crate::error::{Error, Result};
-use alloc::string::String;
-use alloc::vec::Vec;
+use serde::Serialize;
+use std::string::String;
+use std::vec::Vec;
 
-/// A parsed JSON value.
-#[derive(Clone, Debug, PartialEq)]
-pub enum Json {
-    /// `null`.
-    Null,
-    /// `true` / `false`.
-    Bool(bool),
-    /// Any number.
-    Number(f64),
-    /// A string.
-    String(String),
-    /// An array.
-    Array(Vec<Json>),
-    /// An object, in file order.
-    Object(Vec<(String, Json)>),
+pub use serde_json::Value;
+
+fn parse_error(e: &serde_json::Error) -> Error {
+    Error::parse("json", e.line(), std::format!("{e}"))
 }
 
-impl Json {
-    /// Parses a complete JSON document.
-    ///
-    /// # Errors
-    /// [`Error::Parse`] with format `"json"` and the 1-based line of the problem.
-    pub fn parse(text: &str) -> Result<Json> {
-        let mut p = Parser { s: text.as_bytes(), i: 0 };
-        p.ws();
-        let v = p.value(0)?;
-        p.ws();
-        if p.i != p.s.len() {
-            return Err(p.err("trailing characters after the document"));
-        }
-        Ok(v)
-    }
+/// Parses a complete JSON document (objects keep their key order).
+///
+/// # Errors
+/// [`Error::Parse`] with format `"json"` and the 1-based line of the problem.
+pub fn parse(text: &str) -> Result<Value> {
+    serde_json::from_str(text).map_err(|e| parse_error(&e))
+}
 
-    /// The member `key` of an object (first match), or `None`.
-    pub fn get(&self, key: &str) -> Option<&Json> {
-        match self {
-            Json::Object(m) => m.iter().find(|(k, _)| k == key).map(|(_, v)| v),
-            _ => None,
+/// As [`parse`], reading the tokens `NaN`, `inf` and `-inf` outside strings as `null`.
+///
+/// # Errors
+/// As [`parse`].
+pub fn parse_lenient(text: &str) -> Result<Value> {
+    match serde_json::from_str(text) {
+        Ok(v) => Ok(v),
+        Err(first) => {
+            let fixed = non_finite_as_null(text);
+            if fixed == text {
+                return Err(parse_error(&first));
+            }
+            parse(&fixed)
         }
-    }
-
-    /// The number, if this is one.
-    pub fn as_f64(&self) -> Option<f64> {
-        match self {
-            Json::Number(x) => Some(*x),
-            _ => None,
-        }
-    }
-
-    /// The string, if this is one.
-    pub fn as_str(&self) -> Option<&str> {
-        match self {
-            Json::String(s) => Some(s),
-            _ => None,
-        }
-    }
-
-    /// The elements, if this is an array.
-    pub fn as_array(&self) -> Option<&[Json]> {
-        match self {
-            Json::Array(a) => Some(a),
-            _ => None,
-        }
-    }
-
-    /// The members, if this is an object.
-    pub fn as_object(&self) -> Option<&[(String, Json)]> {
-        match self {
-            Json::Object(m) => Some(m),
-            _ => None,
-        }
-    }
-
-    /// An array of numbers as `f64`s, if this is one.
-    pub fn as_f64_vec(&self) -> Option<Vec<f64>> {
-        self.as_array()?.iter().map(Json::as_f64).collect()
     }
 }
 
-/// Nesting deeper than this is refused (a corrupt file must not overflow the stack).
-const MAX_DEPTH: usize = 256;
-
-struct Parser<'a> {
-    s: &'a [u8],
-    i: usize,
+/// `text` with every `NaN`, `inf` and `-inf` outside a string replaced by `null`.
+fn non_finite_as_null(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let (mut in_string, mut escaped) = (false, false);
+    let mut rest = text;
+    while let Some(c) = rest.chars().next() {
+        if in_string {
+            (in_string, escaped) = (escaped || c != '"', !escaped && c == '\\');
+        } else if c == '"' {
+            in_string = true;
+        } else if let Some(token) = ["NaN", "-inf", "inf"].into_iter().find(|t| rest.starts_with(t)) {
+            out.push_str("null");
+            rest = &rest[token.len()..];
+            continue;
+        }
+        out.push(c);
+        rest = &rest[c.len_utf8()..];
+    }
+    out
 }
 
-impl Parser<'_> {
-    fn err(&self, msg: &str) -> Error {
-        let line = 1 + self.s[..self.i.min(self.s.len())].iter().filter(|&&c| c == b'\n').count();
-        Error::parse("json", line, msg)
+/// The number `v` holds, NaN for `null` (a non-finite number written by [`to_line`]).
+pub fn number(v: &Value) -> Option<f64> {
+    match v {
+        Value::Null => Some(f64::NAN),
+        v => v.as_f64(),
     }
+}
 
-    fn ws(&mut self) {
-        while self.i < self.s.len() && matches!(self.s[self.i], b' ' | b'\t' | b'\n' | b'\r') {
-            self.i += 1;
-        }
-    }
+/// An array of numbers as `f64`s, if `v` is one.
+pub fn f64_vec(v: &Value) -> Option<Vec<f64>> {
+    v.as_array()?.iter().map(Value::as_f64).collect()
+}
 
-    fn peek(&self) -> Option<u8> {
-        self.s.get(self.i).copied()
-    }
+/// `value` as one line of JSON (no newline; non-finite numbers as `null`).
+pub fn to_line<T: Serialize + ?Sized>(value: &T) -> String {
+    // Serialising plain structs, numbers and strings to memory cannot fail.
+    serde_json::to_string(value).unwrap_or_default()
+}
 
-    fn expect_word(&mut self, w: &[u8], v: Json) -> Result<Json> {
-        if self.s[self.i..].starts_with(w) {
-            self.i += w.len();
-            Ok(v)
-        } else {
-            Err(self.err("unexpected word"))
-        }
-    }
-
-    fn value(&mut self, depth: usize) -> Result<Json> {
-        if depth > MAX_DEPTH {
-            return Err(self.err("nesting too deep"));
-        }
-        match self.peek() {
-            None => Err(self.err("unexpected end of input")),
-            Some(b'n') => self.expect_word(b"null", Json::Null),
-            Some(b't') => self.expect_word(b"true", Json::Bool(true)),
-            Some(b'f') => self.expect_word(b"false", Json::Bool(false)),
-            Some(b'"') => Ok(Json::String(self.string()?)),
-            Some(b'[') => {
-                self.i += 1;
-                let mut items = Vec::new();
-                self.ws();
-                if self.peek() == Some(b']') {
-                    self.i += 1;
-                    return Ok(Json::Array(items));
-                }
-                loop {
-                    self.ws();
-                    items.push(self.value(depth + 1)?);
-                    self.ws();
-                    match self.peek() {
-                        Some(b',') => self.i += 1,
-                        Some(b']') => {
-                            self.i += 1;
-                            return Ok(Json::Array(items));
-                        }
-                        _ => return Err(self.err("expected ',' or ']'")),
-                    }
-                }
-            }
-            Some(b'{') => {
-                self.i += 1;
-                let mut members = Vec::new();
-                self.ws();
-                if self.peek() == Some(b'}') {
-                    self.i += 1;
-                    return Ok(Json::Object(members));
-                }
-                loop {
-                    self.ws();
-                    if self.peek() != Some(b'"') {
-                        return Err(self.err("expected a string key"));
-                    }
-                    let k = self.string()?;
-                    self.ws();
-                    if self.peek() != Some(b':') {
-                        return Err(self.err("expected ':'"));
-                    }
-                    self.i += 1;
-                    self.ws();
-                    let v = self.value(depth + 1)?;
-                    members.push((k, v));
-                    self.ws();
-                    match self.peek() {
-                        Some(b',') => self.i += 1,
-                        Some(b'}') => {
-                            self.i += 1;
-                            return Ok(Json::Object(members));
-                        }
-                        _ => return Err(self.err("expected ',' or '}'")),
-                    }
-                }
-            }
-            Some(c) if c == b'-' || c.is_ascii_digit() => self.number(),
-            Some(_) => Err(self.err("unexpected character")),
-        }
-    }
-
-    fn number(&mut self) -> Result<Json> {
-        let start = self.i;
-        if self.peek() == Some(b'-') {
-            self.i += 1;
-        }
-        while let Some(c) = self.peek() {
-            if c.is_ascii_digit() || matches!(c, b'.' | b'e' | b'E' | b'+' | b'-') {
-                self.i += 1;
-            } else {
-                break;
-            }
-        }
-        let text = core::str::from_utf8(&self.s[start..self.i]).map_err(|_| self.err("bad number"))?;
-        text.parse::<f64>().map(Json::Number).map_err(|_| self.err("bad number"))
-    }
-
-    fn hex4(&mut self) -> Result<u32> {
-        let h = self.s.get(self.i..self.i + 4).ok_or_else(|| self.err("short \\u escape"))?;
-        let t = core::str::from_utf8(h).map_err(|_| self.err("bad \\u escape"))?;
-        let v = u32::from_str_radix(t, 16).map_err(|_| self.err("bad \\u escape"))?;
-        self.i += 4;
-        Ok(v)
-    }
-
-    fn string(&mut self) -> Result<String> {
-        self.i += 1; // opening quote
-        let mut out = String::new();
-        loop {
-            let start = self.i;
-            while let Some(c) = self.peek() {
-                if c == b'"' || c == b'\\' || c < 0x20 {
-                    break;
-                }
-                self.i += 1;
-            }
-            out.push_str(core::str::from_utf8(&self.s[start..self.i]).map_err(|_| self.err("invalid UTF-8"))?);
-            match self.peek() {
-                None => return Err(self.err("unterminated string")),
-                Some(b'"') => {
-                    self.i += 1;
-                    return Ok(out);
-                }
-                Some(b'\\') => {
-                    self.i += 1;
-                    let c = self.peek().ok_or_else(|| self.err("unterminated escape"))?;
-                    self.i += 1;
-                    let ch = match c {
-                        b'"' => '"',
-                        b'\\' => '\\',
-                        b'/' => '/',
-                        b'b' => '\u{8}',
-                        b'f' => '\u{c}',
-                        b'n' => '\n',
-                        b'r' => '\r',
-                        b't' => '\t',
-                        b'u' => {
-                            let mut cp = self.hex4()?;
-                            if (0xD800..0xDC00).contains(&cp) && self.s[self.i..].starts_with(b"\\u") {
-                                self.i += 2;
-                                let lo = self.hex4()?;
-                                cp = 0x10000 + ((cp - 0xD800) << 10) + (lo.wrapping_sub(0xDC00) & 0x3FF);
-                            }
-                            char::from_u32(cp).unwrap_or('\u{FFFD}')
-                        }
-                        _ => return Err(self.err("unknown escape")),
-                    };
-                    out.push(ch);
-                }
-                Some(_) => return Err(self.err("control character in string")),
-            }
-        }
-    }
+/// `value` as indented JSON, ending in a newline (non-finite numbers as `null`).
+pub fn to_pretty<T: Serialize + ?Sized>(value: &T) -> String {
+    let mut s = serde_json::to_string_pretty(value).unwrap_or_default();
+    s.push('\n');
+    s
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use alloc::vec;
 
     #[test]
-    fn json_parses_documents() {
-        let v = Json::parse(r#" {"a": [1, -2.5e1, true, null], "b\"": {"c": "x\u00e9\n"}, "e": []} "#).unwrap();
-        assert_eq!(v.get("a").unwrap().as_array().unwrap().len(), 4);
-        assert_eq!(v.get("a").unwrap().as_array().unwrap()[1], Json::Number(-25.0));
-        assert_eq!(v.get("b\"").unwrap().get("c").unwrap().as_str(), Some("xé\n"));
-        assert_eq!(v.get("e"), Some(&Json::Array(vec![])));
-        assert_eq!(Json::parse("[0.5, 3]").unwrap().as_f64_vec(), Some(vec![0.5, 3.0]));
+    fn json_parses_documents_in_key_order() {
+        let v = parse(r#" {"z": [1, -2.5e1, true, null], "b\"": {"c": "x\u00e9\n"}, "e": []} "#).unwrap();
+        assert_eq!(v["z"].as_array().unwrap().len(), 4);
+        assert_eq!(v["z"][1].as_f64(), Some(-25.0));
+        assert_eq!(v["b\""]["c"].as_str(), Some("xé\n"));
+        let keys: Vec<&str> = v.as_object().unwrap().keys().map(String::as_str).collect();
+        assert_eq!(keys, ["z", "b\"", "e"]);
+        assert_eq!(f64_vec(&parse("[0.5, 3]").unwrap()), Some(std::vec![0.5, 3.0]));
+        assert_eq!(f64_vec(&parse("[0.5, \"3\"]").unwrap()), None);
     }
 
     #[test]
     fn json_errors_name_the_line() {
-        let e = Json::parse("{\n\"a\": 1,\n\"b\": tru }").unwrap_err();
+        let e = parse("{\n\"a\": 1,\n\"b\": tru }").unwrap_err();
         assert!(matches!(e, Error::Parse { format: "json", line: 3, .. }), "{e:?}");
-        assert!(Json::parse("[1, 2").is_err());
-        assert!(Json::parse("{\"a\" 1}").is_err());
-        assert!(Json::parse("[1] x").is_err());
-        assert!(Json::parse("\"abc").is_err());
-        let deep = "[".repeat(1000);
-        assert!(Json::parse(&deep).is_err());
+        for bad in ["[1, 2", "{\"a\" 1}", "[1] x", "\"abc", "[NaN]"] {
+            assert!(parse(bad).is_err(), "{bad}");
+        }
+        assert!(parse(&"[".repeat(1000)).is_err());
+    }
+
+    #[test]
+    fn strings_with_quotes_and_newlines_round_trip() {
+        #[derive(Serialize)]
+        struct Row<'a> {
+            scene: &'a str,
+            total: f64,
+        }
+        let name = "a \"quoted\"\nname\\with\ttabs";
+        let line = to_line(&Row { scene: name, total: 1.5 });
+        assert!(!line.contains('\n'), "{line}");
+        let back = parse(&line).unwrap();
+        assert_eq!(back["scene"].as_str(), Some(name));
+        assert_eq!(number(&back["total"]), Some(1.5));
+    }
+
+    #[test]
+    fn non_finite_numbers_write_null_and_read_back_as_nan() {
+        let line = to_line(&[f64::NAN, f64::INFINITY, 2.0]);
+        assert_eq!(line, "[null,null,2.0]");
+        let back = parse(&line).unwrap();
+        assert!(number(&back[0]).unwrap().is_nan());
+        assert_eq!(number(&back[2]), Some(2.0));
+        assert!(number(&Value::from("x")).is_none());
+        let pretty = to_pretty(&[f32::NAN]);
+        assert!(parse(&pretty).unwrap()[0].is_null());
+    }
+
+    #[test]
+    fn lenient_parsing_reads_bare_non_finite_tokens_outside_strings() {
+        let old = r#"{"total":NaN,"b":[inf,-inf,1e0],"scene":"NaN inf \"x\""}"#;
+        let v = parse_lenient(old).unwrap();
+        assert!(v["total"].is_null());
+        assert!(v["b"][0].is_null() && v["b"][1].is_null());
+        assert_eq!(v["b"][2].as_f64(), Some(1.0));
+        assert_eq!(v["scene"].as_str(), Some("NaN inf \"x\""));
+        assert!(parse_lenient("{\"a\": nope}").is_err());
     }
 }

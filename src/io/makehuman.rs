@@ -8,7 +8,7 @@
 //! bone rolls and pose rotations are converted accordingly.
 
 use crate::error::{Error, Result};
-use crate::io::json::Json;
+use crate::io::json::{self, Value};
 use crate::io::obj::Obj;
 use crate::mesh::repair::CompactedMesh;
 use crate::rig::{BoneDesc, Skeleton, SkinWeights};
@@ -96,20 +96,20 @@ fn group_centroid(obj: &Obj, name: &str) -> Result<Vec3> {
 }
 
 /// One head or tail location of the rig JSON.
-fn joint_position(j: &Json, obj: &Obj, floor_shift: f32, bone: &str) -> Result<Vec3> {
-    let strategy = j.get("strategy").and_then(Json::as_str).unwrap_or("");
+fn joint_position(j: &Value, obj: &Obj, floor_shift: f32, bone: &str) -> Result<Vec3> {
+    let strategy = j.get("strategy").and_then(Value::as_str).unwrap_or("");
     match strategy {
         "CUBE" => {
             let cube = j
                 .get("cube_name")
-                .and_then(Json::as_str)
+                .and_then(Value::as_str)
                 .ok_or_else(|| jerr(format!("{bone}: CUBE without cube_name")))?;
             group_centroid(obj, cube)
         }
         "MEAN" => {
             let ids = j
                 .get("vertex_indices")
-                .and_then(Json::as_f64_vec)
+                .and_then(json::f64_vec)
                 .ok_or_else(|| jerr(format!("{bone}: MEAN without vertex_indices")))?;
             if ids.is_empty() {
                 return Err(jerr(format!("{bone}: MEAN with no vertex")));
@@ -128,7 +128,7 @@ fn joint_position(j: &Json, obj: &Obj, floor_shift: f32, bone: &str) -> Result<V
         _ => {
             let d = j
                 .get("default_position")
-                .and_then(Json::as_f64_vec)
+                .and_then(json::f64_vec)
                 .filter(|d| d.len() == 3)
                 .ok_or_else(|| jerr(format!("{bone}: no usable position (strategy '{strategy}')")))?;
             // Blender metres, z up.
@@ -140,7 +140,7 @@ fn joint_position(j: &Json, obj: &Obj, floor_shift: f32, bone: &str) -> Result<V
 /// Parses a MakeHuman rig JSON (bone name -> head, tail, parent, roll) against the base mesh
 /// `obj` (metres, already shifted by `floor_shift`).
 pub fn parse_rig(text: &str, obj: &Obj, floor_shift: f32) -> Result<Skeleton> {
-    let doc = Json::parse(text)?;
+    let doc = json::parse(text)?;
     let bones = doc.as_object().ok_or_else(|| jerr("rig: not an object"))?;
     let c = blender_to_y_up();
     let mut list = Vec::with_capacity(bones.len());
@@ -149,8 +149,8 @@ pub fn parse_rig(text: &str, obj: &Obj, floor_shift: f32) -> Result<Skeleton> {
             joint_position(b.get("head").ok_or_else(|| jerr(format!("{name}: no head")))?, obj, floor_shift, name)?;
         let tail =
             joint_position(b.get("tail").ok_or_else(|| jerr(format!("{name}: no tail")))?, obj, floor_shift, name)?;
-        let roll = b.get("roll").and_then(Json::as_f64).unwrap_or(0.0) as f32;
-        let parent = b.get("parent").and_then(Json::as_str).map(str::to_string);
+        let roll = b.get("roll").and_then(Value::as_f64).unwrap_or(0.0) as f32;
+        let parent = b.get("parent").and_then(Value::as_str).map(str::to_string);
         // Blender's bone matrix (shortest arc from its +y, then roll) expressed in y-up axes.
         let d = tail - head;
         let arc = if d.length_squared() > 0.0 { Quat::from_rotation_arc(-Vec3::Z, d.normalize()) } else { c };
@@ -164,14 +164,13 @@ pub fn parse_rig(text: &str, obj: &Obj, floor_shift: f32) -> Result<Skeleton> {
 /// Parses a MakeHuman weights JSON (`{"weights": {bone: [[vertex, weight], ...]}}`) for a mesh
 /// of `n_vertices` vertices; unknown bones are an error, each vertex keeps its 4 largest weights.
 pub fn parse_weights(text: &str, skel: &Skeleton, n_vertices: usize) -> Result<SkinWeights> {
-    let doc = Json::parse(text)?;
-    let w = doc.get("weights").and_then(Json::as_object).ok_or_else(|| jerr("weights: no 'weights' object"))?;
+    let doc = json::parse(text)?;
+    let w = doc.get("weights").and_then(Value::as_object).ok_or_else(|| jerr("weights: no 'weights' object"))?;
     let mut triples = Vec::new();
     for (bone, list) in w {
         let b = skel.find(bone).ok_or_else(|| jerr(format!("weights: unknown bone '{bone}'")))?;
         for pair in list.as_array().ok_or_else(|| jerr(format!("weights of '{bone}' are not a list")))? {
-            let p = pair
-                .as_f64_vec()
+            let p = json::f64_vec(pair)
                 .filter(|p| p.len() == 2)
                 .ok_or_else(|| jerr(format!("weights of '{bone}': bad pair")))?;
             if p[0] < 0.0 || p[0].fract() != 0.0 {
@@ -186,13 +185,13 @@ pub fn parse_weights(text: &str, skel: &Skeleton, n_vertices: usize) -> Result<S
 /// Parses a MakeHuman pose JSON (`bone_rotations`: XYZ Euler angles in radians in each bone's
 /// local frame) into local rotations, one per bone (identity for bones not listed).
 pub fn parse_pose(text: &str, skel: &Skeleton) -> Result<Vec<Quat>> {
-    let doc = Json::parse(text)?;
+    let doc = json::parse(text)?;
     let mut local = std::vec![Quat::IDENTITY; skel.len()];
-    let rots = doc.get("bone_rotations").and_then(Json::as_object).ok_or_else(|| jerr("pose: no 'bone_rotations'"))?;
+    let rots = doc.get("bone_rotations").and_then(Value::as_object).ok_or_else(|| jerr("pose: no 'bone_rotations'"))?;
     for (bone, e) in rots {
         let b = skel.find(bone).ok_or_else(|| jerr(format!("pose: unknown bone '{bone}'")))?;
         let e =
-            e.as_f64_vec().filter(|e| e.len() == 3).ok_or_else(|| jerr(format!("pose: bad angles for '{bone}'")))?;
+            json::f64_vec(e).filter(|e| e.len() == 3).ok_or_else(|| jerr(format!("pose: bad angles for '{bone}'")))?;
         // Blender's XYZ Euler mode applies X first: R = Rz * Ry * Rx.
         local[b] = Quat::from_rotation_z(e[2] as f32)
             * Quat::from_rotation_y(e[1] as f32)

@@ -3,7 +3,7 @@
 //! checkpoints and exported models, so that a run can be resumed and traced.
 
 use crate::error::{Error, Result};
-use crate::io::json::Json;
+use crate::io::json::{self, Value};
 use crate::model::{ModelSpec, HOOD_SCHEDULE};
 use crate::scene::{GarmentKind, MotionKind};
 use alloc::format;
@@ -185,15 +185,18 @@ fn bad(key: &str, why: &str) -> Error {
     Error::parse("training config", 0, format!("'{key}': {why}"))
 }
 
-fn uint(j: &Json, key: &str) -> Result<u64> {
-    let v = j.as_f64().ok_or_else(|| bad(key, "expected a number"))?;
+fn uint(j: &Value, key: &str) -> Result<u64> {
+    uint_of(j.as_f64().ok_or_else(|| bad(key, "expected a number"))?, key)
+}
+
+fn uint_of(v: f64, key: &str) -> Result<u64> {
     if v < 0.0 || v.fract() != 0.0 || v > 1e15 {
         return Err(bad(key, "expected a non-negative integer"));
     }
     Ok(v as u64)
 }
 
-fn float(j: &Json, key: &str) -> Result<f64> {
+fn float(j: &Value, key: &str) -> Result<f64> {
     let v = j.as_f64().ok_or_else(|| bad(key, "expected a number"))?;
     if !v.is_finite() {
         return Err(bad(key, "expected a finite number"));
@@ -201,15 +204,12 @@ fn float(j: &Json, key: &str) -> Result<f64> {
     Ok(v)
 }
 
-fn boolean(j: &Json, key: &str) -> Result<bool> {
-    match j {
-        Json::Bool(b) => Ok(*b),
-        _ => Err(bad(key, "expected true or false")),
-    }
+fn boolean(j: &Value, key: &str) -> Result<bool> {
+    j.as_bool().ok_or_else(|| bad(key, "expected true or false"))
 }
 
-fn scene(j: &Json) -> Result<SceneSource> {
-    let s = |k: &str| j.get(k).and_then(Json::as_str).ok_or_else(|| bad("scenes", &format!("each needs '{k}'")));
+fn scene(j: &Value) -> Result<SceneSource> {
+    let s = |k: &str| j.get(k).and_then(Value::as_str).ok_or_else(|| bad("scenes", &format!("each needs '{k}'")));
     let garment = s("garment")?;
     let motion_named = |name: &str| {
         let m = MotionKind::parse(name).ok_or_else(|| {
@@ -243,10 +243,11 @@ fn scene(j: &Json) -> Result<SceneSource> {
 }
 
 /// `[tracks, reset_probability]`, the probability within `0..=1`.
-fn carry(j: &Json) -> Result<(usize, f64)> {
+fn carry(j: &Value) -> Result<(usize, f64)> {
     let key = "carry";
-    let a = j.as_f64_vec().filter(|a| a.len() == 2).ok_or_else(|| bad(key, "expected [tracks, reset_probability]"))?;
-    let tracks = uint(&Json::Number(a[0]), key)?;
+    let a =
+        json::f64_vec(j).filter(|a| a.len() == 2).ok_or_else(|| bad(key, "expected [tracks, reset_probability]"))?;
+    let tracks = uint_of(a[0], key)?;
     if tracks > 4096 || !(0.0..=1.0).contains(&a[1]) {
         return Err(bad(key, "at most 4096 tracks, a reset probability within 0..=1"));
     }
@@ -255,9 +256,8 @@ fn carry(j: &Json) -> Result<(usize, f64)> {
 
 /// `[weight, until_iteration, lbfgs_iterations]`, all non-negative (at least one L-BFGS
 /// iteration is run).
-fn supervised(j: &Json) -> Result<(f64, u64, usize)> {
-    let a = j
-        .as_f64_vec()
+fn supervised(j: &Value) -> Result<(f64, u64, usize)> {
+    let a = json::f64_vec(j)
         .filter(|a| a.len() == 3 && a.iter().all(|x| x.is_finite() && *x >= 0.0))
         .ok_or_else(|| bad("supervised", "expected [weight, until_iteration, lbfgs_iterations], non-negative"))?;
     Ok((a[0], a[1] as u64, (a[2] as usize).max(1)))
@@ -298,7 +298,7 @@ impl PullStart {
 /// Parses `WEIGHT,UNTIL,ITERATIONS` (the config key `supervised` without brackets), e.g. for a
 /// command-line override.
 pub fn parse_supervised(text: &str) -> Result<(f64, u64, usize)> {
-    supervised(&Json::parse(&format!("[{text}]"))?)
+    supervised(&json::parse(&format!("[{text}]"))?)
 }
 
 /// Checks a weight-average decay (config key `ema`): within `[0, 1)`.
@@ -324,7 +324,7 @@ pub fn probability(p: f64, key: &str) -> Result<f64> {
 /// # Errors
 /// [`Error::Parse`] as for the JSON key.
 pub fn parse_carry(text: &str) -> Result<(usize, f64)> {
-    carry(&Json::parse(&format!("[{text}]"))?)
+    carry(&json::parse(&format!("[{text}]"))?)
 }
 
 impl TrainConfig {
@@ -333,7 +333,7 @@ impl TrainConfig {
     /// # Errors
     /// [`Error::Parse`] naming the offending key.
     pub fn from_json(text: &str) -> Result<TrainConfig> {
-        let j = Json::parse(text)?;
+        let j = json::parse(text)?;
         let obj = j.as_object().ok_or_else(|| bad("config", "expected a JSON object"))?;
         let mut c = TrainConfig::default();
         for (k, v) in obj {
@@ -352,7 +352,8 @@ impl TrainConfig {
                 "rollout_every" => c.rollout_every = uint(v, key)?.max(1),
                 "noise" => c.noise = float(v, key)? as f32,
                 "collision_weight" => {
-                    let a = v.as_f64_vec().filter(|a| a.len() == 2).ok_or_else(|| bad(key, "expected [start, end]"))?;
+                    let a =
+                        json::f64_vec(v).filter(|a| a.len() == 2).ok_or_else(|| bad(key, "expected [start, end]"))?;
                     c.collision_weight = (a[0], a[1]);
                 }
                 "collision_ramp" => c.collision_ramp = uint(v, key)?,
@@ -366,8 +367,7 @@ impl TrainConfig {
                 "checkpoint_every" => c.checkpoint_every = uint(v, key)?.max(1),
                 "validate_every" => c.validate_every = uint(v, key)?.max(1),
                 "validation" => {
-                    let a = v
-                        .as_f64_vec()
+                    let a = json::f64_vec(v)
                         .filter(|a| a.len() == 2)
                         .ok_or_else(|| bad(key, "expected [samples, frames]"))?;
                     c.validation = (a[0].max(0.0) as usize, a[1].max(1.0) as usize);
@@ -399,67 +399,58 @@ impl TrainConfig {
         ModelSpec::with_schedule(self.latent, self.hidden_layers, self.levels, &self.schedule)
     }
 
-    /// The same settings as JSON (what [`from_json`](Self::from_json) reads back).
+    /// The same settings as JSON (what [`from_json`](Self::from_json) reads back), indented.
     pub fn to_json(&self) -> String {
-        let scenes: Vec<String> = self
+        let scenes = self
             .scenes
             .iter()
             .map(|s| match s {
-                SceneSource::Procedural { garment, vertices, motion, seconds } => format!(
-                    "{{\"garment\": \"{}\", \"vertices\": {vertices}, \"motion\": \"{}\", \"seconds\": {seconds}}}",
-                    garment.name(),
-                    motion.name()
-                ),
-                SceneSource::MakeHuman { garment, frames, motion: None } => {
-                    format!("{{\"garment\": \"{garment}\", \"frames\": {frames}}}")
-                }
-                SceneSource::MakeHuman { garment, frames, motion: Some(m) } => {
-                    format!("{{\"garment\": \"{garment}\", \"frames\": {frames}, \"motion\": \"{}\"}}", m.name())
-                }
+                SceneSource::Procedural { garment, vertices, motion, seconds } => SceneFile {
+                    garment: garment.name().to_string(),
+                    vertices: Some(*vertices),
+                    frames: None,
+                    motion: Some(motion.name()),
+                    seconds: Some(*seconds),
+                },
+                SceneSource::MakeHuman { garment, frames, motion } => SceneFile {
+                    garment: garment.clone(),
+                    vertices: None,
+                    frames: Some(*frames),
+                    motion: motion.map(|m| m.name()),
+                    seconds: None,
+                },
             })
             .collect();
-        let schedule = &self.schedule;
-        format!(
-            "{{\n  \"latent\": {}, \"hidden_layers\": {}, \"levels\": {}, \"schedule\": \"{}\",\n  \
-             \"iterations\": {}, \"warmup_iterations\": {}, \"learning_rate\": {:e}, \"lr_halving_steps\": {}, \
-             \"clip\": {},\n  \"rollout_max\": {}, \"rollout_every\": {}, \"noise\": {:e}, \
-             \"collision_weight\": [{:e}, {:e}], \"collision_ramp\": {},\n  \"decoder_init_scale\": {}, \"random_materials\": {}, \
-             \"random_centres\": {}, \"checkpoint_every\": {}, \"validate_every\": {}, \"validation\": [{}, {}], \
-             \"supervised\": [{:e}, {}, {}], \"supervised_start\": \"{}\", \"carry\": [{}, {}], \"reference_states\": {}, \"ema\": {}, \"threads\": {}, \"seed\": {},\n  \"scenes\": [\n    {}\n  ]\n}}\n",
-            self.latent,
-            self.hidden_layers,
-            self.levels,
-            schedule,
-            self.iterations,
-            self.warmup_iterations,
-            self.learning_rate,
-            self.lr_halving_steps,
-            self.clip,
-            self.rollout_max,
-            self.rollout_every,
-            self.noise,
-            self.collision_weight.0,
-            self.collision_weight.1,
-            self.collision_ramp,
-            self.decoder_init_scale,
-            self.random_materials,
-            self.random_centres,
-            self.checkpoint_every,
-            self.validate_every,
-            self.validation.0,
-            self.validation.1,
-            self.supervised.0,
-            self.supervised.1,
-            self.supervised.2,
-            self.supervised_start.name(),
-            self.carry.0,
-            self.carry.1,
-            self.reference_states,
-            self.ema,
-            self.threads,
-            self.seed,
-            scenes.join(",\n    ")
-        )
+        json::to_pretty(&ConfigFile {
+            latent: self.latent,
+            hidden_layers: self.hidden_layers,
+            levels: self.levels,
+            schedule: &self.schedule,
+            iterations: self.iterations,
+            warmup_iterations: self.warmup_iterations,
+            learning_rate: self.learning_rate,
+            lr_halving_steps: self.lr_halving_steps,
+            clip: self.clip,
+            rollout_max: self.rollout_max,
+            rollout_every: self.rollout_every,
+            noise: self.noise,
+            collision_weight: self.collision_weight,
+            collision_ramp: self.collision_ramp,
+            decoder_init_scale: self.decoder_init_scale,
+            random_materials: self.random_materials,
+            random_centres: self.random_centres,
+            checkpoint_every: self.checkpoint_every,
+            validate_every: self.validate_every,
+            validation: self.validation,
+            supervised: self.supervised,
+            supervised_start: self.supervised_start.name(),
+            carry: self.carry,
+            reference_states: self.reference_states,
+            ema: self.ema,
+            threads: self.threads,
+            seed: self.seed,
+            scenes,
+        })
     }
 
     /// Rollout length (optimiser steps, start-up included) at `iteration`:
@@ -491,5 +482,90 @@ impl TrainConfig {
     /// Learning rate at optimiser step `s`: `base · (0.5^floor(s / halving) + 0.01)`.
     pub fn learning_rate_at(&self, s: u64) -> f64 {
         super::optim::step_decay(self.learning_rate, self.lr_halving_steps, s)
+    }
+}
+
+/// The JSON form of a [`TrainConfig`], keys in the order [`TrainConfig::to_json`] writes them.
+#[derive(serde::Serialize)]
+struct ConfigFile<'a> {
+    latent: usize,
+    hidden_layers: usize,
+    levels: usize,
+    schedule: &'a str,
+    iterations: u64,
+    warmup_iterations: u64,
+    learning_rate: f64,
+    lr_halving_steps: u64,
+    clip: f64,
+    rollout_max: usize,
+    rollout_every: u64,
+    noise: f32,
+    collision_weight: (f64, f64),
+    collision_ramp: u64,
+    decoder_init_scale: f32,
+    random_materials: bool,
+    random_centres: bool,
+    checkpoint_every: u64,
+    validate_every: u64,
+    validation: (usize, usize),
+    supervised: (f64, u64, usize),
+    supervised_start: &'static str,
+    carry: (usize, f64),
+    reference_states: f64,
+    ema: f64,
+    threads: usize,
+    seed: u64,
+    scenes: Vec<SceneFile>,
+}
+
+/// The JSON form of a [`SceneSource`]: a procedural scene has `vertices` and `seconds`, a
+/// MakeHuman one `frames`.
+#[derive(serde::Serialize)]
+struct SceneFile {
+    garment: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    vertices: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    frames: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    motion: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    seconds: Option<f32>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A config as earlier versions wrote it (numbers in exponent form, keys on few lines).
+    const EARLIER: &str = r#"{
+  "latent": 32, "hidden_layers": 2, "levels": 3, "schedule": "SSSL:SL:LS",
+  "iterations": 30000, "warmup_iterations": 100, "learning_rate": 5e-5, "lr_halving_steps": 50000, "clip": 1,
+  "rollout_max": 5, "rollout_every": 5000, "noise": 3e-3, "collision_weight": [5e3, 5e5], "collision_ramp": 20000,
+  "decoder_init_scale": 1, "random_materials": true, "random_centres": true, "checkpoint_every": 250, "validate_every": 500, "validation": [4, 30], "supervised": [0e0, 0, 30], "supervised_start": "coasting", "carry": [0, 0], "reference_states": 0, "ema": 0, "threads": 2, "seed": 1,
+  "scenes": [
+    {"garment": "skirt", "vertices": 500, "motion": "walk", "seconds": 6},
+    {"garment": "jeans", "frames": 300},
+    {"garment": "tee", "frames": 120, "motion": "walk"}
+  ]
+}
+"#;
+
+    #[test]
+    fn configs_written_earlier_still_read_and_round_trip() {
+        let c = TrainConfig::from_json(&EARLIER.replace("SSSL:SL:LS", HOOD_SCHEDULE)).unwrap();
+        assert_eq!(c.learning_rate, 5e-5);
+        assert_eq!(c.noise, 3e-3);
+        assert_eq!(c.scenes.len(), 3);
+        assert_eq!(
+            c.scenes[2],
+            SceneSource::MakeHuman { garment: "tee".into(), frames: 120, motion: Some(MotionKind::Walk) }
+        );
+        let text = c.to_json();
+        assert_eq!(TrainConfig::from_json(&text).unwrap(), c);
+        // The same keys, in the same order, as before.
+        let keys = |t: &str| -> Vec<String> { json::parse(t).unwrap().as_object().unwrap().keys().cloned().collect() };
+        assert_eq!(keys(&text), keys(EARLIER));
+        assert!(text.contains("\"noise\": 0.003"), "{text}");
     }
 }

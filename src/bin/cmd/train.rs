@@ -1,10 +1,11 @@
 //! `hood train`: a training run in a folder (checkpoint, exported model, logs), resumable.
 
 use clap::Args;
-use hood::io::write_atomic;
+use hood::io::{json, write_atomic};
 use hood::model::ModelBytes;
 use hood::train::config::PullStart;
 use hood::train::{Dataset, IterationReport, TrainConfig, Trainer, ValidationReport};
+use serde::Serialize;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -112,81 +113,127 @@ fn expand(dir: &str) -> PathBuf {
     }
 }
 
+/// One step of a `log.jsonl` line.
+#[derive(Serialize)]
+struct StepLine {
+    total: f32,
+    stretching: f32,
+    bending: f32,
+    inertia: f32,
+    gravity: f32,
+    collision: f32,
+    friction: f32,
+    supervised: f32,
+    grad_norm: f64,
+    startup: bool,
+    skipped: bool,
+}
+
+/// A `log.jsonl` line: one training iteration.
+#[derive(Serialize)]
+struct IterationLine {
+    iteration: u64,
+    scene: usize,
+    vertices: usize,
+    warmup: bool,
+    lr: f64,
+    collision_weight: f64,
+    carried_from: Option<usize>,
+    reference: bool,
+    seconds: f64,
+    steps: Vec<StepLine>,
+}
+
 fn iteration_json(r: &IterationReport, seconds: f64) -> String {
-    let steps: Vec<String> = r
+    let steps = r
         .steps
         .iter()
-        .map(|s| {
-            let t = &s.terms;
-            format!(
-                "{{\"total\":{:e},\"stretching\":{:e},\"bending\":{:e},\"inertia\":{:e},\"gravity\":{:e},\
-                 \"collision\":{:e},\"friction\":{:e},\"supervised\":{:e},\"grad_norm\":{:e},\"startup\":{},\"skipped\":{}}}",
-                s.total,
-                t.stretching,
-                t.bending,
-                t.inertia,
-                t.gravity,
-                t.collision,
-                t.friction,
-                s.supervised,
-                s.grad_norm,
-                s.startup,
-                s.skipped
-            )
+        .map(|s| StepLine {
+            total: s.total,
+            stretching: s.terms.stretching,
+            bending: s.terms.bending,
+            inertia: s.terms.inertia,
+            gravity: s.terms.gravity,
+            collision: s.terms.collision,
+            friction: s.terms.friction,
+            supervised: s.supervised,
+            grad_norm: s.grad_norm,
+            startup: s.startup,
+            skipped: s.skipped,
         })
         .collect();
-    format!(
-        "{{\"iteration\":{},\"scene\":{},\"vertices\":{},\"warmup\":{},\"lr\":{:e},\"collision_weight\":{:e},\
-         \"carried_from\":{},\"reference\":{},\"seconds\":{:.1},\"steps\":[{}]}}",
-        r.iteration,
-        r.scene,
-        r.vertices,
-        r.warmup,
-        r.learning_rate,
-        r.collision_weight,
-        r.carried_from.map_or("null".to_string(), |f| f.to_string()),
-        r.from_reference,
-        seconds,
-        steps.join(",")
-    )
+    json::to_line(&IterationLine {
+        iteration: r.iteration,
+        scene: r.scene,
+        vertices: r.vertices,
+        warmup: r.warmup,
+        lr: r.learning_rate,
+        collision_weight: r.collision_weight,
+        carried_from: r.carried_from,
+        reference: r.from_reference,
+        seconds: (seconds * 10.0).round() / 10.0,
+        steps,
+    })
+}
+
+/// One rollout of a `validation.jsonl` line (the numbers absent when it was not finite).
+#[derive(Serialize)]
+struct RolloutLine<'a> {
+    scene: &'a str,
+    finite: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    total: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    penetrating_percent: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    max_edge_strain: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    max_speed: Option<f64>,
+}
+
+/// A `validation.jsonl` line.
+#[derive(Serialize)]
+struct ValidationLine<'a> {
+    iteration: u64,
+    finite: bool,
+    mean_total: f64,
+    mean_penetrating_percent: f64,
+    rollouts: Vec<RolloutLine<'a>>,
 }
 
 fn validation_json(v: &ValidationReport) -> String {
-    let rows: Vec<String> = v
+    let rollouts = v
         .rollouts
         .iter()
-        .map(|(name, s)| match s {
-            Some(s) => format!(
-                "{{\"scene\":\"{name}\",\"finite\":true,\"total\":{:e},\"penetrating_percent\":{:.4},\
-                 \"max_edge_strain\":{:.4},\"max_speed\":{:.4}}}",
-                s.mean.total,
-                s.mean.penetrating_percent,
-                s.frames.iter().map(|f| f.max_edge_strain).fold(0.0, f64::max),
-                s.frames.iter().map(|f| f.max_speed).fold(0.0, f64::max)
-            ),
-            None => format!("{{\"scene\":\"{name}\",\"finite\":false}}"),
+        .map(|(name, s)| RolloutLine {
+            scene: name,
+            finite: s.is_some(),
+            total: s.as_ref().map(|s| s.mean.total),
+            penetrating_percent: s.as_ref().map(|s| s.mean.penetrating_percent),
+            max_edge_strain: s.as_ref().map(|s| s.frames.iter().map(|f| f.max_edge_strain).fold(0.0, f64::max)),
+            max_speed: s.as_ref().map(|s| s.frames.iter().map(|f| f.max_speed).fold(0.0, f64::max)),
         })
         .collect();
-    let (total, pen) = v.means();
-    format!(
-        "{{\"iteration\":{},\"finite\":{},\"mean_total\":{total:e},\"mean_penetrating_percent\":{pen:.4},\
-         \"rollouts\":[{}]}}",
-        v.iteration,
-        v.finite(),
-        rows.join(",")
-    )
+    let (mean_total, mean_penetrating_percent) = v.means();
+    json::to_line(&ValidationLine {
+        iteration: v.iteration,
+        finite: v.finite(),
+        mean_total,
+        mean_penetrating_percent,
+        rollouts,
+    })
 }
 
-/// Keeps the lines of a JSON-lines log whose `"iteration":N` is below `limit` (so that a
-/// resumed run's log reads as if it had never stopped).
+/// Keeps the lines of a JSON-lines log whose `iteration` is below `limit` (so that a resumed
+/// run's log reads as if it had never stopped). Lines that do not parse are dropped.
 fn truncate_log(path: &Path, limit: u64) -> hood::Result<()> {
     let Ok(text) = std::fs::read_to_string(path) else { return Ok(()) };
     let keep: Vec<&str> = text
         .lines()
         .filter(|l| {
-            l.strip_prefix("{\"iteration\":")
-                .and_then(|r| r.split(',').next())
-                .and_then(|n| n.parse::<u64>().ok())
+            json::parse_lenient(l)
+                .ok()
+                .and_then(|v| v.get("iteration").and_then(json::Value::as_u64))
                 .is_some_and(|n| n < limit)
         })
         .collect();
