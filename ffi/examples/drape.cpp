@@ -214,7 +214,13 @@ int run(int argc, char **argv) {
     check(hood_sim_set_executor(sim.get(), &exec), "hood_sim_set_executor");
     std::printf("garment: %zu vertices, body: %zu vertices\n", nv, nb);
 
-    std::vector<float> body(body_rest.size()), out(rest.size());
+    // A garment authored in the rest pose may start in the body: push it out onto the body's
+    // first frame and start the sim from there (this cloth hangs 2 cm above the body: nothing moves).
+    std::vector<float> body(body_rest.size()), out(rest);
+    std::size_t moved = 0;
+    check(hood_garment_push_out(&bd, out.data(), nv, pinned.data(), &moved), "hood_garment_push_out");
+    if (moved > 0) check(hood_sim_reset(sim.get(), out.data(), nv, nullptr, 0), "hood_sim_reset");
+    std::printf("pushed out: %zu vertices\n", moved);
     auto t0 = std::chrono::steady_clock::now();
     for (int t = 1; t <= kSteps; t++) {
         float dx = 0.01f * std::sin(0.3f * float(t));

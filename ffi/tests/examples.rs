@@ -71,7 +71,9 @@ fn cpp_example_builds_and_drapes() {
     let model = model_file(&dir, 16, 7);
     let exe = dir.join("drape_cpp");
     compile("c++", CXX_FLAGS, &example("drape.cpp"), &exe);
-    check_report(&run(&exe, &model, 16));
+    let r = run(&exe, &model, 16);
+    check_report(&r);
+    assert_eq!(r.pushed, Some(0));
 }
 
 /// The C and C++ examples run the same scene; the C++ one through a 2-thread executor. The

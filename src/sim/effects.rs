@@ -121,4 +121,68 @@ mod tests {
         sim.step(&moved(&body, 1.0)).unwrap();
         assert_eq!(sim.last_effects(), STARTUP, "the next step reports itself");
     }
+
+    /// The last refinement and projection describe the last step that ran them: a sleep, a
+    /// teleport, a set or loaded state forget them. A teleport counts frames at rest anew.
+    #[test]
+    fn reports_of_the_last_step_are_forgotten_when_no_step_runs() {
+        let mut p = Params::init(&ModelSpec::hood(8), 5).unwrap();
+        p.normalisers = Normalisers::unit_scale(3);
+        // A decoder that outputs nothing: every network step is the coasting guess.
+        let last = p.decoder.layers.last_mut().unwrap();
+        last.weight.iter_mut().chain(last.bias.iter_mut()).for_each(|w| *w = 0.0);
+        let bytes = ModelBytes::new(&write_model(&p, false, &[]).unwrap());
+        let model = bytes.model().unwrap();
+        // A cloth partly inside the top of the body, which rises 4 cm a frame into it: every
+        // step has vertices to refine and to project.
+        let (rest, faces) = grid(5, 5, 0.3, 0.3, 0.28);
+        let garment = Garment::new(GarmentDesc::new(&rest, &faces)).unwrap();
+        let (body, body_faces) = shapes::ellipsoid(32, 48, [0.25, 0.3, 0.25], [0.0; 3]);
+        let mesh = BodyMesh::new(body.len(), &body_faces).unwrap();
+        let rise = |sim: &mut Sim| {
+            let b: Vec<[f32; 3]> = sim.state().body_pos.iter().map(|p| [p[0], p[1] + 0.04, p[2]]).collect();
+            sim.step(&b).unwrap();
+            b
+        };
+        // Everything counts as at rest: the third step at rest in a row sleeps.
+        let base = SimConfig {
+            sleeping: Some(crate::sim::Sleeping { threshold: 1e3, frames: 2 }),
+            startup: false,
+            ..SimConfig::default()
+        };
+        let refined = SimConfig { refine: Some(2), ..base };
+        let projected = SimConfig { projection: Some(crate::sim::DEFAULT_PROJECTION_MARGIN), ..base };
+        // What each config's step reports.
+        type Ran = fn(&Sim) -> bool;
+        let reports: [(SimConfig, Ran); 2] =
+            [(refined, |s| s.last_refinement().is_some()), (projected, |s| s.last_projected() > 0)];
+        for (cfg, ran) in reports {
+            let desc = Some(BodyDesc { mesh: &mesh, positions: &body });
+            let mut sim = Sim::new(&model, &garment, desc, cfg).unwrap();
+            assert!(!ran(&sim));
+            rise(&mut sim);
+            assert!(ran(&sim), "{cfg:?}");
+            let mut saved = vec![0u8; sim.saved_state_len()];
+            sim.save_state(&mut saved).unwrap();
+            let now = rise(&mut sim);
+            let motion = RigidMotion { rotation: glam::Quat::IDENTITY, translation: glam::Vec3::ZERO };
+            sim.teleport(&motion, &now).unwrap();
+            assert!(!ran(&sim), "teleported");
+            // Two frames at rest counted before the teleport would make this one the third.
+            rise(&mut sim);
+            assert!(!sim.last_effects().slept, "frames at rest are counted anew after a teleport");
+            assert!(ran(&sim));
+            rise(&mut sim);
+            rise(&mut sim);
+            assert!(sim.last_effects().slept);
+            assert!(!ran(&sim), "slept");
+            sim.load_state(&saved).unwrap();
+            assert!(!ran(&sim), "loaded");
+            rise(&mut sim);
+            assert!(ran(&sim));
+            let state = sim.state().clone();
+            sim.set_state(&state).unwrap();
+            assert!(!ran(&sim), "set");
+        }
+    }
 }

@@ -543,7 +543,7 @@ impl<'m> Sim<'m> {
         // The state is in world coordinates: the speed limit's frame of reference starts anew.
         self.last_carry = [0.0; 3];
         // No step has run from this state yet.
-        self.last_effects = StepEffects::default();
+        self.report_no_step(StepEffects::default());
         if self.cfg.normals {
             vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
         }
@@ -637,7 +637,7 @@ impl<'m> Sim<'m> {
                 rest_frames = rest_frames.saturating_add(1);
                 if rest_frames > sl.frames {
                     self.rest_frames = rest_frames;
-                    self.last_effects = StepEffects { slept: true, ..StepEffects::default() };
+                    self.report_no_step(StepEffects { slept: true, ..StepEffects::default() });
                     return Ok(&self.state.pos);
                 }
             } else {
@@ -681,6 +681,19 @@ impl<'m> Sim<'m> {
         Ok(&self.state.pos)
     }
 
+    /// Reports a call that changed the state without stepping (a sleep, a teleport, a new
+    /// state): its effects, and no refinement or projection ([`Sim::last_refinement`],
+    /// [`Sim::last_projected`] describe the last step that ran those).
+    pub(super) fn report_no_step(&mut self, effects: StepEffects) {
+        self.last_effects = effects;
+        if let Some(r) = self.refiner.as_mut() {
+            r.forget_last();
+        }
+        if let Some(p) = self.body.as_mut().and_then(|b| b.projection.as_mut()) {
+            p.forget_last();
+        }
+    }
+
     /// Moves the garment (positions, velocities, pin targets) by `motion` without simulating,
     /// and puts the body at `body_now` at rest (previous = current). For a body that jumps
     /// (a cut, a respawn): [`SimConfig::teleport`] does this by itself for large jumps. Either
@@ -713,7 +726,9 @@ impl<'m> Sim<'m> {
             self.state.body_prev.copy_from_slice(body_now);
         }
         self.last_carry = [0.0; 3];
-        self.last_effects = StepEffects { teleported: true, ..StepEffects::default() };
+        // The body is at rest from here: frames at rest are counted anew.
+        self.rest_frames = 0;
+        self.report_no_step(StepEffects { teleported: true, ..StepEffects::default() });
         if self.cfg.normals {
             vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
         }

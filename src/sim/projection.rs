@@ -65,6 +65,12 @@ impl Projection {
         self.moved
     }
 
+    /// Forgets the last count: the sim's last step projected nothing (it slept or teleported)
+    /// or no step has run from its state.
+    pub(super) fn forget_last(&mut self) {
+        self.moved = 0;
+    }
+
     /// Pushes every free vertex of `pos` (m) out of the body at `body` (its vertices at the frame
     /// `pos` belongs to), adding each move to `velocity` too. Pinned vertices stay. `built`: the
     /// body's faces and centroid grid at that frame when the step already has them (the

@@ -251,6 +251,12 @@ impl Refiner {
         Ok(())
     }
 
+    /// Forgets the last report: no refinement ran in the sim's last step (it slept or
+    /// teleported) or no step has run from its state.
+    pub(super) fn forget_last(&mut self) {
+        self.last = None;
+    }
+
     /// Makes the last [`apply`](Self::apply)'s report the one [`last`](Self::last) gives, once
     /// its step is committed (a refused step leaves the previous report).
     pub(super) fn commit(&mut self) {

@@ -159,7 +159,7 @@ impl Sim<'_> {
         self.rest_frames = rest_frames;
         self.last_carry = carry;
         // A report of this sim's last step, not part of the state: none has run from it yet.
-        self.last_effects = super::StepEffects::default();
+        self.report_no_step(super::StepEffects::default());
         if self.cfg.normals {
             crate::mesh::vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
         }
