@@ -26,6 +26,8 @@ macro_rules! say {
 
 #[path = "cmd/objective.rs"]
 mod objective;
+#[path = "cmd/progress.rs"]
+mod progress;
 #[path = "cmd/report.rs"]
 mod report;
 #[path = "cmd/simulate.rs"]

@@ -5,6 +5,7 @@
 //! relative objective gap against ms per step.
 
 use crate::objective::ObjectiveArg;
+use crate::progress::Progress;
 use clap::Args;
 use hood::eval::{common_state_gaps, converged_solver, implicit_rollout, rollout, Animation, Method, Rollout};
 use hood::eval::{Reference, RolloutOptions, Summary};
@@ -19,6 +20,7 @@ use hood::{Error, Result};
 use std::cmp::Ordering;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 #[derive(Args)]
 pub struct ReportArgs {
@@ -209,13 +211,15 @@ pub fn report(a: ReportArgs) -> Result<()> {
         ..RolloutOptions::default()
     };
     let mut rows = Vec::new();
+    // The total grows as each workload's variants are known.
+    let bar = Progress::new("report", "rollouts", 0, Duration::from_secs(10));
     for name in &a.workload {
         let Some(anim) = workload(&a, name, &mannequin)? else { continue };
         let frames = a.frames.min(anim.n_frames() - 1);
         let verts = anim.garment().n_vertices();
         let mut push = |variant: String, implicit: bool, common: bool, r: Rollout| {
             let s = r.summary;
-            eprintln!(
+            bar.println(format!(
                 "{name:<6} {variant:<40}{} {:>8.2} ms/step  gap mean {:>7}  p95 {:>7}  penetrating {:>5.2}%{}",
                 if common { " (common states)" } else { "" },
                 s.median_step_ms,
@@ -223,7 +227,8 @@ pub fn report(a: ReportArgs) -> Result<()> {
                 fmt_opt(s.gap_p95),
                 s.mean_penetrating_percent,
                 if s.finite { "" } else { "  NOT FINITE" }
-            );
+            ));
+            bar.inc(1);
             rows.push(Row { workload: name.clone(), vertices: verts, variant, implicit, common, summary: s });
         };
         let loaded: Vec<_> = models.iter().map(|c| c.bytes.model()).collect::<Result<_>>()?;
@@ -260,7 +265,9 @@ pub fn report(a: ReportArgs) -> Result<()> {
             let solver = LbfgsParams { max_iterations: k.max(1), ..converged_solver() };
             variants.push((format!("implicit L-BFGS {k} it. (f64)"), Method::Implicit(solver)));
         }
+        bar.inc_length(variants.len() as u64 * if a.common_states { 2 } else { 1 });
         for (label, method) in &variants {
+            bar.set_message(format!("{name}: {label}"));
             let r = match method {
                 Method::Network { model, cfg } => rollout(model, &*anim, frames, *cfg, &opts)?,
                 Method::Implicit(solver) => implicit_rollout(&*anim, frames, solver, &opts, &mut |_, _| Ok(()))?,
@@ -276,6 +283,7 @@ pub fn report(a: ReportArgs) -> Result<()> {
             }
         }
     }
+    bar.finish();
     std::fs::create_dir_all(&a.out).map_err(|e| hood::Error::io(&a.out, e))?;
     let trained = models.iter().all(|m| m.trained);
     let md = markdown(&a, &rows, &models, trained);

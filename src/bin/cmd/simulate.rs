@@ -384,8 +384,10 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         write_sequence(0, &initial)?;
     }
     let mut garment_frames = if caches { vec![initial] } else { Vec::new() };
+    let bar = crate::progress::Progress::new("simulate", "frames", frames as u64, std::time::Duration::from_secs(10));
     let r = rollout_observed(&model, &*anim, frames, cfg, &opts, &mut |rec, pos| {
-        print_frame(rec, frames);
+        bar.suspend(|| print_frame(rec, frames));
+        bar.set_position(rec.frame as u64);
         if sequence {
             write_sequence(rec.frame, pos)?;
         }
@@ -393,7 +395,9 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
             garment_frames.push(pos.to_vec());
         }
         Ok(())
-    })?;
+    });
+    bar.finish();
+    let r = r?;
     if caches {
         let body = body_faces.as_ref().map(|bf| {
             let frames: Vec<Vec<[f32; 3]>> = (0..garment_frames.len()).map(|f| anim.body_frame(f).to_vec()).collect();

@@ -1,5 +1,6 @@
 //! `hood train`: a training run in a folder (checkpoint, exported model, logs), resumable.
 
+use crate::progress::Progress;
 use clap::Args;
 use hood::io::{json, write_atomic};
 use hood::model::ModelBytes;
@@ -8,7 +9,7 @@ use hood::train::{Dataset, IterationReport, TrainConfig, Trainer, ValidationRepo
 use serde::Serialize;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 #[derive(Args)]
 pub struct TrainArgs {
@@ -252,30 +253,19 @@ fn append(path: &Path, line: &str) -> hood::Result<()> {
 
 fn build_data(cfg: &TrainConfig, shared: &Path) -> hood::Result<Dataset> {
     let t = Instant::now();
-    let data = Dataset::build(cfg, &shared.join("assets"), |name| eprint!("\rbuilding scene {name:<40}"))?;
-    eprintln!("\r{} scenes built in {:.1} s{:30}", data.scenes.len(), t.elapsed().as_secs_f64(), "");
+    let bar = Progress::new("building scenes", "scenes", cfg.scenes.len() as u64, Duration::from_secs(10));
+    let mut built = 0;
+    let data = Dataset::build(cfg, &shared.join("assets"), |name| {
+        bar.set_position(built);
+        bar.set_message(name);
+        built += 1;
+    })?;
+    bar.finish();
+    eprintln!("{} scenes built in {:.1} s", data.scenes.len(), t.elapsed().as_secs_f64());
     for (name, why) in &data.skipped {
         eprintln!("  skipped {name}: {why}");
     }
     Ok(data)
-}
-
-/// A one-line progress bar on stderr.
-fn progress(t: &Trainer, start_it: u64, started: Instant, recent_loss: f64) {
-    let total = t.cfg.iterations.max(1);
-    let done = t.iteration.min(total);
-    let width = 30;
-    let filled = (done * width / total) as usize;
-    let rate = (t.iteration - start_it) as f64 / started.elapsed().as_secs_f64().max(1e-9);
-    let eta = if rate > 0.0 { (total - done) as f64 / rate } else { 0.0 };
-    eprint!(
-        "\r[{}{}] {done}/{total} it  {:.2} it/s  loss {recent_loss:.3e}  eta {}h{:02}m   ",
-        "#".repeat(filled),
-        ".".repeat(width as usize - filled),
-        rate,
-        (eta / 3600.0) as u64,
-        ((eta % 3600.0) / 60.0) as u64
-    );
 }
 
 pub fn train(a: TrainArgs) -> hood::Result<()> {
@@ -345,23 +335,27 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     if t.cfg.reference_states > 0.0 {
         let clock = Instant::now();
         let weight = t.cfg.collision_weight.1;
+        let bar = Progress::new("reference rollout", "frames", 0, Duration::from_secs(10));
         t.data.attach_reference_states(Some(&dir.join("reference")), weight, |name, done, of| {
-            if done % 10 == 0 || done == of {
-                eprint!("\rreference rollout of {name:<32} frame {done}/{of}   ");
-            }
+            bar.set_length(of as u64);
+            bar.set_position(done as u64);
+            bar.set_message(name);
         })?;
+        bar.finish();
         for ((states, scene), name) in t.data.reference.iter().zip(&t.data.scenes).zip(&t.data.names) {
             if states.len() < scene.n_frames() {
-                eprintln!("\rreference rollout of {name}: states up to frame {} (the garment is lost or the step fails after)", states.len());
+                eprintln!(
+                    "reference rollout of {name}: states up to frame {} (the garment is lost or the step fails after)",
+                    states.len()
+                );
             }
         }
         let frames: usize = t.data.reference.iter().map(|r| r.len()).sum();
         eprintln!(
-            "\rreference states: {frames} frames over {} scenes ({:.0} s); {} of fresh samples start from one{:20}",
+            "reference states: {frames} frames over {} scenes ({:.0} s); {} of fresh samples start from one",
             t.data.reference.len(),
             clock.elapsed().as_secs_f64(),
             t.cfg.reference_states,
-            ""
         );
     }
     if let Some(lr) = a.learning_rate {
@@ -383,10 +377,12 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
         dir.display()
     );
     let started = Instant::now();
-    let start_it = t.iteration;
     let deadline = a.hours.map(|h| h * 3600.0);
     let mut last_print = Instant::now();
     let mut recent = 0.0f64;
+    // Plain lines (stderr not a terminal: a log file) once a minute.
+    let bar = Progress::new("train", "it", t.cfg.iterations, Duration::from_secs(60));
+    bar.start_at(t.iteration);
     let snapshots = dir.join("snapshots");
     // The checkpoint, `model.hood` and the snapshot that are due, from one export.
     let save = |t: &Trainer, checkpoint: bool| -> hood::Result<()> {
@@ -425,25 +421,29 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
             let v = t.validate()?;
             append(&vlog, &validation_json(&v))?;
             let (total, pen) = v.means();
-            eprintln!(
-                "\nvalidation at {}: finite {}, mean objective {total:.4e}, penetrating {pen:.2} %",
+            bar.println(format!(
+                "validation at {}: finite {}, mean objective {total:.4e}, penetrating {pen:.2} %",
                 t.iteration,
                 v.finite()
-            );
+            ));
         }
         let out_of_time = deadline.is_some_and(|d| started.elapsed().as_secs_f64() > d);
         let stopping = out_of_time || stop.exists();
         save(&t, t.iteration % t.cfg.checkpoint_every == 0 || stopping || t.iteration == t.cfg.iterations)?;
         if last_print.elapsed().as_secs_f64() > 1.0 {
-            progress(&t, start_it, started, recent);
+            bar.set_message(format!("loss {recent:.3e}"));
+            bar.set_position(t.iteration);
             last_print = Instant::now();
         }
         if stopping {
-            eprintln!("\nstopped at iteration {} (checkpoint written)", t.iteration);
+            bar.finish();
+            eprintln!("stopped at iteration {} (checkpoint written)", t.iteration);
             return Ok(());
         }
     }
-    progress(&t, start_it, started, recent);
-    eprintln!("\ndone: {} iterations, {} optimiser steps, {:.0} s", t.iteration, t.optimiser_steps, t.seconds);
+    bar.set_message(format!("loss {recent:.3e}"));
+    bar.set_position(t.iteration);
+    bar.finish();
+    eprintln!("done: {} iterations, {} optimiser steps, {:.0} s", t.iteration, t.optimiser_steps, t.seconds);
     Ok(())
 }

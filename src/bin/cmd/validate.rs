@@ -8,6 +8,7 @@
 //! the body (the off-body metric): a lost garment fails whatever its other figures.
 
 use crate::objective::ObjectiveArg;
+use crate::progress::Progress;
 use crate::simulate::{named_scene, parse_precision, step_mode};
 use clap::Args;
 use hood::eval::{common_state_gaps, rollout, strip_images, Method, Reference, RolloutOptions, Summary};
@@ -17,7 +18,7 @@ use hood::{Error, Result};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// The validation scenes: name, garment, vertices (procedural garments), motion.
 const SCENES: [(&str, &str, usize, &str); 4] = [
@@ -251,6 +252,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
     let results: Mutex<Vec<Option<Result<Row>>>> = Mutex::new((0..jobs.len()).map(|_| None).collect());
     let next = AtomicUsize::new(0);
     let clock = Instant::now();
+    let bar = Progress::new("validate", "rollouts", jobs.len() as u64, Duration::from_secs(10));
     std::thread::scope(|scope| {
         for _ in 0..a.jobs.clamp(1, jobs.len().max(1)) {
             scope.spawn(|| loop {
@@ -262,17 +264,19 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
                     v[j] = Some(r);
                     v.iter().filter(|x| x.is_some()).count()
                 });
-                eprintln!(
+                bar.println(format!(
                     "[{}/{}] {} on {} ({:.0} s elapsed)",
                     done.unwrap_or(0),
                     jobs.len(),
                     a.models[m].display(),
                     scenes[s].label,
                     clock.elapsed().as_secs_f64()
-                );
+                ));
+                bar.inc(1);
             });
         }
     });
+    bar.finish();
     let results = results.into_inner().map_err(|_| Error::parse("validate", 0, "a rollout thread panicked"))?;
     let mut table = format!(
         "Validation: {} frames, gap and inside count every {} frames, training objective, {}{}{}, one thread per rollout.\n\n\
