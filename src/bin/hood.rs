@@ -26,6 +26,8 @@ macro_rules! say {
 
 #[path = "cmd/objective.rs"]
 mod objective;
+#[path = "cmd/plot.rs"]
+mod plot;
 #[path = "cmd/progress.rs"]
 mod progress;
 #[path = "cmd/report.rs"]
@@ -67,6 +69,9 @@ enum Command {
     /// Train a model from physics alone (feature `train`); resumes the run in `--dir`.
     #[cfg(feature = "train")]
     Train(train_cmd::TrainArgs),
+    /// Draw a training run's curves (validation objective and % penetrating, training loss)
+    /// from its logs as an SVG.
+    Plot(plot::PlotArgs),
 }
 
 #[derive(Args)]
@@ -210,6 +215,7 @@ fn main() -> ExitCode {
         Command::Info(a) => info(a),
         Command::Average(a) => average(a),
         Command::Validate(a) => validate::validate(a),
+        Command::Plot(a) => plot::plot(a),
         #[cfg(feature = "train")]
         Command::Train(a) => train_cmd::train(a),
     };
