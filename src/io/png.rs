@@ -44,7 +44,7 @@ pub fn write(path: impl AsRef<Path>, image: &Image) -> Result<()> {
 /// Writes frames side by side as one PNG strip.
 ///
 /// # Errors
-/// As [`write`]; [`Error::Empty`] when there are no frames.
+/// As [`write()`]; [`Error::Empty`] when there are no frames.
 pub fn write_strip(path: impl AsRef<Path>, frames: &[Image]) -> Result<()> {
     write(path, &Image::side_by_side(frames))
 }
