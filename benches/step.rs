@@ -93,7 +93,7 @@ fn bench_step(c: &mut Criterion) {
             }
             let model = bytes.model().unwrap();
             let p = if precision == Precision::Bf16 { "bf16" } else { "f32" };
-            let (mut s, st) = sim(&w, &model, SimConfig { precision, threads, ..SimConfig::default() });
+            let (mut s, st) = sim(&w, &model, SimConfig { precision, threads, ..SimConfig::network() });
             let mut t = 0;
             let id = BenchmarkId::new(format!("{name}/h{h}/{p}"), format!("{threads}t"));
             g.bench_function(id, |b| {
@@ -116,7 +116,7 @@ fn bench_effects(c: &mut Criterion) {
     let model = bytes.model().unwrap();
     let mut g = c.benchmark_group("effects");
     g.sample_size(10).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(4));
-    let base = SimConfig::default();
+    let base = SimConfig::network();
     for (label, cfg) in [
         ("all-off", SimConfig { body_collision: false, pinning: false, ..base }),
         ("body", base),

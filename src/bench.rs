@@ -114,7 +114,7 @@ pub fn bench_step(
     steps: usize,
     peak: &peak::Peak,
 ) -> Result<BenchRow> {
-    let cfg = SimConfig { precision, threads, startup: w.startup(), ..SimConfig::default() };
+    let cfg = SimConfig { precision, threads, startup: w.startup(), ..SimConfig::network() };
     let body = w.body.as_ref().map(|(mesh, frames)| BodyDesc { mesh, positions: &frames[0] });
     let mut sim = match &w.graph {
         Some(g) => Sim::with_graph(model, &w.garment, g.clone(), body, cfg)?,

@@ -221,7 +221,7 @@ mod tests {
         let bytes = ModelBytes::new(&write_model(&p, false, &[]).unwrap());
         let model = bytes.model().unwrap();
         let (mesh, frames) = w.body.as_ref().unwrap();
-        let cfg = SimConfig { startup: w.startup(), ..SimConfig::default() };
+        let cfg = SimConfig { startup: w.startup(), ..SimConfig::network() };
         let mut sim = Sim::new(&model, &w.garment, Some(BodyDesc { mesh, positions: &frames[0] }), cfg).unwrap();
         for t in [0, 1, worn.states.len() + 3] {
             let k = t % worn.states.len();

@@ -82,7 +82,7 @@ fn step_every_effect_precision_and_thread_count() {
                                 projection: (body && normals).then_some(0.004),
                                 refine: sleeping.filter(|_| network).map(|_| 3),
                                 step,
-                                ..SimConfig::default()
+                                ..SimConfig::network()
                             };
                             let b0 = scene.body_at(0);
                             let desc = BodyDesc { mesh: &scene.body, positions: &b0 };

@@ -18,7 +18,7 @@ fn eval_rollout_records_every_frame_and_orders_the_gap() {
     let frames = 8;
     let opts = RolloutOptions { gap_every: 3, keep: vec![0, 4, 8, 99], ..RolloutOptions::default() };
     let mut seen = Vec::new();
-    let r = rollout_observed(&model, &scene, frames, SimConfig::default(), &opts, &mut |rec, pos| {
+    let r = rollout_observed(&model, &scene, frames, SimConfig::network(), &opts, &mut |rec, pos| {
         assert_eq!(pos.len(), scene.garment.n_vertices());
         seen.push(rec.frame);
         Ok(())
@@ -88,7 +88,7 @@ fn eval_frame_objective_matches_the_physics_rollout_score() {
     let bytes = random_model(16, 11, false);
     let model = bytes.model().unwrap();
     let opts = RolloutOptions { keep: (0..=frames).collect(), ..RolloutOptions::default() };
-    let r = rollout(&model, &scene, frames, SimConfig::default(), &opts).unwrap();
+    let r = rollout(&model, &scene, frames, SimConfig::network(), &opts).unwrap();
     assert!(r.failure.is_none(), "{:?}", r.failure);
     let garment: Vec<Vec<[f32; 3]>> = r.kept.iter().map(|k| k.1.clone()).collect();
     let body: Vec<Vec<[f32; 3]>> = scene.body_frames.clone();
@@ -123,15 +123,15 @@ fn eval_cloth_without_body_and_bad_requests() {
     let bytes = random_model(16, 3, false);
     let model = bytes.model().unwrap();
     let opts = RolloutOptions { gap_every: 2, ..RolloutOptions::default() };
-    let r = rollout(&model, &anim, 5, SimConfig::default(), &opts).unwrap();
+    let r = rollout(&model, &anim, 5, SimConfig::network(), &opts).unwrap();
     assert!(r.frames.iter().all(|f| f.penetrating_percent == 0.0));
     assert!(r.frames.iter().all(|f| f.terms.unwrap().collision == 0.0 && f.terms.unwrap().friction == 0.0));
-    assert!(matches!(rollout(&model, &anim, 0, SimConfig::default(), &opts), Err(hood::Error::Empty { .. })));
-    assert!(matches!(rollout(&model, &anim, 10, SimConfig::default(), &opts), Err(hood::Error::OutOfRange { .. })));
+    assert!(matches!(rollout(&model, &anim, 0, SimConfig::network(), &opts), Err(hood::Error::Empty { .. })));
+    assert!(matches!(rollout(&model, &anim, 10, SimConfig::network(), &opts), Err(hood::Error::OutOfRange { .. })));
     // From common states without a body: the reference's contact terms are dropped too, so the
     // converged step of the training objective is the evaluation objective's optimum.
     use hood::eval::{common_state_gaps, converged_solver, Method, Reference};
-    let methods = [Method::Network { model: &model, cfg: SimConfig::default() }, Method::Implicit(converged_solver())];
+    let methods = [Method::Network { model: &model, cfg: SimConfig::network() }, Method::Implicit(converged_solver())];
     let out = common_state_gaps(&anim, 5, &methods, Reference::Converged(Objective::training(5e5)), &opts).unwrap();
     assert!(out[0].frames.iter().all(|f| f.terms.unwrap().collision == 0.0 && f.penetrating_percent == 0.0));
     assert!(out[1].summary.gap_mean.unwrap().abs() < 1e-9, "{:?}", out[1].summary);
@@ -184,7 +184,7 @@ fn eval_runtime_refinement_closes_the_gap() {
             objective: Objective::training(REFINE_COLLISION_WEIGHT),
             ..RolloutOptions::default()
         };
-        let r = rollout(&model, &scene, frames, SimConfig { refine, ..SimConfig::default() }, &opts).unwrap();
+        let r = rollout(&model, &scene, frames, SimConfig { refine, ..SimConfig::network() }, &opts).unwrap();
         assert!(r.failure.is_none(), "{:?}", r.failure);
         r.summary.gap_mean.unwrap()
     };
@@ -249,7 +249,8 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     };
     let sim_out = out.join("sim");
     let simulate = |extra: &[&str]| {
-        let mut args = vec!["simulate", "--model", model, "--garment", "skirt", "--vertices", "500"];
+        // The network's step (`--solver 0`), which validate scores.
+        let mut args = vec!["simulate", "--model", model, "--solver", "0", "--garment", "skirt", "--vertices", "500"];
         args.extend(["--frames", "10", "--gap-every", "5", "--objective", "training", "--no-obj"]);
         args.extend(["--out", sim_out.to_str().unwrap()]);
         args.extend(extra);
@@ -366,7 +367,7 @@ fn eval_counts_vertices_inside_the_body_on_the_picked_frames() {
     let bytes = random_model(16, 5, false);
     let model = bytes.model().unwrap();
     let opts = RolloutOptions { inside_every: 2, keep: (0..=frames).collect(), ..RolloutOptions::default() };
-    let r = rollout(&model, &scene, frames, SimConfig::default(), &opts).unwrap();
+    let r = rollout(&model, &scene, frames, SimConfig::network(), &opts).unwrap();
     let mut counted = 0;
     for f in &r.frames {
         assert_eq!(f.inside_percent.is_some(), f.frame % 2 == 0, "frame {}", f.frame);
@@ -408,8 +409,8 @@ fn eval_common_states_score_every_method_from_the_reference_states() {
     let opts = RolloutOptions { gap_every: 2, objective: training, ..RolloutOptions::default() };
     let two = LbfgsParams { max_iterations: 2, ..converged_solver() };
     let methods = [
-        Method::Network { model: &model, cfg: SimConfig::default() },
-        Method::Network { model: &model, cfg: SimConfig { refine: Some(200), ..SimConfig::default() } },
+        Method::Network { model: &model, cfg: SimConfig::network() },
+        Method::Network { model: &model, cfg: SimConfig { refine: Some(200), ..SimConfig::network() } },
         Method::Implicit(converged_solver()),
         Method::Implicit(two),
     ];
@@ -458,9 +459,9 @@ fn eval_common_states_score_every_method_from_the_reference_states() {
     // From a runtime reference, the model scores as on its own rollout (past the start-up step).
     let net = &methods[..1];
     let from_own =
-        common_state_gaps(&scene, frames, net, Reference::Network { model: &model, cfg: SimConfig::default() }, &opts)
+        common_state_gaps(&scene, frames, net, Reference::Network { model: &model, cfg: SimConfig::network() }, &opts)
             .unwrap();
-    let own = rollout(&model, &scene, frames, SimConfig::default(), &opts).unwrap();
+    let own = rollout(&model, &scene, frames, SimConfig::network(), &opts).unwrap();
     assert!(own.failure.is_none());
     for f in &from_own[0].frames {
         let o = &own.frames[f.frame - 1];

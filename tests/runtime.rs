@@ -11,7 +11,7 @@ fn rollout(threads: usize, precision: Precision, steps: usize) -> Vec<[f32; 3]> 
     let scene = Scene::new(16, 14);
     let bytes = random_model(32, 2, true);
     let model = bytes.model().unwrap();
-    let mut sim = scene.sim(&model, SimConfig { threads, precision, ..SimConfig::default() }).unwrap();
+    let mut sim = scene.sim(&model, SimConfig { threads, precision, ..SimConfig::network() }).unwrap();
     for t in 1..=steps {
         sim.step(&scene.body_at(t)).unwrap();
     }
@@ -33,7 +33,7 @@ fn runtime_refuses_non_finite_body_and_keeps_state() {
     let scene = Scene::new(8, 8);
     let bytes = random_model(16, 3, false);
     let model = bytes.model().unwrap();
-    let mut sim = scene.sim(&model, SimConfig::default()).unwrap();
+    let mut sim = scene.sim(&model, SimConfig::network()).unwrap();
     sim.step(&scene.body_at(1)).unwrap();
     let before = sim.state().clone();
     for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
@@ -61,7 +61,7 @@ fn runtime_refused_first_step_restores_the_state() {
     // A body that moves 3e38 m in a frame (no teleport): the start-up pass (static body)
     // succeeds, and the regular pass's refinement, which the start-up pass skips, cannot place
     // the body's faces in its grid.
-    let cfg = SimConfig { teleport: None, normals: true, refine: Some(3), ..SimConfig::default() };
+    let cfg = SimConfig { teleport: None, normals: true, refine: Some(3), ..SimConfig::network() };
     let far = |t: usize| -> Vec<[f32; 3]> { scene.body_at(t).iter().map(|p| [p[0] + 3.0e38, p[1], p[2]]).collect() };
     let mut sim = scene.sim(&model, cfg).unwrap();
     let (state0, normals0) = (sim.state().clone(), sim.normals().to_vec());
@@ -88,7 +88,7 @@ fn runtime_refused_first_step_restores_the_state() {
 
     // A refusal in the start-up pass itself (a body frame whose extent overflows the body's
     // grid) keeps the velocities the start-up would have zeroed.
-    let cfg = SimConfig { teleport: None, speed_limit: None, ..SimConfig::default() };
+    let cfg = SimConfig { teleport: None, speed_limit: None, ..SimConfig::network() };
     let mut sim = scene.sim(&model, cfg).unwrap();
     let mut state = sim.state().clone();
     state.velocity.iter_mut().enumerate().for_each(|(i, v)| *v = [0.001 * i as f32, 0.0, 0.0]);
@@ -113,7 +113,7 @@ fn runtime_normals_follow_the_state_from_creation_and_reset() {
     let scene = Scene::new(8, 8);
     let bytes = random_model(16, 6, false);
     let model = bytes.model().unwrap();
-    let mut sim = scene.sim(&model, SimConfig { normals: true, ..SimConfig::default() }).unwrap();
+    let mut sim = scene.sim(&model, SimConfig { normals: true, ..SimConfig::network() }).unwrap();
     let expected = |pos: &[[f32; 3]]| {
         let mut out = vec![[0.0f32; 3]; pos.len()];
         hood::mesh::vertex_normals(scene.garment.faces(), pos, &mut out);
@@ -137,10 +137,10 @@ fn runtime_refuses_absurd_thread_counts() {
     let scene = Scene::new(6, 6);
     let bytes = random_model(16, 7, false);
     let model = bytes.model().unwrap();
-    let cfg = SimConfig { threads: hood::sim::MAX_THREADS + 1, ..SimConfig::default() };
+    let cfg = SimConfig { threads: hood::sim::MAX_THREADS + 1, ..SimConfig::network() };
     let refused = scene.sim(&model, cfg).err();
     assert!(matches!(refused, Some(Error::OutOfRange { what, .. }) if what.starts_with("threads")), "{refused:?}");
-    let cfg = SimConfig { threads: 3, ..SimConfig::default() };
+    let cfg = SimConfig { threads: 3, ..SimConfig::network() };
     assert!(scene.sim(&model, cfg).is_ok());
 }
 
@@ -149,7 +149,7 @@ fn runtime_pinned_vertices_follow_their_targets() {
     let scene = Scene::new(8, 8);
     let bytes = random_model(16, 4, false);
     let model = bytes.model().unwrap();
-    let mut sim = Sim::new(&model, &scene.garment, None, SimConfig::default()).unwrap();
+    let mut sim = Sim::new(&model, &scene.garment, None, SimConfig::network()).unwrap();
     let mut targets = scene.garment.rest().to_vec();
     targets[0][1] += 0.05;
     sim.set_pin_targets(&targets).unwrap();
@@ -167,7 +167,7 @@ fn runtime_refuses_effects_the_model_lacks() {
     let scene = Scene::new(6, 6);
     let bytes = random_model(16, 5, false);
     let model = bytes.model().unwrap();
-    let cfg = SimConfig { precision: Precision::Bf16, ..SimConfig::default() };
+    let cfg = SimConfig { precision: Precision::Bf16, ..SimConfig::network() };
     assert!(matches!(Sim::new(&model, &scene.garment, None, cfg).err(), Some(Error::UnsupportedEffect { .. })));
 }
 
@@ -182,7 +182,7 @@ fn runtime_teleport_carries_the_garment_rigidly() {
     let scene = Scene::new(10, 10);
     let bytes = random_model(16, 6, false);
     let model = bytes.model().unwrap();
-    let mut sim = scene.sim(&model, SimConfig::default()).unwrap();
+    let mut sim = scene.sim(&model, SimConfig::network()).unwrap();
     sim.step(&scene.body_at(1)).unwrap();
     let before = sim.positions().to_vec();
     let vel = sim.state().velocity.clone();
@@ -215,7 +215,7 @@ fn runtime_fixed_step_driver_runs_at_30_hz() {
     let bytes = random_model(16, 7, false);
     let model = bytes.model().unwrap();
     for (hz, want) in [(60.0f32, 30u64), (144.0, 30), (30.0, 30), (24.0, 30)] {
-        let sim = scene.sim(&model, SimConfig::default()).unwrap();
+        let sim = scene.sim(&model, SimConfig::network()).unwrap();
         let mut d = hood::sim::FixedStep::new(sim);
         let frames = hz as usize;
         for f in 1..=frames {
@@ -264,7 +264,7 @@ fn runtime_speed_limit_follows_the_excess_motion() {
     };
     let b0 = body_a[0].clone();
     let new = |limit: Option<f32>| {
-        let cfg = SimConfig { speed_limit: limit, ..SimConfig::default() };
+        let cfg = SimConfig { speed_limit: limit, ..SimConfig::network() };
         Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap()
     };
     let (mut a, mut b, mut plain) = (new(Some(limit)), new(None), new(None));
@@ -311,7 +311,7 @@ fn runtime_collision_projection_pushes_cloth_out_of_the_body() {
     let b0 = scene.body_at(0);
     let margin = 0.004;
     let new_with = |projection: Option<f32>, refine: Option<u32>| {
-        let cfg = SimConfig { projection, refine, startup: false, ..SimConfig::default() };
+        let cfg = SimConfig { projection, refine, startup: false, ..SimConfig::network() };
         Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg)
     };
     let new = |projection: Option<f32>| new_with(projection, None);
@@ -381,7 +381,7 @@ fn runtime_collision_projection_pushes_cloth_out_of_the_body() {
     for bad in [-1e-3, f32::NAN, PROJECTION_REACH] {
         assert!(matches!(new(Some(bad)).err(), Some(Error::OutOfRange { .. })), "margin {bad}");
     }
-    let cfg = SimConfig { projection: Some(margin), ..SimConfig::default() };
+    let cfg = SimConfig { projection: Some(margin), ..SimConfig::network() };
     assert!(matches!(Sim::new(&model, &scene.garment, None, cfg).err(), Some(Error::UnsupportedEffect { .. })));
 }
 
@@ -398,7 +398,7 @@ fn runtime_refinement_lowers_the_objective_and_keeps_the_state_consistent() {
     let b0 = scene.body_at(0);
     let body = || Some(BodyDesc { mesh: &scene.body, positions: &b0 });
     let new = |refine: Option<u32>, with_body: bool| {
-        let cfg = SimConfig { refine, ..SimConfig::default() };
+        let cfg = SimConfig { refine, ..SimConfig::network() };
         Sim::new(&model, &scene.garment, if with_body { body() } else { None }, cfg)
     };
     let mut plain = new(None, true).unwrap();
@@ -449,7 +449,7 @@ fn runtime_refinement_coasts_in_the_carried_frame() {
     let bytes = random_model(16, 13, false);
     let model = bytes.model().unwrap();
     let limit = 0.05;
-    let cfg = SimConfig { refine: Some(300), speed_limit: Some(limit), teleport: None, ..SimConfig::default() };
+    let cfg = SimConfig { refine: Some(300), speed_limit: Some(limit), teleport: None, ..SimConfig::network() };
     let mut sim = scene.sim(&model, cfg).unwrap();
     // The body slides by 0.08 m a frame along x: the limit carries 0.03 m of it.
     let body =
@@ -521,7 +521,7 @@ fn runtime_solver_step_mode_is_the_implicit_step_without_the_network() {
     let b0 = scene.body_at(0);
     let new = |seed: u64, iterations: u32| {
         let bytes = random_model(16, seed, false);
-        let cfg = SimConfig { step: StepMode::Solver { iterations }, ..SimConfig::default() };
+        let cfg = SimConfig { step: StepMode::Solver { iterations }, ..SimConfig::network() };
         let model = bytes.model().unwrap();
         let mut sim =
             Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap();
@@ -542,7 +542,7 @@ fn runtime_solver_step_mode_is_the_implicit_step_without_the_network() {
     assert!(many[0] < few[0], "first step: {} with 100 iterations against {} with 5", many[0], few[0]);
     let bytes = random_model(16, 1, false);
     let model = bytes.model().unwrap();
-    let cfg = SimConfig { step: StepMode::Solver { iterations: 5 }, refine: Some(3), ..SimConfig::default() };
+    let cfg = SimConfig { step: StepMode::Solver { iterations: 5 }, refine: Some(3), ..SimConfig::network() };
     let err = Sim::new(&model, &scene.garment, None, cfg).err();
     assert!(matches!(err, Some(Error::UnsupportedEffect { .. })), "{err:?}");
 }
@@ -567,7 +567,7 @@ fn runtime_solver_budget_ends_each_solve_on_the_clock() {
     let bytes = random_model(16, 1, false);
     let model = bytes.model().unwrap();
     let run = |step: StepMode, tick_ns: Option<u64>| {
-        let cfg = SimConfig { step, ..SimConfig::default() };
+        let cfg = SimConfig { step, ..SimConfig::network() };
         let mut sim =
             Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap();
         if let Some(tick) = tick_ns {
@@ -589,7 +589,7 @@ fn runtime_solver_budget_ends_each_solve_on_the_clock() {
     let (its, x) = run(budget, Some(0));
     assert!(its.iter().all(|&k| k > 3 && k <= 50), "{its:?}");
     assert_eq!(x, run(StepMode::Solver { iterations: 50 }, None).1, "a stopped clock differs from the cap");
-    let cfg = SimConfig { step: StepMode::SolverBudget { micros: 0, max_iterations: 5 }, ..SimConfig::default() };
+    let cfg = SimConfig { step: StepMode::SolverBudget { micros: 0, max_iterations: 5 }, ..SimConfig::network() };
     let err = Sim::new(&model, &scene.garment, None, cfg).err();
     assert!(matches!(err, Some(Error::OutOfRange { .. })), "{err:?}");
 }
@@ -619,14 +619,14 @@ fn runtime_refuses_an_inside_out_body_and_surveys_a_coarse_one() {
     let model = bytes.model().unwrap();
     let b0 = scene.body_at(0);
     // As it comes: outward, and fine enough for the body edges' radius.
-    let sim = scene.sim(&model, SimConfig::default()).unwrap();
+    let sim = scene.sim(&model, SimConfig::network()).unwrap();
     let survey = sim.body_survey().unwrap();
     assert!(survey.volume > 0.0 && !survey.too_coarse_for(hood::sim::BODY_EDGE_RADIUS), "{survey:?}");
     // Every face reversed, as a change of handedness between engines gives.
     let flipped: Vec<[u32; 3]> = scene.body.faces().iter().map(|f| [f[0], f[2], f[1]]).collect();
     let inside_out = BodyMesh::new(b0.len(), &flipped).unwrap();
     let err =
-        Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &inside_out, positions: &b0 }), SimConfig::default())
+        Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &inside_out, positions: &b0 }), SimConfig::network())
             .err()
             .unwrap();
     assert!(matches!(err, Error::InsideOut { what: "body" }), "{err}");
@@ -634,7 +634,7 @@ fn runtime_refuses_an_inside_out_body_and_surveys_a_coarse_one() {
     // 164 vertices over the same ellipsoid: accepted, and said to be too coarse.
     let (cv, cf) = hood::body::shapes::ellipsoid(9, 18, [0.25, 0.3, 0.25], [0.0; 3]);
     let coarse = BodyMesh::new(cv.len(), &cf).unwrap();
-    let sim = Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &coarse, positions: &cv }), SimConfig::default())
+    let sim = Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &coarse, positions: &cv }), SimConfig::network())
         .unwrap();
     assert!(sim.body_survey().unwrap().too_coarse_for(hood::sim::BODY_EDGE_RADIUS));
 }
@@ -654,7 +654,7 @@ fn runtime_saved_state_continues_bitwise_and_bad_bytes_change_nothing() {
         // A generous "at rest" (10 m/frame) so that sleeping counts frames in both cases.
         sleeping: Some(hood::sim::Sleeping { frames: 4, threshold: 10.0 }),
         speed_limit: Some(0.001),
-        ..SimConfig::default()
+        ..SimConfig::network()
     };
     let pin_targets = |t: usize| -> Vec<[f32; 3]> {
         scene.garment.rest().iter().map(|p| [p[0] + 0.002 * t as f32, p[1], p[2]]).collect()

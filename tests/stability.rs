@@ -177,7 +177,7 @@ fn stability_long_rollout_of_a_repeated_motion() {
     let model = shipped("stability_long_rollout_of_a_repeated_motion");
     let period = 120;
     let anim = Looped { scene: skirt_turn(), period, frames: LONG_FRAMES + 1, source: repeat };
-    let r = run(&model, &anim, LONG_FRAMES, SimConfig::default(), Vec::new());
+    let r = run(&model, &anim, LONG_FRAMES, SimConfig::network(), Vec::new());
     assert_finite_and_bounded("long rollout", &r, LONG_FRAMES, Some(strain_bound(&anim)));
     let cycle_mean = |c: usize| {
         let fr = &r.frames[c * period..(c + 1) * period];
@@ -211,7 +211,7 @@ fn stability_teleport_jump_and_half_turn() {
             anim.pin_targets[f].iter_mut().for_each(|p| *p = m(*p));
         }
         let frames = anim.frames - 1;
-        let r = run(&bytes, &anim, frames, SimConfig::default(), vec![jump - 1, jump]);
+        let r = run(&bytes, &anim, frames, SimConfig::network(), vec![jump - 1, jump]);
         assert_finite_and_bounded(what, &r, frames, None);
         assert_eq!(r.frames[jump - 1].kind, StepKind::Teleported, "{what}");
         assert!(r.frames.iter().filter(|f| f.kind == StepKind::Teleported).count() == 1, "{what}");
@@ -230,7 +230,7 @@ fn stability_teleport_jump_and_half_turn() {
             anim.body_frames[f].iter_mut().for_each(|p| *p = m(*p));
             anim.pin_targets[f].iter_mut().for_each(|p| *p = m(*p));
         }
-        let r = run(&model, &anim, anim.frames - 1, SimConfig::default(), Vec::new());
+        let r = run(&model, &anim, anim.frames - 1, SimConfig::network(), Vec::new());
         assert_finite_and_bounded(what, &r, anim.frames - 1, Some(strain_bound(&anim)));
     }
 }
@@ -256,7 +256,7 @@ fn stability_ten_metres_per_second() {
     // refinement that ignored the carry would hold the garment back by 0.2 m a frame).
     for refine in [None, Some(10)] {
         let what = format!("10 m/s, refine {refine:?}");
-        let r = run(&model, &anim, frames, SimConfig { refine, ..SimConfig::default() }, vec![frames]);
+        let r = run(&model, &anim, frames, SimConfig { refine, ..SimConfig::network() }, vec![frames]);
         assert_finite_and_bounded(&what, &r, frames, Some(strain_bound(&anim)));
         let not_stepped: Vec<(usize, StepKind)> = r
             .frames
@@ -285,7 +285,7 @@ fn stability_bad_start_states() {
     let mut base = Playback::record(scene, 50).unwrap();
     let bound = strain_bound(&base);
     let frames = 45;
-    let normal = run(&model, &base, frames, SimConfig::default(), Vec::new());
+    let normal = run(&model, &base, frames, SimConfig::network(), Vec::new());
     let reference = *normal.frames.last().unwrap();
     let n = base.garment.n_vertices();
     let mut skinned = vec![[0.0; 3]; n];
@@ -311,7 +311,7 @@ fn stability_bad_start_states() {
     ];
     for (what, start) in starts {
         base.initial = start;
-        let r = run(&model, &base, frames, SimConfig::default(), Vec::new());
+        let r = run(&model, &base, frames, SimConfig::network(), Vec::new());
         assert!(r.failure.is_none(), "{what}: {:?}", r.failure);
         let (first, last) = (&r.frames[0], r.frames.last().unwrap());
         println!(
@@ -428,9 +428,9 @@ fn stability_degenerate_input() {
         for with_body in [false, true] {
             let anim = if with_body { with_sway_body(g.clone(), 21) } else { Playback::cloth_only(g.clone(), 21) };
             let label = format!("{what}, body {with_body}");
-            let rr = run(&random, &anim, 20, SimConfig::default(), Vec::new());
+            let rr = run(&random, &anim, 20, SimConfig::network(), Vec::new());
             assert_finite_and_bounded(&label, &rr, 20, None);
-            let rt = run(&trained_model, &anim, 20, SimConfig::default(), Vec::new());
+            let rt = run(&trained_model, &anim, 20, SimConfig::network(), Vec::new());
             assert_finite_and_bounded(&label, &rt, 20, strain_bounds.then(|| strain_bound(&anim)));
             assert!(rt.summary.max_speed < MAX_SPEED, "{label}: speed {} m/s", rt.summary.max_speed);
         }
@@ -458,9 +458,9 @@ fn stability_extreme_materials() {
         let mut s = base.clone();
         s.garment = scene.garment_with_material(material).unwrap();
         let label = format!("{material:?}");
-        let r = run(&random, &s, frames, SimConfig::default(), Vec::new());
+        let r = run(&random, &s, frames, SimConfig::network(), Vec::new());
         assert_finite_and_bounded(&label, &r, frames, None);
-        let r = run(&trained_model, &s, frames, SimConfig::default(), Vec::new());
+        let r = run(&trained_model, &s, frames, SimConfig::network(), Vec::new());
         assert_finite_and_bounded(&label, &r, frames, Some(strain_bound(&s)));
     }
 }
@@ -477,9 +477,9 @@ fn stability_non_finite_input_leaves_the_state_unchanged() {
     let desc = BodyDesc { mesh: &scene.body, positions: b0 };
     let mut bad_body = b0.to_vec();
     bad_body[5][2] = f32::NAN;
-    let e = Sim::new(&model, &scene.garment, Some(BodyDesc { positions: &bad_body, ..desc }), SimConfig::default());
+    let e = Sim::new(&model, &scene.garment, Some(BodyDesc { positions: &bad_body, ..desc }), SimConfig::network());
     assert!(matches!(e, Err(Error::NonFinite { index: 5, .. })), "{:?}", e.err());
-    let mut sim = Sim::new(&model, &scene.garment, Some(desc), SimConfig::default()).unwrap();
+    let mut sim = Sim::new(&model, &scene.garment, Some(desc), SimConfig::network()).unwrap();
     let n = scene.garment.n_vertices();
     let mut targets = vec![[0.0; 3]; n];
     for f in 1..=3 {
@@ -504,7 +504,7 @@ fn stability_non_finite_input_leaves_the_state_unchanged() {
     assert_eq!(sim.state(), &before);
     // Still steps, from the unchanged state, as a fresh simulation restored to it would.
     sim.step(scene.body_frame(4)).unwrap();
-    let mut fresh = Sim::new(&model, &scene.garment, Some(desc), SimConfig::default()).unwrap();
+    let mut fresh = Sim::new(&model, &scene.garment, Some(desc), SimConfig::network()).unwrap();
     fresh.set_state(&before).unwrap();
     fresh.set_pin_targets(&targets).unwrap();
     fresh.step(scene.body_frame(4)).unwrap();
@@ -523,8 +523,8 @@ fn stability_bf16_follows_f32() {
     }
     let anim = Looped { scene: skirt_turn(), period: 120, frames: BF16_FRAMES + 1, source: repeat };
     let keep: Vec<usize> = (1..=BF16_FRAMES).collect();
-    let f32_run = run(&model, &anim, BF16_FRAMES, SimConfig::default(), keep.clone());
-    let cfg = SimConfig { precision: Precision::Bf16, ..SimConfig::default() };
+    let f32_run = run(&model, &anim, BF16_FRAMES, SimConfig::network(), keep.clone());
+    let cfg = SimConfig { precision: Precision::Bf16, ..SimConfig::network() };
     let bf16_run = run(&model, &anim, BF16_FRAMES, cfg, keep);
     assert_finite_and_bounded("f32", &f32_run, BF16_FRAMES, Some(strain_bound(&anim)));
     assert_finite_and_bounded("bf16", &bf16_run, BF16_FRAMES, Some(strain_bound(&anim)));
@@ -576,7 +576,7 @@ fn stability_shared_tee_on_jumps_forward_and_back() {
     let on_body = trained("stability_shared_tee_on_jumps_forward_and_back (on-body bounds)");
     let enforce = on_body.is_some();
     let model = on_body.unwrap_or_else(|| shipped("stability_shared_tee_on_jumps_forward_and_back"));
-    let r = run(&model, &anim, JUMPS_FRAMES, SimConfig::default(), Vec::new());
+    let r = run(&model, &anim, JUMPS_FRAMES, SimConfig::network(), Vec::new());
     assert_finite_and_bounded("tee on jumps", &r, JUMPS_FRAMES, None);
     let s = &r.summary;
     println!("tee on jumps: {}", s.off_body_text().unwrap());

@@ -36,7 +36,7 @@ fn train_forward_matches_runtime() {
     let mut rng = Rng::new(7);
     let (pos, vel) = jittered(scene.garment.rest(), &mut rng);
     let (b0, b1, b2) = (scene.body_at(0), scene.body_at(1), scene.body_at(2));
-    let cfg = SimConfig { startup: false, ..SimConfig::default() };
+    let cfg = SimConfig { startup: false, ..SimConfig::network() };
     let mut sim = Sim::with_graph(
         &model,
         &scene.garment,

@@ -272,7 +272,7 @@ fn train_export_runs_in_the_runtime() {
     // The exported model steps the training scene in the runtime, finite.
     let scene = &t.data.scenes[0];
     let body = hood::sim::BodyDesc { mesh: &scene.body, positions: scene.body_frame(0) };
-    let mut sim = hood::sim::Sim::new(&model, &scene.garment, Some(body), hood::sim::SimConfig::default()).unwrap();
+    let mut sim = hood::sim::Sim::new(&model, &scene.garment, Some(body), hood::sim::SimConfig::network()).unwrap();
     let mut targets = vec![[0.0; 3]; scene.garment.n_vertices()];
     for f in 1..6 {
         scene.skinned_garment(f, &mut targets).unwrap();

@@ -30,7 +30,7 @@ fn overhead(c: &mut Criterion) {
 
     // Rust: one step to leave the start-up behind, then every timed step from that state.
     let mut sim =
-        Sim::new(&model, &garment, Some(BodyDesc { mesh: &mesh, positions: &body }), SimConfig::default()).unwrap();
+        Sim::new(&model, &garment, Some(BodyDesc { mesh: &mesh, positions: &body }), SimConfig::network()).unwrap();
     sim.step(&body).unwrap();
     let start = sim.state().clone();
 

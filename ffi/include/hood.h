@@ -310,12 +310,15 @@ typedef struct hood_sim_config {
                                    (1 ..= 1000) L-BFGS iterations of the physics objective (f32,
                                    training form), started from the network's prediction. Trades
                                    time for accuracy; the cost grows with the garment's vertices */
-    uint32_t solver_iterations; /* 0 (the default): the network computes every step. N (1 ..= 1000):
-                                   the solver step mode, no network: each step is the implicit step
-                                   of the same objective by N L-BFGS iterations from the coasting
-                                   guess, with no start-up step (HOOD_EFFECT_REFINE must be off,
-                                   else HOOD_ERR_UNSUPPORTED_EFFECT). hood_sim_last_refinement
-                                   reports each solve */
+    uint32_t solver_iterations; /* N (1 ..= 1000; hood_sim_config_default: 30): the solver step
+                                   mode, no network: each step is the implicit step of the same
+                                   objective by N L-BFGS iterations from the coasting guess, with
+                                   no start-up step (HOOD_EFFECT_REFINE must be off, else
+                                   HOOD_ERR_UNSUPPORTED_EFFECT). hood_sim_last_refinement reports
+                                   each solve. 0: the network computes every step (HOOD). The
+                                   default is the accuracy/time map's pick: 30 iterations beat
+                                   both shipped networks in time and accuracy on every garment
+                                   measured (docs/performance.md) */
     uint32_t solver_budget_us;  /* (since 0.3.0) 0: no time budget. B > 0, with solver_iterations
                                    N: each step's solve also starts no iteration that it predicts
                                    would end past B microseconds (at least one runs), so it takes

@@ -82,8 +82,9 @@ impl Scene {
         let g = self.garment();
         let bd = self.body_desc();
         let mut sim = null_mut();
+        let cfg = network_config();
         // SAFETY: live handles, valid descriptors.
-        let s = unsafe { hood_sim_new(model, g, &bd, null(), &mut sim) };
+        let s = unsafe { hood_sim_new(model, g, &bd, &cfg, &mut sim) };
         assert_eq!(s, HOOD_OK, "{}", last_error());
         // SAFETY: the sim keeps its own garment copy.
         assert_eq!(unsafe { hood_garment_free(g) }, HOOD_OK);
@@ -461,6 +462,7 @@ fn misaligned_and_corrupt_models_are_refused() {
         let g = sc.garment();
         let mut cfg = std::mem::zeroed();
         hood_sim_config_default(&mut cfg);
+        cfg.solver_iterations = 0; // bf16 is the network's arithmetic
         cfg.precision = HOOD_PRECISION_BF16;
         let mut sim = null_mut();
         assert_eq!(hood_sim_new(out, g, null(), &cfg, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
@@ -544,6 +546,7 @@ fn model_freed_while_a_sim_lives_is_refused() {
         let g = sc.garment();
         let mut cfg = std::mem::zeroed();
         hood_sim_config_default(&mut cfg);
+        cfg.solver_iterations = 0; // bf16 is the network's arithmetic
         cfg.precision = HOOD_PRECISION_BF16;
         let mut sim = null_mut();
         assert_eq!(hood_sim_new(model, g, null(), &cfg, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
@@ -773,6 +776,9 @@ fn config_effects_are_honoured() {
         let mut cfg = std::mem::zeroed();
         hood_sim_config_default(&mut cfg);
         assert_eq!(cfg.effects & HOOD_EFFECT_NORMALS, 0);
+        assert_eq!(cfg.solver_iterations, 30, "the default step is the solver's");
+        // The network's step, with which refinement combines.
+        cfg.solver_iterations = 0;
         let mut sim = null_mut();
         assert_eq!(hood_sim_new(l.model, g, &bd, &cfg, &mut sim), HOOD_OK);
         let mut nrm = vec![[0.0f32; 3]; n];
@@ -1391,6 +1397,11 @@ fn hood_sim_config_default_value() -> hood_sim_config {
     }
 }
 
+/// The default config with the network's step (`solver_iterations` 0).
+fn network_config() -> hood_sim_config {
+    hood_sim_config { solver_iterations: 0, ..hood_sim_config_default_value() }
+}
+
 fn last_effects(sim: *const hood_sim) -> u32 {
     let mut flags = u32::MAX;
     // SAFETY: a live sim; `flags` writable.
@@ -1398,9 +1409,9 @@ fn last_effects(sim: *const hood_sim) -> u32 {
     flags
 }
 
-/// A sim of `sc` with the default config changed by `f`.
+/// A sim of `sc` with the network's config changed by `f`.
 fn sim_with(sc: &Scene, model: *const hood_model, f: impl FnOnce(&mut hood_sim_config)) -> *mut hood_sim {
-    let mut cfg = hood_sim_config_default_value();
+    let mut cfg = network_config();
     f(&mut cfg);
     let g = sc.garment();
     let bd = sc.body_desc();
@@ -1594,7 +1605,7 @@ fn driver_matches_the_rust_fixed_step_bitwise() {
     let garment = hood::mesh::Garment::new(hood::mesh::GarmentDesc::new(&sc.rest, &sc.faces).pinned(&pins)).unwrap();
     let mesh = hood::body::BodyMesh::new(sc.body.len(), &sc.body_faces).unwrap();
     let body = hood::sim::BodyDesc { mesh: &mesh, positions: &sc.body };
-    let sim = hood::sim::Sim::new(&model, &garment, Some(body), hood::sim::SimConfig::default()).unwrap();
+    let sim = hood::sim::Sim::new(&model, &garment, Some(body), hood::sim::SimConfig::network()).unwrap();
     let mut rust = hood::sim::FixedStep::new(sim);
 
     let mut h_model = null_mut();

@@ -100,7 +100,7 @@ fn run() -> hood::Result<()> {
     let mut frame = [[-0.4, 0.0, -0.4], [0.4, 0.0, -0.4], [0.0, 0.0, 0.4], [0.0, 1.0, 0.0]];
     let bytes = ModelBytes::new(MODEL);
     let model = bytes.model()?;
-    let mut sim = Sim::new(&model, &garment, Some(BodyDesc { mesh: &body, positions: &frame }), SimConfig::default())?;
+    let mut sim = Sim::new(&model, &garment, Some(BodyDesc { mesh: &body, positions: &frame }), SimConfig::network())?;
     let mut lowest = f32::INFINITY;
     for _ in 0..30 {
         frame.iter_mut().for_each(|p| p[0] += 0.01);

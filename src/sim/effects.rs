@@ -81,7 +81,7 @@ mod tests {
         let (body, body_faces) = shapes::ellipsoid(12, 16, [0.25, 0.3, 0.25], [0.0; 3]);
         let mesh = BodyMesh::new(body.len(), &body_faces).unwrap();
         let desc = Some(BodyDesc { mesh: &mesh, positions: &body });
-        let mut sim = Sim::new(&model, &garment, desc, SimConfig::default()).unwrap();
+        let mut sim = Sim::new(&model, &garment, desc, SimConfig::network()).unwrap();
         assert_eq!(sim.last_effects(), NONE);
         sim.step(&body).unwrap();
         assert_eq!(sim.last_effects(), STARTUP);
@@ -148,7 +148,7 @@ mod tests {
         let base = SimConfig {
             sleeping: Some(crate::sim::Sleeping { threshold: 1e3, frames: 2 }),
             startup: false,
-            ..SimConfig::default()
+            ..SimConfig::network()
         };
         let refined = SimConfig { refine: Some(2), ..base };
         let projected = SimConfig { projection: Some(crate::sim::DEFAULT_PROJECTION_MARGIN), ..base };

@@ -99,10 +99,12 @@ pub struct SimulateArgs {
     /// from the prediction (0: the model alone). Trades time for accuracy.
     #[arg(long, default_value_t = 0)]
     refine: u32,
-    /// The solver step mode (`SimConfig::step`): no network, every step the implicit step by
-    /// this many L-BFGS iterations from the coasting guess (0: the network steps).
-    #[arg(long, default_value_t = 0)]
-    solver: u32,
+    /// The solver step mode (`SimConfig::step`, the default): no network, every step the
+    /// implicit step by this many L-BFGS iterations from the coasting guess; 0: the network
+    /// steps (HOOD). Default: 30 (`DEFAULT_SOLVER_ITERATIONS`), or 0 with `--refine`, which
+    /// refines the network's step.
+    #[arg(long)]
+    solver: Option<u32>,
     /// With `--solver K`: end each step's solve after this many microseconds of wall time too
     /// (`StepMode::SolverBudget`, at most K iterations; 0: no budget).
     #[arg(long, default_value_t = 0)]
@@ -261,6 +263,11 @@ pub fn named_scene(
     Ok((Box::new(s), name))
 }
 
+/// `--solver`'s iterations: as given, else the default step's (the network's with `--refine`).
+pub fn solver_iterations(given: Option<u32>, refine: u32) -> u32 {
+    given.unwrap_or(if refine > 0 { 0 } else { hood::sim::DEFAULT_SOLVER_ITERATIONS })
+}
+
 /// The step mode of `--solver K` (and `--solver-budget-us B`): the network for K = 0, else the
 /// solver with K iterations (within B µs when B > 0).
 pub fn step_mode(solver: u32, budget_us: u32) -> StepMode {
@@ -357,7 +364,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         precision,
         projection: a.projection,
         refine: (a.refine > 0).then_some(a.refine),
-        step: step_mode(a.solver, a.solver_budget_us),
+        step: step_mode(solver_iterations(a.solver, a.refine), a.solver_budget_us),
         ..SimConfig::default()
     };
     let faces = anim.garment().faces().to_vec();
