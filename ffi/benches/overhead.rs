@@ -28,9 +28,10 @@ fn overhead(c: &mut Criterion) {
     let next: Vec<[f32; 3]> = body.iter().map(|p| [p[0] + 0.01, p[1], p[2]]).collect();
     let n = rest.len();
 
-    // Rust: one step to leave the start-up behind, then every timed step from that state.
+    // Rust: one step to leave the start-up behind, then every timed step from that state. The
+    // default config on both sides (the C side's NULL config is the same).
     let mut sim =
-        Sim::new(&model, &garment, Some(BodyDesc { mesh: &mesh, positions: &body }), SimConfig::network()).unwrap();
+        Sim::new(&model, &garment, Some(BodyDesc { mesh: &mesh, positions: &body }), SimConfig::default()).unwrap();
     sim.step(&body).unwrap();
     let start = sim.state().clone();
 
