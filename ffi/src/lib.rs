@@ -5,7 +5,7 @@
 //! (checked by `tests/header.rs`). The rules the caller must keep (lifetimes of model bytes,
 //! threads) are stated in the header.
 //!
-//! Every export goes through [`guard`], which catches panics; handles are checked (models and
+//! Every export goes through `guard`, which catches panics; handles are checked (models and
 //! garments against a registry of live handles, sims against their slots, without a lock), so
 //! NULL, freed or mismatched handles give a status code.
 #![deny(unsafe_op_in_unsafe_fn)]
@@ -1174,7 +1174,7 @@ unsafe impl Extensible for hood_executor {
     const NAME: &'static str = "hood_executor";
 }
 
-/// A sim handle: a slot of [`SIMS`] (see [`slots`]), checked and claimed without a lock.
+/// A sim handle: a slot of `SIMS` (see the `slots` module), checked and claimed without a lock.
 pub type hood_sim = slots::Slot<SimHandle>;
 
 /// Live sims: the step and every other call on a sim take no lock (see [`slots`]).
@@ -1993,7 +1993,7 @@ pub unsafe extern "C" fn hood_sim_teleport(
 
 // ---- Fixed-step driver ---------------------------------------------------------------------------
 
-/// A driver handle: a slot of [`DRIVERS`], checked and claimed without a lock like a sim's.
+/// A driver handle: a slot of `DRIVERS`, checked and claimed without a lock like a sim's.
 pub type hood_driver = slots::Slot<DriverHandle>;
 
 /// Live drivers (see [`slots`]).

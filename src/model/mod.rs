@@ -1,5 +1,5 @@
 //! Models: their shape ([`spec`]), their parameters ([`params`]) and, under `std`, the
-//! reference-checkpoint converter ([`reference`]).
+//! reference-checkpoint converter ([`mod@reference`]).
 
 pub mod file;
 pub mod params;

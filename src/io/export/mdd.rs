@@ -13,7 +13,7 @@ use std::vec::Vec;
 /// at `i / 30` s.
 ///
 /// # Errors
-/// As [`check_frames`](super::check_frames) (no frames, frames of different lengths, a
+/// Frames that cannot be written (no frames, frames of different lengths, a
 /// non-finite coordinate); [`crate::Error::Io`] from `w`.
 pub fn write<P: AsRef<[[f32; 3]]>>(mut w: impl Write, frames: &[P]) -> Result<()> {
     let n = check_frames(frames)?;

@@ -2,7 +2,7 @@
 //!
 //! Little-endian: the 12 bytes `POINTCACHE2\0`, `i32` version 1, `i32` point count, `f32` start
 //! frame, `f32` sampling (frames between samples), `i32` sample count; then every sample's
-//! points as `x y z` `f32`. [`write`] starts at frame 0 with one sample per frame: at 30 Hz, as
+//! points as `x y z` `f32`. [`write()`] starts at frame 0 with one sample per frame: at 30 Hz, as
 //! the frames are simulated.
 
 use super::{check_frames, stream_error, write_points};
@@ -14,7 +14,7 @@ use std::vec::Vec;
 /// 0, sampling 1.
 ///
 /// # Errors
-/// As [`check_frames`](super::check_frames) (no frames, frames of different lengths, a
+/// Frames that cannot be written (no frames, frames of different lengths, a
 /// non-finite coordinate); [`crate::Error::Io`] from `w`.
 pub fn write<P: AsRef<[[f32; 3]]>>(mut w: impl Write, frames: &[P]) -> Result<()> {
     let n = check_frames(frames)?;

@@ -31,7 +31,7 @@ pub struct UsdMesh<'a> {
 ///
 /// # Errors
 /// [`Error::Empty`] without meshes; [`Error::Parse`] (format `"usda"`) for a name that is not an
-/// identifier; as [`check_frames`](super::check_frames) for each mesh's frames;
+/// identifier; for each mesh, frames that cannot be written (as in [`super::pc2::write`]);
 /// [`Error::SizeMismatch`] for meshes with different frame counts or faces whose corner counts
 /// do not add up; [`Error::IndexOutOfRange`] for a corner naming a missing point or texture
 /// coordinate; [`Error::Io`] from `w`.
