@@ -316,9 +316,10 @@ typedef struct hood_sim_config {
                                    no start-up step (HOOD_EFFECT_REFINE must be off, else
                                    HOOD_ERR_UNSUPPORTED_EFFECT). hood_sim_last_refinement reports
                                    each solve. 0: the network computes every step (HOOD). The
-                                   default is the accuracy/time map's pick: 30 iterations beat
-                                   both shipped networks in time and accuracy on every garment
-                                   measured (docs/performance.md) */
+                                   default is the accuracy/time map's pick: 30 iterations are
+                                   at least as accurate as both shipped networks, in less time,
+                                   on the walk, the run and every material measured (not the
+                                   jump: docs/performance.md) */
     uint32_t solver_budget_us;  /* (since 0.3.0) 0: no time budget. B > 0, with solver_iterations
                                    N: each step's solve also starts no iteration that it predicts
                                    would end past B microseconds (at least one runs), so it takes
