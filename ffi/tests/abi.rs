@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::random_model_bytes;
+use common::{network_config, random_model_bytes};
 use hood::model::ModelBytes;
 use hood_ffi::*;
 use std::ffi::CStr;
@@ -1395,11 +1395,6 @@ fn hood_sim_config_default_value() -> hood_sim_config {
         hood_sim_config_default(c.as_mut_ptr());
         c.assume_init()
     }
-}
-
-/// The default config with the network's step (`solver_iterations` 0).
-fn network_config() -> hood_sim_config {
-    hood_sim_config { solver_iterations: 0, ..hood_sim_config_default_value() }
 }
 
 fn last_effects(sim: *const hood_sim) -> u32 {

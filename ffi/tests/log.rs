@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::random_model_bytes;
+use common::{network_config, random_model_bytes};
 use hood::model::ModelBytes;
 use hood_ffi::*;
 use std::ffi::{c_char, c_void, CStr};
@@ -43,9 +43,7 @@ fn sim(model: *const hood_model, rings: usize, segments: usize) -> *mut hood_sim
         let (r, f) = (rest.as_ptr().cast(), faces.as_ptr().cast());
         assert_eq!(hood_garment_new(r, rest.len(), f, faces.len(), null(), 0, null(), &mut g), HOOD_OK);
         // The network's step, whose tasks run on the executor.
-        let mut cfg = std::mem::zeroed();
-        hood_sim_config_default(&mut cfg);
-        cfg.solver_iterations = 0;
+        let cfg = network_config();
         assert_eq!(hood_sim_new(model, g, &desc, &cfg, &mut s), HOOD_OK, "{}", last_error());
         assert_eq!(hood_garment_free(g), HOOD_OK);
     }

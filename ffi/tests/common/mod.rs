@@ -88,3 +88,13 @@ pub const CXX_FLAGS: &[&str] = &["-std=c++17", "-Wall", "-Wextra", "-Werror", "-
 pub fn on_path(tool: &str) -> bool {
     Command::new(tool).arg("--version").output().map(|o| o.status.success()).unwrap_or(false)
 }
+
+/// `hood_sim_config_default`'s config with the network's step (`solver_iterations` 0).
+pub fn network_config() -> hood_ffi::hood_sim_config {
+    let mut c = std::mem::MaybeUninit::<hood_ffi::hood_sim_config>::zeroed();
+    // SAFETY: writable; the library fills every field.
+    unsafe {
+        hood_ffi::hood_sim_config_default(c.as_mut_ptr());
+        hood_ffi::hood_sim_config { solver_iterations: 0, ..c.assume_init() }
+    }
+}
