@@ -65,7 +65,8 @@ pub enum Error {
         /// Index of the element, where there is one (else 0).
         index: usize,
     },
-    /// A fixed capacity chosen at creation was exceeded.
+    /// A fixed capacity chosen at creation, or a documented bound of [`crate::limits`], was
+    /// exceeded.
     CapacityExceeded {
         /// Which capacity.
         what: &'static str,

@@ -46,6 +46,7 @@ pub mod hierarchy;
 #[cfg(feature = "std")]
 pub mod io;
 pub mod kernels;
+pub mod limits;
 pub mod math;
 pub mod mesh;
 pub mod model;

@@ -132,7 +132,7 @@ typedef uint32_t hood_status;
 #define HOOD_ERR_EMPTY 6u              /* something that must not be empty is */
 #define HOOD_ERR_SIZE_MISMATCH 7u      /* an array has the wrong length */
 #define HOOD_ERR_OUT_OF_RANGE 8u       /* a value is outside its documented range */
-#define HOOD_ERR_CAPACITY_EXCEEDED 9u  /* a capacity fixed at creation was exceeded */
+#define HOOD_ERR_CAPACITY_EXCEEDED 9u  /* a capacity fixed at creation, or a bound such as HOOD_MAX_VERTICES, was exceeded */
 #define HOOD_ERR_INCOMPATIBLE_MODEL 10u /* the model cannot run this garment/body/config */
 #define HOOD_ERR_UNSUPPORTED_EFFECT 11u /* an effect the model, the configuration or this build does not support */
 #define HOOD_ERR_CORRUPT_DATA 12u      /* model bytes corrupt, truncated, misaligned, other version */
@@ -202,6 +202,9 @@ HOOD_API hood_status HOOD_CALL hood_set_log_callback(hood_log_fn callback, void 
 
 /* Required alignment (bytes) of the model buffer given to hood_model_load. */
 #define HOOD_MODEL_ALIGN 16
+/* Most bytes of a model buffer, and of the weights (f32 and bf16) its spec needs: a bigger one
+ * gives HOOD_ERR_CAPACITY_EXCEEDED before any layer is read. */
+#define HOOD_MAX_MODEL_BYTES 1073741824
 
 typedef struct hood_model hood_model;
 
@@ -257,6 +260,11 @@ typedef struct hood_material {
 
 typedef struct hood_garment hood_garment;
 
+/* Most vertices, and most triangles, of a garment or a body: larger counts give
+ * HOOD_ERR_CAPACITY_EXCEEDED before any array is read. */
+#define HOOD_MAX_VERTICES 16777216
+#define HOOD_MAX_FACES 33554432
+
 /* A garment mesh. `rest`: 3 * n_vertices floats (metres); `indices`: 3 * n_faces vertex
  * indices, counter-clockwise seen from outside. `materials` (optional, NULL with n_materials 0
  * for the default material): 1 (for all) or n_vertices entries, each materials[0].struct_size
@@ -290,7 +298,8 @@ typedef struct hood_sim_config {
     uint32_t effects;        /* HOOD_EFFECT_* flags */
     uint32_t precision;      /* HOOD_PRECISION_* */
     uint32_t threads;        /* threads without an executor (0 or 1: the calling thread; at most 256,
-                                else HOOD_ERR_OUT_OF_RANGE; fewer if the system refuses some) */
+                                else HOOD_ERR_OUT_OF_RANGE; capped at the machine's cores, with a
+                                HOOD_LOG_WARNING; fewer if the system refuses some) */
     uint32_t sleep_frames;   /* frames at rest before sleeping (HOOD_EFFECT_SLEEPING) */
     float sleep_threshold;   /* "at rest": body motion and garment speed below this, m/frame */
     float teleport_threshold; /* HOOD_EFFECT_AUTO_TELEPORT: when the body's centroid, or some body

@@ -91,6 +91,13 @@ pub const HOOD_ERR_TOO_LATE: hood_status = 107;
 /// Required alignment of model bytes (`hood::model::file::ALIGN`).
 pub const HOOD_MODEL_ALIGN: usize = hood::model::file::ALIGN;
 
+/// Most vertices of a garment or a body (`hood::limits::MAX_VERTICES`).
+pub const HOOD_MAX_VERTICES: usize = hood::limits::MAX_VERTICES;
+/// Most triangles of a garment or a body (`hood::limits::MAX_FACES`).
+pub const HOOD_MAX_FACES: usize = hood::limits::MAX_FACES;
+/// Most bytes of a model file, and of the weights its spec needs (`hood::limits::MAX_MODEL_BYTES`).
+pub const HOOD_MAX_MODEL_BYTES: usize = hood::limits::MAX_MODEL_BYTES;
+
 /// Effect flag: collision with the body.
 pub const HOOD_EFFECT_BODY_COLLISION: u32 = 1;
 /// Effect flag: pinned vertices follow their targets.
@@ -671,7 +678,7 @@ fn status_text(code: hood_status) -> &'static CStr {
         HOOD_ERR_EMPTY => c"HOOD_ERR_EMPTY: something that must not be empty is",
         HOOD_ERR_SIZE_MISMATCH => c"HOOD_ERR_SIZE_MISMATCH: an array has the wrong length",
         HOOD_ERR_OUT_OF_RANGE => c"HOOD_ERR_OUT_OF_RANGE: a value is outside its documented range",
-        HOOD_ERR_CAPACITY_EXCEEDED => c"HOOD_ERR_CAPACITY_EXCEEDED: a capacity fixed at creation was exceeded",
+        HOOD_ERR_CAPACITY_EXCEEDED => c"HOOD_ERR_CAPACITY_EXCEEDED: a capacity fixed at creation, or a bound such as HOOD_MAX_VERTICES, was exceeded",
         HOOD_ERR_INCOMPATIBLE_MODEL => c"HOOD_ERR_INCOMPATIBLE_MODEL: the model cannot run this garment/body/config",
         HOOD_ERR_UNSUPPORTED_EFFECT => c"HOOD_ERR_UNSUPPORTED_EFFECT: an effect the model, the configuration or this build does not support",
         HOOD_ERR_CORRUPT_DATA => {
@@ -1026,6 +1033,8 @@ pub unsafe extern "C" fn hood_garment_new(
         require(out, "out")?;
         require(rest, "rest")?;
         require(indices, "indices")?;
+        // Absurd counts are refused before any array is viewed or anything allocated.
+        hood::limits::garment(n_vertices, n_faces)?;
         // SAFETY: array sizes are the caller's promise (header).
         let rest = unsafe { points(rest, n_vertices, "rest")? };
         // SAFETY: as above; `[u32; 3]` has u32 alignment and no padding.
@@ -1332,8 +1341,25 @@ fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
         precision,
         startup: c.effects & HOOD_EFFECT_STARTUP != 0,
         tier: None,
-        threads: c.threads.max(1) as usize,
+        threads: threads(c.threads)?,
     })
+}
+
+/// The pool size for `config.threads`: a garbage count (beyond `hood::sim::MAX_THREADS`) is
+/// refused; more threads than the machine's cores are capped at the cores, with a warning.
+fn threads(asked: u32) -> Result<usize> {
+    let asked = asked as usize;
+    if asked > hood::sim::MAX_THREADS {
+        return Err(Error::OutOfRange { what: "config threads (at most 256)", index: asked }.into());
+    }
+    let threads = hood::limits::cap_threads(asked);
+    if threads < asked {
+        log::log(
+            HOOD_LOG_WARNING,
+            &format!("config threads {asked} capped at the machine's {threads} (more would only wait for each other)"),
+        );
+    }
+    Ok(threads)
 }
 
 /// One sim's share of a model's count of live sims, released on drop unless forgotten.
@@ -1356,6 +1382,8 @@ unsafe fn read_body<'a>(body: *const hood_body_desc) -> Result<(hood_body_desc, 
     let b = unsafe { read_struct(body, "body")? };
     require(b.positions, "body positions")?;
     require(b.indices, "body indices")?;
+    // Absurd counts are refused before any array is viewed or anything allocated.
+    hood::limits::body(b.n_vertices, b.n_faces)?;
     // SAFETY: counts are the caller's promise.
     let pos = unsafe { points(b.positions, b.n_vertices, "body positions")? };
     // SAFETY: as above.

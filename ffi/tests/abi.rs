@@ -377,6 +377,44 @@ fn wrong_sizes_give_size_mismatch_and_change_nothing() {
 }
 
 #[test]
+fn absurd_counts_are_refused_before_any_array_is_read() {
+    let l = load(8, 2);
+    let sc = scene(6);
+    // Tiny arrays with counts of 10^8: the library must refuse the counts, not read (or allocate
+    // for) 10^8 elements of each.
+    let (rest, faces, flags) = ([[0.0f32; 3]; 3], [[0u32, 1, 2]], [0u8; 3]);
+    let huge = 100_000_000;
+    // SAFETY: the counts are larger than the arrays: the library must refuse them unread.
+    unsafe {
+        let mut g = null_mut();
+        let (r, f) = (rest.as_ptr().cast(), faces.as_ptr().cast());
+        assert_eq!(hood_garment_new(r, huge, f, 1, null(), 0, flags.as_ptr(), &mut g), HOOD_ERR_CAPACITY_EXCEEDED);
+        assert!(last_error().contains("garment vertices") && last_error().contains("16777216"), "{}", last_error());
+        assert_eq!(hood_garment_new(r, 3, f, 10 * huge, null(), 0, null(), &mut g), HOOD_ERR_CAPACITY_EXCEEDED);
+        assert!(last_error().contains("garment faces"), "{}", last_error());
+        assert!(g.is_null());
+        // The same limits for a body, through both functions that read one.
+        let garment = sc.garment();
+        let mut bd = common::body_desc(&rest, &faces);
+        bd.n_vertices = huge;
+        bd.omitted = flags.as_ptr();
+        let mut s = null_mut();
+        assert_eq!(hood_sim_new(l.model, garment, &bd, &network_config(), &mut s), HOOD_ERR_CAPACITY_EXCEEDED);
+        assert!(last_error().contains("body vertices"), "{}", last_error());
+        assert!(s.is_null());
+        let mut pos = sc.rest.clone();
+        let s = hood_garment_push_out(&bd, pos.as_mut_ptr().cast(), pos.len(), null(), null_mut());
+        assert_eq!(s, HOOD_ERR_CAPACITY_EXCEEDED, "{}", last_error());
+        bd.n_vertices = 3;
+        bd.n_faces = 10 * huge;
+        let mut s = null_mut();
+        assert_eq!(hood_sim_new(l.model, garment, &bd, &network_config(), &mut s), HOOD_ERR_CAPACITY_EXCEEDED);
+        assert!(last_error().contains("body faces"), "{}", last_error());
+        assert_eq!(hood_garment_free(garment), HOOD_OK);
+    }
+}
+
+#[test]
 fn nan_body_input_is_refused_and_state_unchanged() {
     let l = load(8, 3);
     let sc = scene(6);

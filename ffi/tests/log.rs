@@ -34,6 +34,11 @@ fn last_error() -> String {
 /// A sim of a 6 x 6 cloth over an ellipsoid of `rings x segments` (12 x 16: too coarse for the
 /// body edges; 40 x 64: fine).
 fn sim(model: *const hood_model, rings: usize, segments: usize) -> *mut hood_sim {
+    sim_on(model, rings, segments, 1)
+}
+
+/// [`sim`] asking for `threads` threads.
+fn sim_on(model: *const hood_model, rings: usize, segments: usize, threads: u32) -> *mut hood_sim {
     let (rest, faces) = hood::mesh::shapes::grid(6, 6, 0.6, 0.6, 0.32);
     let (body, body_faces) = hood::body::shapes::ellipsoid(rings, segments, [0.25, 0.3, 0.25], [0.0; 3]);
     let desc = common::body_desc(&body, &body_faces);
@@ -43,7 +48,7 @@ fn sim(model: *const hood_model, rings: usize, segments: usize) -> *mut hood_sim
         let (r, f) = (rest.as_ptr().cast(), faces.as_ptr().cast());
         assert_eq!(hood_garment_new(r, rest.len(), f, faces.len(), null(), 0, null(), &mut g), HOOD_OK);
         // The network's step, whose tasks run on the executor.
-        let cfg = network_config();
+        let cfg = hood_sim_config { threads, ..network_config() };
         assert_eq!(hood_sim_new(model, g, &desc, &cfg, &mut s), HOOD_OK, "{}", last_error());
         assert_eq!(hood_garment_free(g), HOOD_OK);
     }
@@ -99,6 +104,15 @@ fn warnings_and_caught_panics_reach_the_callback() {
         assert!(got[0].1.contains("too coarse") && got[0].1.contains("median edge"), "{got:?}");
         let fine = sim(model, 40, 64);
         assert_eq!(messages(), vec![], "a fine body is no warning");
+        // More threads than the machine has cores: capped at the cores, with a warning.
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let many = sim_on(model, 40, 64, cores as u32 + 1);
+        let got = messages();
+        assert_eq!(got.len(), 1, "{got:?}");
+        assert_eq!(got[0].0, HOOD_LOG_WARNING);
+        assert!(got[0].1.contains(&format!("capped at the machine's {cores}")), "{got:?}");
+        let all = sim_on(model, 40, 64, cores as u32);
+        assert_eq!(messages(), vec![], "as many threads as cores is no warning");
         let (status, error) = failing_step(coarse);
         assert_eq!(status, HOOD_ERR_PANIC);
         let got = messages();
@@ -112,7 +126,7 @@ fn warnings_and_caught_panics_reach_the_callback() {
         assert_eq!(messages(), vec![]);
         // SAFETY: live sims.
         unsafe {
-            for s in [coarse, fine, again] {
+            for s in [coarse, fine, many, all, again] {
                 assert_eq!(hood_sim_free(s), HOOD_OK);
             }
         }

@@ -45,16 +45,15 @@ impl BodyMesh {
     /// # Errors
     /// [`Error::Empty`] without vertices or faces; [`Error::IndexOutOfRange`] for a face naming a
     /// missing vertex (`at` is the face); [`Error::RepeatedVertex`] for a face naming a vertex
-    /// twice; [`Error::OutOfRange`] when the vertex count does not fit in `u32`.
+    /// twice; [`Error::CapacityExceeded`] beyond [`crate::limits::MAX_VERTICES`] or
+    /// [`crate::limits::MAX_FACES`] (checked before anything is allocated).
     pub fn new(n_vertices: usize, faces: &[[u32; 3]]) -> Result<BodyMesh> {
+        crate::limits::body(n_vertices, faces.len())?;
         if n_vertices == 0 {
             return Err(Error::Empty { what: "body vertices" });
         }
         if faces.is_empty() {
             return Err(Error::Empty { what: "body faces" });
-        }
-        if n_vertices >= u32::MAX as usize {
-            return Err(Error::OutOfRange { what: "body vertex count", index: n_vertices });
         }
         for (fi, f) in faces.iter().enumerate() {
             if let Some(&v) = f.iter().find(|&&v| v as usize >= n_vertices) {

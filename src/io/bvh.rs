@@ -125,7 +125,8 @@ fn parse_joint(t: &mut Tokens, h: &mut Hierarchy, parent: Option<usize>, depth: 
 /// # Errors
 /// [`Error::Parse`] with format `"bvh"` and the 1-based line: missing sections, unknown
 /// channels, bad numbers, unbalanced braces, a frame line with the wrong number of values,
-/// fewer frames than declared, a frame time that is not positive.
+/// fewer frames than declared, a frame time that is not positive; [`Error::CapacityExceeded`]
+/// for more joint samples than [`crate::limits::MAX_MOTION_SAMPLES`].
 pub fn parse(text: &str) -> Result<Clip> {
     let lines: Vec<&str> = text.lines().collect();
     let motion_line = lines
@@ -169,7 +170,18 @@ pub fn parse(text: &str) -> Result<Clip> {
     if !(frame_time > 0.0 && frame_time.is_finite()) {
         return Err(err(motion_line + 3, format!("frame time {frame_time} is not positive")));
     }
+    // Every frame needs a line of its own: a count beyond the lines that follow is refused
+    // before the frames are allocated for it.
+    let frame_lines = lines.len().saturating_sub(motion_line + 3);
+    if n_frames > frame_lines {
+        return Err(err(motion_line + 2, format!("{n_frames} frames declared, but only {frame_lines} lines follow")));
+    }
     let nj = h.joints.len();
+    crate::limits::within(
+        "bvh joint samples (frames x joints)",
+        n_frames.saturating_mul(nj),
+        crate::limits::MAX_MOTION_SAMPLES,
+    )?;
     let n_channels: usize = h.channels.iter().map(Vec::len).sum();
     let mut rotations = Vec::with_capacity(n_frames * nj);
     let mut translations = Vec::with_capacity(n_frames * nj);

@@ -65,8 +65,15 @@ impl Obj {
     /// # Errors
     /// [`Error::Parse`] with format `"obj"` and the 1-based line of the statement: a vertex or
     /// normal without three numbers, a texture coordinate without one, a non-finite number, a face with fewer than three corners, a
-    /// malformed corner, index 0, or an index past the elements defined so far.
+    /// malformed corner, index 0, or an index past the elements defined so far;
+    /// [`Error::CapacityExceeded`] beyond [`crate::limits::MAX_VERTICES`] vertices or
+    /// [`crate::limits::MAX_FACES`] triangles.
     pub fn parse(text: &str) -> Result<Obj> {
+        Obj::parse_within(text, crate::limits::MAX_VERTICES, crate::limits::MAX_FACES)
+    }
+
+    /// [`Obj::parse`] with other bounds on the vertices and triangles (for the tests).
+    fn parse_within(text: &str, max_vertices: usize, max_triangles: usize) -> Result<Obj> {
         let mut obj = Obj::default();
         let mut current_group: Option<u32> = None;
         let mut logical = String::new();
@@ -100,7 +107,10 @@ impl Obj {
             let Some(keyword) = tokens.next() else { continue };
             let err = |m: String| Error::parse("obj", start_line, m);
             match keyword {
-                "v" => obj.positions.push(numbers(&mut tokens, 3, "vertex").map_err(&err)?),
+                "v" => {
+                    crate::limits::within("obj vertices", obj.positions.len() + 1, max_vertices)?;
+                    obj.positions.push(numbers(&mut tokens, 3, "vertex").map_err(&err)?);
+                }
                 "vt" => {
                     let [u, v, _] = numbers(&mut tokens, 1, "texture").map_err(&err)?;
                     obj.uvs.push([u, v]);
@@ -116,6 +126,7 @@ impl Obj {
                     if n < 3 {
                         return Err(err(format!("face has {n} corners, needs at least 3")));
                     }
+                    crate::limits::within("obj triangles", obj.triangles.len() + n - 2, max_triangles)?;
                     obj.face_sizes.push(n as u32);
                     let g = match current_group {
                         Some(g) => g,

@@ -73,8 +73,9 @@ impl Garment {
     /// Validates `desc` and derives topology, rest frames, areas and masses.
     ///
     /// # Errors
-    /// [`Error::Empty`] without vertices or faces; [`Error::NonFinite`] for a NaN/Inf rest
-    /// coordinate; [`Error::IndexOutOfRange`] for a face naming a missing vertex;
+    /// [`Error::CapacityExceeded`] beyond [`crate::limits::MAX_VERTICES`] or
+    /// [`crate::limits::MAX_FACES`] (checked before anything is allocated); [`Error::Empty`]
+    /// without vertices or faces; [`Error::NonFinite`] for a NaN/Inf rest coordinate; [`Error::IndexOutOfRange`] for a face naming a missing vertex;
     /// [`Error::RepeatedVertex`]; [`Error::DegenerateFace`] (see [`DEGENERATE_RATIO`]);
     /// [`Error::UnusedVertex`]; [`Error::SizeMismatch`] for materials or pinned flags of the
     /// wrong length; [`Error::OutOfRange`] for a non-positive or non-finite material.
@@ -214,7 +215,11 @@ impl Garment {
 }
 
 /// Checks positions and faces; the error names the first offending index.
+///
+/// # Errors
+/// As [`Garment::new`], but for materials and pinned flags.
 pub fn validate(rest: &[[f32; 3]], faces: &[[u32; 3]]) -> Result<()> {
+    crate::limits::garment(rest.len(), faces.len())?;
     if rest.is_empty() {
         return Err(Error::Empty { what: "garment vertices" });
     }

@@ -176,3 +176,12 @@ fn garment_subdivision_counts_and_area() {
     g2.normals_into(&r2, &mut n).unwrap();
     assert!(n.iter().all(|v| (v[1] - 1.0).abs() < 1e-6), "orientation kept");
 }
+
+#[test]
+fn garment_beyond_the_vertex_bound_is_refused_before_it_is_read() {
+    // Zeroed memory the check refuses without touching it (the allocator maps it lazily).
+    let rest = vec![[0.0f32; 3]; crate::limits::MAX_VERTICES + 1];
+    let e = Garment::new(GarmentDesc::new(&rest, &[[0, 1, 2]])).unwrap_err();
+    let needed = crate::limits::MAX_VERTICES + 1;
+    assert_eq!(e, Error::CapacityExceeded { what: "garment vertices", capacity: crate::limits::MAX_VERTICES, needed });
+}

@@ -190,12 +190,18 @@ pub fn write_model(params: &Params, with_bf16: bool, provenance: &[(&str, &str)]
         provenance: provenance.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect(),
     };
     let archive = rkyv::to_bytes::<rkyv::rancor::Error>(&rec).map_err(rkyv_err)?;
+    Ok(with_header(&archive))
+}
+
+/// The header of the current version (magic, version, the archive's CRC-32) followed by
+/// `archive`.
+fn with_header(archive: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(HEADER_LEN + archive.len());
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-    out.extend_from_slice(&crate::checksum::crc32(&archive).to_le_bytes());
-    out.extend_from_slice(&archive);
-    Ok(out)
+    out.extend_from_slice(&crate::checksum::crc32(archive).to_le_bytes());
+    out.extend_from_slice(archive);
+    out
 }
 
 /// One layer of a loaded model: bias and the packed parts of `W`, in f32 and (if present) bf16,
@@ -331,7 +337,9 @@ impl<'a> Model<'a> {
     /// # Errors
     /// [`Error::CorruptData`] for a wrong magic, another format version, a misaligned buffer
     /// (see [`ALIGN`]), a truncated or corrupt archive, or arrays that disagree with the spec;
-    /// [`Error::IncompatibleModel`] for an invalid spec.
+    /// [`Error::IncompatibleModel`] for an invalid spec; [`Error::CapacityExceeded`] for a
+    /// buffer, or a spec's weights, beyond [`crate::limits::MAX_MODEL_BYTES`] (checked before
+    /// any layer is viewed).
     pub fn from_bytes(bytes: &'a [u8]) -> Result<Model<'a>> {
         if cfg!(target_endian = "big") {
             return Err(corrupt("model files are little-endian; this CPU is big-endian"));
@@ -339,6 +347,7 @@ impl<'a> Model<'a> {
         if bytes.len() < HEADER_LEN || bytes[..8] != MAGIC {
             return Err(corrupt("not a .hood model file (bad magic)"));
         }
+        crate::limits::within("model file bytes", bytes.len(), crate::limits::MAX_MODEL_BYTES)?;
         let word = |k: usize| u32::from_le_bytes([bytes[k], bytes[k + 1], bytes[k + 2], bytes[k + 3]]);
         let version = word(8);
         if version != FORMAT_VERSION && version != 1 {
@@ -540,10 +549,14 @@ impl ModelBytes {
     /// Reads a `.hood` file.
     ///
     /// # Errors
-    /// [`Error::Io`] when the file cannot be read.
+    /// [`Error::Io`] when the file cannot be read; [`Error::CapacityExceeded`] for a file beyond
+    /// [`crate::limits::MAX_MODEL_BYTES`] (before it is read).
     #[cfg(feature = "std")]
     pub fn read(path: impl AsRef<std::path::Path>) -> Result<ModelBytes> {
         let path = path.as_ref();
+        let len = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
+        let len = usize::try_from(len).unwrap_or(usize::MAX);
+        crate::limits::within("model file bytes", len, crate::limits::MAX_MODEL_BYTES)?;
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
         Ok(ModelBytes::new(&bytes))
     }

@@ -208,10 +208,12 @@ impl ModelSpec {
         Ok(s)
     }
 
-    /// Checks widths, levels and that every block only uses levels that are built.
+    /// Checks widths, levels, that every block only uses levels that are built, and that the
+    /// weights fit the memory budget.
     ///
     /// # Errors
-    /// [`Error::IncompatibleModel`] with the reason.
+    /// [`Error::IncompatibleModel`] with the reason; [`Error::CapacityExceeded`] when
+    /// [`ModelSpec::weight_bytes`] is beyond [`crate::limits::MAX_MODEL_BYTES`].
     pub fn validate(&self) -> Result<()> {
         let bad = |reason| Err(Error::IncompatibleModel { reason });
         if self.latent == 0 || self.latent > 4096 {
@@ -234,7 +236,8 @@ impl ModelSpec {
                 return bad("a block uses a coarse level the model does not build");
             }
         }
-        Ok(())
+        let bytes = usize::try_from(self.weight_bytes()).unwrap_or(usize::MAX);
+        crate::limits::within("model weights (bytes, f32 and bf16)", bytes, crate::limits::MAX_MODEL_BYTES)
     }
 
     /// Edge keys whose encoders exist: mesh and every built coarse level.
@@ -271,22 +274,47 @@ impl ModelSpec {
         d
     }
 
-    /// Trainable parameter count (embedding tables included).
+    /// Trainable parameter count (embedding tables included); saturates at `usize::MAX`.
     pub fn parameter_count(&self) -> usize {
-        let h = self.latent;
-        let mlp = |i: usize, o: usize, ln: bool| -> usize {
-            self.mlp_dims(i, o).iter().map(|(a, b)| a * b + b).sum::<usize>() + if ln { 2 * o } else { 0 }
+        usize::try_from(self.parameters()).unwrap_or(usize::MAX)
+    }
+
+    /// The parameter count in `u64`, saturating, so that a spec read from a damaged file cannot
+    /// overflow it.
+    fn parameters(&self) -> u64 {
+        let w = |x: usize| x as u64;
+        let h = w(self.latent);
+        let mlp = |i: u64, o: u64, ln: bool| -> u64 {
+            let mut n = if ln { 2 * o } else { 0 };
+            let mut i = i;
+            for _ in 0..self.hidden_layers {
+                n = n.saturating_add(i.saturating_mul(h).saturating_add(h));
+                i = h;
+            }
+            n.saturating_add(i.saturating_mul(o).saturating_add(o))
         };
-        let mut n = mlp(NODE_WIDTH, h, true) + self.encoded_keys().len() * mlp(EDGE_WIDTH, h, true);
+        let mut n = mlp(w(NODE_WIDTH), h, true).saturating_add(w(self.encoded_keys().len()).saturating_mul(mlp(
+            w(EDGE_WIDTH),
+            h,
+            true,
+        )));
         if self.effects.body {
-            n += mlp(BODY_EDGE_WIDTH, h, true);
+            n = n.saturating_add(mlp(w(BODY_EDGE_WIDTH), h, true));
         }
-        n += mlp(h, 3, false);
+        n = n.saturating_add(mlp(h, 3, false));
         for b in &self.blocks {
-            let edge_sets = b.keys.len() + usize::from(self.effects.body);
-            n += edge_sets * mlp(3 * h, h, true) + mlp(self.node_inputs(b) * h, h, true);
+            let edge_sets = w(b.keys.len() + usize::from(self.effects.body));
+            let node_in = w(self.node_inputs(b)).saturating_mul(h);
+            n = n.saturating_add(edge_sets.saturating_mul(mlp(3 * h, h, true))).saturating_add(mlp(node_in, h, true));
         }
-        n + 9 * 9 + 4 * 4
+        n.saturating_add(9 * 9 + 4 * 4)
+    }
+
+    /// Bytes of the weights this shape needs in a model file with bf16 copies (4 bytes of f32 and
+    /// 2 of bf16 per parameter), saturating; at most [`crate::limits::MAX_MODEL_BYTES`] for a
+    /// valid spec.
+    pub fn weight_bytes(&self) -> u64 {
+        self.parameters().saturating_mul(6)
     }
 }
 
@@ -300,6 +328,15 @@ mod tests {
         // MODEL.md section 4: 5,146,852 parameters at h = 128.
         assert_eq!(ModelSpec::hood(128).parameter_count(), 5_146_852);
         assert_eq!(ModelSpec::hood(128).blocks.len(), 15);
+    }
+
+    #[test]
+    fn model_spec_beyond_the_memory_budget_is_refused() {
+        // 5.1 M parameters at h = 128 (31 MB of f32 and bf16 weights); at h = 1024, 64 times that.
+        assert_eq!(ModelSpec::hood(128).weight_bytes(), 6 * 5_146_852);
+        assert!(ModelSpec::hood(512).validate().is_ok());
+        let e = ModelSpec::hood(1024).validate().unwrap_err();
+        assert!(matches!(e, Error::CapacityExceeded { capacity: crate::limits::MAX_MODEL_BYTES, .. }), "{e}");
     }
 
     #[test]

@@ -136,6 +136,11 @@ fn key_index(k: EdgeKey) -> usize {
 impl Workspace {
     /// Sizes every buffer for `model` on `graph` with at most `max_active` active body nodes
     /// (0 without a body), for one task; see [`Workspace::set_tasks`].
+    ///
+    /// # Errors
+    /// [`Error::IncompatibleModel`] for a model the runtime cannot run on this graph;
+    /// [`Error::CapacityExceeded`] when the buffers would need more than
+    /// [`crate::limits::MAX_WORKSPACE_BYTES`] (nothing is allocated then).
     pub fn new(model: &Model<'_>, graph: &Graph, max_active: usize) -> Result<Workspace> {
         let spec = model.spec();
         let h = spec.latent;
@@ -172,6 +177,28 @@ impl Workspace {
         // widen bf16 weights on tiers without bf16 dot products.
         let lin_len = kernels::LINEAR_BLOCK_ROWS * (max_in + 2 * MAX_OPERANDS + kernels::padded_cols(h.max(3)))
             + kernels::padded_cols(h.max(3)) * (max_in + MAX_OPERANDS);
+        // The buffers below, in floats, counted before any is allocated (u64, saturating).
+        let w = |x: usize| x as u64;
+        let per_row = w(NODE_WIDTH).saturating_add(w(2 + max_slots).saturating_mul(w(h)));
+        let edges = w(e_mesh).saturating_add(coarse_e.iter().map(|&e| w(e)).sum::<u64>());
+        let floats = [
+            w(rows).saturating_mul(per_row),
+            w(max_e).saturating_mul(w(EDGE_WIDTH)),
+            edges.saturating_mul(w(h)),
+            w(b).saturating_mul(w(2 * BODY_EDGE_WIDTH + 3 * h)),
+            w(v.max(max_active)).saturating_mul(w(2 * h)),
+            w(v).saturating_mul(w(2 * h + 3)),
+        ]
+        .iter()
+        .fold(0u64, |a, &x| a.saturating_add(x));
+        let bytes = floats.saturating_mul(4);
+        if bytes > crate::limits::MAX_WORKSPACE_BYTES {
+            return Err(Error::CapacityExceeded {
+                what: "sim workspace (bytes, for this model and garment)",
+                capacity: usize::try_from(crate::limits::MAX_WORKSPACE_BYTES).unwrap_or(usize::MAX),
+                needed: usize::try_from(bytes).unwrap_or(usize::MAX),
+            });
+        }
         let mut ws = Workspace {
             h,
             v,

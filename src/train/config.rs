@@ -235,6 +235,7 @@ fn scene(j: &Value) -> Result<SceneSource> {
         .ok_or_else(|| bad("garment", "skirt, dress, cape, tee, jeans, crop-top or leggings"))?;
     let motion = motion_named(s("motion")?)?;
     let vertices = j.get("vertices").map(|v| uint(v, "vertices")).transpose()?.unwrap_or(600) as usize;
+    crate::limits::garment(vertices, 0)?;
     let seconds = j.get("seconds").map(|v| float(v, "seconds")).transpose()?.unwrap_or(6.0) as f32;
     if seconds.is_nan() || seconds < 0.2 {
         return Err(bad("seconds", "at least 0.2"));
@@ -331,7 +332,8 @@ impl TrainConfig {
     /// Reads a JSON object; absent keys keep their [`Default`] values.
     ///
     /// # Errors
-    /// [`Error::Parse`] naming the offending key.
+    /// [`Error::Parse`] naming the offending key; [`Error::CapacityExceeded`] for a scene of more
+    /// than [`crate::limits::MAX_VERTICES`] vertices.
     pub fn from_json(text: &str) -> Result<TrainConfig> {
         let j = json::parse(text)?;
         let obj = j.as_object().ok_or_else(|| bad("config", "expected a JSON object"))?;

@@ -122,3 +122,22 @@ fn bvh_resamples_to_30_hz() {
     assert!((r.translations(1)[2].x - (1.0 + 0.5 * a)).abs() < 1e-5);
     assert!(close(r.rotations(0)[2], clip.rotations(0)[2]));
 }
+
+#[test]
+fn bvh_frame_counts_beyond_the_file_or_the_sample_bound_are_refused_unallocated() {
+    // 10^8 frames declared in a file of two: refused before the frames are allocated.
+    let e = parse(&SMALL.replacen("Frames: 2", "Frames: 100000000", 1)).unwrap_err();
+    assert!(e.to_string().contains("100000000 frames declared, but only"), "{e}");
+    // 5,000 joints (siblings, one with channels) over 14,000 frames: 7 * 10^7 joint samples,
+    // beyond MAX_MOTION_SAMPLES, although the file is under 200 kB.
+    let mut text = String::from("HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 1 Xrotation\n");
+    for j in 0..4999 {
+        text.push_str(&alloc::format!("JOINT j{j}\n{{\nOFFSET 0 0 0\nCHANNELS 0\n}}\n"));
+    }
+    text.push_str("}\nMOTION\nFrames: 14000\nFrame Time: 0.1\n");
+    for _ in 0..14000 {
+        text.push_str("0\n");
+    }
+    let e = parse(&text).unwrap_err();
+    assert!(matches!(e, Error::CapacityExceeded { needed: 70_000_000, .. }), "{e}");
+}

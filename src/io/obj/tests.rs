@@ -158,3 +158,14 @@ fn obj_keeps_texture_coordinates_normals_and_corners() {
     let (line, message) = parse_err("v 0 0 0\nvn 0 x 1\n");
     assert_eq!((line, message.as_str()), (2, "bad normal coordinate 'x'"));
 }
+
+#[test]
+fn obj_beyond_the_vertex_or_triangle_bound_is_refused() {
+    let text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n";
+    assert!(Obj::parse_within(text, 4, 2).is_ok());
+    let e = Obj::parse_within(text, 3, 2).unwrap_err();
+    assert_eq!(e, Error::CapacityExceeded { what: "obj vertices", capacity: 3, needed: 4 });
+    // The quad's two triangles are counted before they are stored.
+    let e = Obj::parse_within(text, 4, 1).unwrap_err();
+    assert_eq!(e, Error::CapacityExceeded { what: "obj triangles", capacity: 1, needed: 2 });
+}

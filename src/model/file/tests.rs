@@ -138,3 +138,20 @@ fn model_file_refuses_other_versions_and_misalignment() {
     bytes[0] = b'X';
     assert!(ModelBytes::new(&bytes).model().is_err());
 }
+
+#[test]
+fn model_file_whose_spec_exceeds_the_memory_budget_is_refused_before_its_layers() {
+    let bytes = ModelBytes::new(&write_model(&small(), false, &[]).unwrap());
+    let mut rec = rkyv::from_bytes::<ModelRec, rkyv::rancor::Error>(&bytes.as_bytes()[HEADER_LEN..]).unwrap();
+    // The widest latent the spec allows: about 7 GB of weights for this schedule.
+    rec.latent = 4096;
+    let archive = rkyv::to_bytes::<rkyv::rancor::Error>(&rec).unwrap();
+    let file = ModelBytes::new(&with_header(&archive));
+    match Model::from_bytes(file.as_bytes()) {
+        Err(Error::CapacityExceeded { what, capacity, needed }) => {
+            assert_eq!((what, capacity), ("model weights (bytes, f32 and bf16)", crate::limits::MAX_MODEL_BYTES));
+            assert!(needed > 6 << 30, "{needed}");
+        }
+        other => panic!("expected CapacityExceeded, got {other:?}"),
+    }
+}
