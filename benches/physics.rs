@@ -1,12 +1,13 @@
-//! Physics benches: the objective with its gradient on a ~12k-vertex garment (f32, one thread)
-//! and the implicit step on a ~4.4k-vertex garment.
+//! Physics benches: the objective with its gradient on a ~12k-vertex garment (f32; one thread,
+//! and as executor tasks on one and two) and the implicit step on a ~4.4k-vertex garment.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
+use hood::exec::{Serial, ThreadPool};
 use hood::mesh::shapes::grid;
 use hood::mesh::{Garment, GarmentDesc};
 use hood::physics::{
     face_frames, BruteForceCentroids, CentroidQuery, Cloth, CollisionInput, FaceFrame, FrictionInput, Objective,
-    StepInputs,
+    ObjectiveTasks, StepInputs,
 };
 use hood::solve::{ImplicitStep, LbfgsParams, StepState};
 
@@ -57,6 +58,15 @@ fn objective_12k(c: &mut Criterion) {
     println!("objective bench: {} vertices, {} faces, {} hinges", n, faces.len(), garment.hinges().len());
     c.bench_function("objective_grad_12k_f32_all_terms", |b| {
         b.iter(|| all.eval(&cloth, &inputs, black_box(&x), Some(&mut grad)).unwrap())
+    });
+    // The same evaluation as executor tasks (the solver step's): one thread, then two.
+    let mut tasks = ObjectiveTasks::new(&cloth);
+    c.bench_function("objective_grad_12k_f32_all_terms_tasks_1_thread", |b| {
+        b.iter(|| tasks.eval(&Serial, &all, &cloth, &inputs, black_box(&x), Some(&mut grad)).unwrap())
+    });
+    let pool = ThreadPool::new(2);
+    c.bench_function("objective_grad_12k_f32_all_terms_tasks_2_threads", |b| {
+        b.iter(|| tasks.eval(&pool, &all, &cloth, &inputs, black_box(&x), Some(&mut grad)).unwrap())
     });
     c.bench_function("objective_grad_12k_f32_cloth_terms", |b| {
         b.iter(|| cloth_only.eval(&cloth, &inputs, black_box(&x), Some(&mut grad)).unwrap())

@@ -1,9 +1,10 @@
-//! Step latency (criterion): workloads x model sizes x precision x threads, and the cost of each
-//! effect. `hood bench` prints the same measurements with FLOP counts and efficiency.
+//! Step latency (criterion): workloads x model sizes x precision x threads, the solver step mode
+//! on one and two threads, and the cost of each effect. `hood bench` prints the same measurements with FLOP counts and efficiency.
 
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode};
+use criterion::measurement::WallTime;
+use criterion::{criterion_group, criterion_main, BenchmarkGroup, BenchmarkId, Criterion, SamplingMode};
 use hood::model::{write_model, ModelBytes, ModelSpec, Params};
-use hood::sim::{BodyDesc, Precision, Sim, SimConfig, SimState};
+use hood::sim::{BodyDesc, Precision, Sim, SimConfig, SimState, DEFAULT_SOLVER_ITERATIONS};
 use hood::workloads::{default_shared_dir, workload, Workload};
 use std::hint::black_box;
 use std::time::Duration;
@@ -47,6 +48,24 @@ fn step_once(s: &mut Sim<'_>, state: &Option<SimState>, w: &Workload, t: usize) 
         &[]
     };
     black_box(s.step(frame).unwrap());
+}
+
+/// Times steps of a sim of `w` with `cfg` as bench `id`.
+fn time_steps(
+    g: &mut BenchmarkGroup<'_, WallTime>,
+    id: BenchmarkId,
+    w: &Workload,
+    model: &hood::model::Model<'_>,
+    cfg: SimConfig,
+) {
+    let (mut s, st) = sim(w, model, cfg);
+    let mut t = 0;
+    g.bench_function(id, |b| {
+        b.iter(|| {
+            t += 1;
+            step_once(&mut s, &st, w, t)
+        })
+    });
 }
 
 /// `(latent, precision, threads)` timed per workload: everything on the small ones; on the walk
@@ -93,15 +112,14 @@ fn bench_step(c: &mut Criterion) {
             }
             let model = bytes.model().unwrap();
             let p = if precision == Precision::Bf16 { "bf16" } else { "f32" };
-            let (mut s, st) = sim(&w, &model, SimConfig { precision, threads, ..SimConfig::network() });
-            let mut t = 0;
             let id = BenchmarkId::new(format!("{name}/h{h}/{p}"), format!("{threads}t"));
-            g.bench_function(id, |b| {
-                b.iter(|| {
-                    t += 1;
-                    step_once(&mut s, &st, &w, t)
-                })
-            });
+            time_steps(&mut g, id, &w, &model, SimConfig { precision, threads, ..SimConfig::network() });
+        }
+        // The default step mode, the solver (the model is not run), on one and two threads.
+        let model = bytes.model().unwrap();
+        for threads in [1, 2] {
+            let id = BenchmarkId::new(format!("{name}/solver{DEFAULT_SOLVER_ITERATIONS}"), format!("{threads}t"));
+            time_steps(&mut g, id, &w, &model, SimConfig { threads, ..SimConfig::default() });
         }
     }
     g.finish();

@@ -41,6 +41,7 @@ pub mod body;
 pub mod checksum;
 pub mod error;
 pub mod eval;
+pub mod exec;
 pub mod features;
 pub mod hierarchy;
 #[cfg(feature = "std")]

@@ -120,6 +120,12 @@ pub fn add3<T: Real>(a: V3<T>, b: V3<T>) -> V3<T> {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
 
+/// `-a`.
+#[inline(always)]
+pub fn neg3<T: Real>(a: V3<T>) -> V3<T> {
+    [-a[0], -a[1], -a[2]]
+}
+
 /// `a * s`.
 #[inline(always)]
 pub fn scale3<T: Real>(a: V3<T>, s: T) -> V3<T> {

@@ -8,10 +8,15 @@ use hood::sim::{BodyDesc, Precision, Sim, SimConfig};
 use hood::Error;
 
 fn rollout(threads: usize, precision: Precision, steps: usize) -> Vec<[f32; 3]> {
-    let scene = Scene::new(16, 14);
+    rollout_with(16, SimConfig { threads, precision, ..SimConfig::network() }, steps)
+}
+
+/// The cloth of an `n x n` grid after `steps` steps with `cfg`.
+fn rollout_with(n: usize, cfg: SimConfig, steps: usize) -> Vec<[f32; 3]> {
+    let scene = Scene::new(n, n);
     let bytes = random_model(32, 2, true);
     let model = bytes.model().unwrap();
-    let mut sim = scene.sim(&model, SimConfig { threads, precision, ..SimConfig::network() }).unwrap();
+    let mut sim = scene.sim(&model, cfg).unwrap();
     for t in 1..=steps {
         sim.step(&scene.body_at(t)).unwrap();
     }
@@ -24,6 +29,16 @@ fn runtime_threads_give_bitwise_identical_results() {
         let one = rollout(1, precision, 3);
         for threads in [2, 3] {
             assert_eq!(one, rollout(threads, precision, 3), "{threads} threads, {precision:?}");
+        }
+    }
+    // The solver step mode and refinement, on a cloth of several task blocks (256 vertices each).
+    for (step, refine) in
+        [(hood::sim::StepMode::Solver { iterations: 8 }, None), (hood::sim::StepMode::Network, Some(4))]
+    {
+        let cfg = |threads| SimConfig { threads, step, refine, ..SimConfig::network() };
+        let one = rollout_with(30, cfg(1), 3);
+        for threads in [2, 3] {
+            assert_eq!(one, rollout_with(30, cfg(threads), 3), "{threads} threads, {step:?}, refine {refine:?}");
         }
     }
 }

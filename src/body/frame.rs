@@ -3,8 +3,8 @@
 use super::grid::{check_batch, check_queries, check_within, chunks_for, hint_range};
 use super::{BodyMesh, Nearest, PointGrid};
 use crate::error::{Error, Result};
-use crate::sim::par::{split, BuildOnce, Disjoint};
-use crate::sim::{Executor, Serial};
+use crate::exec::par::{split, BuildOnce, Disjoint};
+use crate::exec::{Executor, Serial};
 use alloc::vec;
 use alloc::vec::Vec;
 use core::sync::atomic::{AtomicUsize, Ordering};

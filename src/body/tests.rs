@@ -563,7 +563,7 @@ fn body_query_scans_past_a_range_read_only_real_points() {
 #[cfg(feature = "std")]
 #[test]
 fn body_query_on_a_thread_pool_matches_serial() {
-    use crate::sim::{Executor, Serial, ThreadPool};
+    use crate::exec::{Executor, Serial, ThreadPool};
     let mut rng = Rng(11);
     let (v, f) = ellipsoid(50, 70, [0.25, 0.8, 0.15], [0.0, 1.0, 0.0]);
     let mesh = BodyMesh::new(v.len(), &f).unwrap();
@@ -648,7 +648,7 @@ unsafe impl crate::sim::Executor for Reversed {
 #[cfg(feature = "std")]
 #[test]
 fn body_query_whole_in_one_job_matches_separate_calls() {
-    use crate::sim::{Executor, Serial, ThreadPool};
+    use crate::exec::{Executor, Serial, ThreadPool};
     let mut rng = Rng(12);
     let (v, f) = two_ellipsoids();
     let mut omitted = vec![false; v.len()];

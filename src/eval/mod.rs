@@ -30,7 +30,7 @@ use crate::physics::{Terms, PENETRATION_DEPTH};
 use crate::render::{Camera, Image, Style};
 use crate::scene::Scene;
 use crate::sim::{BodyDesc, Sim, SimConfig, SimState};
-use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, StepBody, StepState};
+use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, Query, StepBody, StepState};
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -719,7 +719,7 @@ fn step_body(ring: Option<&BodyRing>, idx: Option<[usize; 3]>) -> Option<StepBod
         prev: ring.face_frame(p),
         current: ring.face_frame(c),
         next: ring.face_frame(nx),
-        query_prev: &ring.slots[p].grid as &dyn CentroidQuery,
+        query_prev: &ring.slots[p].grid as &Query,
         query_current: &ring.slots[c].grid,
         query_next: &ring.slots[nx].grid,
     })

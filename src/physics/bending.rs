@@ -2,7 +2,7 @@
 
 use super::{check_len, Cloth};
 use crate::error::Result;
-use crate::math::{add3, cross3, dot3, scale3, sub3, Real};
+use crate::math::{add3, cross3, dot3, neg3, scale3, sub3, Real};
 
 /// `atan2(y, x)`: in `f32` a polynomial one (Cephes' `atanf` reduction and coefficients, about
 /// 2e-7 relative error, several times faster than `libm::atan2f`, which dominated the term); in
@@ -74,46 +74,69 @@ pub fn bending<T: Real>(cloth: &Cloth<T>, x: &[[T; 3]], mut grad: Option<&mut [[
     if let Some(g) = grad.as_deref() {
         check_len("gradient", g.len(), n)?;
     }
-    let tiny = T::from_f64(1e-30);
-    let two = T::from_f64(2.0);
     let mut energy = T::ZERO;
-    for (h, &coef) in cloth.hinges.iter().zip(&cloth.bend_coef) {
+    for (hi, h) in cloth.hinges.iter().enumerate() {
         let [v0, v1] = h.edge.map(|i| i as usize);
         let [va, vb] = h.opposite.map(|i| i as usize);
-        let x0 = x[v0];
-        let e = sub3(x[v1], x0);
-        let (ra, rb) = (sub3(x[va], x0), sub3(x[vb], x0));
-        // Normals up to the triangles' orientation: n_A ∝ ±pa, n_B ∝ ±pb.
-        let pa = cross3(e, ra);
-        let pb = cross3(e, rb);
-        let l2 = dot3(e, e).max(tiny);
-        let l = l2.sqrt();
-        let (mut sy, mut cx) = (dot3(e, cross3(pa, pb)), l * dot3(pa, pb));
-        if h.consistent {
-            // Opposite traversals: n_A = pa/|pa|, n_B = -pb/|pb|.
-            sy = -sy;
-            cx = -cx;
-        }
-        let theta = atan2(sy, cx);
-        energy += coef * l2 * theta * theta;
-        if let Some(g) = grad.as_deref_mut() {
-            // dθ/da = -l pa / |pa|², dθ/db = l pb / |pb|²; edge vertices by foot points.
-            let ga = scale3(pa, -l / dot3(pa, pa).max(tiny));
-            let gb = scale3(pb, l / dot3(pb, pb).max(tiny));
-            let inv_l2 = T::ONE / l2;
-            let (aa, ab) = (dot3(ra, e) * inv_l2, dot3(rb, e) * inv_l2);
-            let gt = two * coef * l2 * theta;
-            let gl = two * coef * theta * theta; // d(l²)/dx = 2 e, so dE/de = coef θ² 2 e
-            let ge = scale3(e, gl);
-            let d1 = add3(scale3(ga, aa), scale3(gb, ab));
-            let d0 = sub3(add3(ga, gb), d1);
-            g[va] = add3(g[va], scale3(ga, gt));
-            g[vb] = add3(g[vb], scale3(gb, gt));
-            g[v1] = sub3(add3(g[v1], ge), scale3(d1, gt));
-            g[v0] = sub3(g[v0], add3(ge, scale3(d0, gt)));
+        match grad.as_deref_mut() {
+            Some(g) => {
+                let (e, [c0, c1, ca, cb]) = hinge_bending::<T, true>(cloth, hi, x);
+                energy += e;
+                g[va] = add3(g[va], ca);
+                g[vb] = add3(g[vb], cb);
+                g[v1] = add3(g[v1], c1);
+                g[v0] = add3(g[v0], c0);
+            }
+            None => energy += hinge_bending::<T, false>(cloth, hi, x).0,
         }
     }
     Ok(energy)
+}
+
+/// Hinge `hi`'s bending energy (J) at `x` (m) and, with `GRAD`, its gradient with respect to its
+/// edge vertices and then its two opposite vertices (`[edge[0], edge[1], opposite[0],
+/// opposite[1]]`, J/m; zero without `GRAD`): the one place of the term's math, which [`bending`]
+/// scatters and the task-split evaluation gathers.
+#[inline(always)]
+pub(super) fn hinge_bending<T: Real, const GRAD: bool>(cloth: &Cloth<T>, hi: usize, x: &[[T; 3]]) -> (T, [[T; 3]; 4]) {
+    let tiny = T::from_f64(1e-30);
+    let two = T::from_f64(2.0);
+    let h = &cloth.hinges[hi];
+    let coef = cloth.bend_coef[hi];
+    let [v0, v1] = h.edge.map(|i| i as usize);
+    let [va, vb] = h.opposite.map(|i| i as usize);
+    let x0 = x[v0];
+    let e = sub3(x[v1], x0);
+    let (ra, rb) = (sub3(x[va], x0), sub3(x[vb], x0));
+    // Normals up to the triangles' orientation: n_A ∝ ±pa, n_B ∝ ±pb.
+    let pa = cross3(e, ra);
+    let pb = cross3(e, rb);
+    let l2 = dot3(e, e).max(tiny);
+    let l = l2.sqrt();
+    let (mut sy, mut cx) = (dot3(e, cross3(pa, pb)), l * dot3(pa, pb));
+    if h.consistent {
+        // Opposite traversals: n_A = pa/|pa|, n_B = -pb/|pb|.
+        sy = -sy;
+        cx = -cx;
+    }
+    let theta = atan2(sy, cx);
+    let energy = coef * l2 * theta * theta;
+    if !GRAD {
+        return (energy, [[T::ZERO; 3]; 4]);
+    }
+    // dθ/da = -l pa / |pa|², dθ/db = l pb / |pb|²; edge vertices by foot points.
+    let ga = scale3(pa, -l / dot3(pa, pa).max(tiny));
+    let gb = scale3(pb, l / dot3(pb, pb).max(tiny));
+    let inv_l2 = T::ONE / l2;
+    let (aa, ab) = (dot3(ra, e) * inv_l2, dot3(rb, e) * inv_l2);
+    let gt = two * coef * l2 * theta;
+    let gl = two * coef * theta * theta; // d(l²)/dx = 2 e, so dE/de = coef θ² 2 e
+    let ge = scale3(e, gl);
+    let d1 = add3(scale3(ga, aa), scale3(gb, ab));
+    let d0 = sub3(add3(ga, gb), d1);
+    let c0 = neg3(add3(ge, scale3(d0, gt)));
+    let c1 = sub3(ge, scale3(d1, gt));
+    (energy, [c0, c1, scale3(ga, gt), scale3(gb, gt)])
 }
 
 #[cfg(test)]

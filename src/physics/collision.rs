@@ -2,7 +2,7 @@
 
 use super::check_len;
 use crate::error::{Error, Result};
-use crate::math::{add3, cross3, dot3, norm3, scale3, sub3, v3_from_f32, Real};
+use crate::math::{add3, cross3, dot3, neg3, norm3, scale3, sub3, v3_from_f32, Real};
 use alloc::vec::Vec;
 
 /// Body faces at one frame: centroid and unit normal of every face (parallel slices).
@@ -142,24 +142,34 @@ pub fn collision<T: Real>(
         check_len("gradient", g.len(), n)?;
     }
     let nf = next.centroids.len();
-    let three = T::from_f64(3.0);
     let mut energy = T::ZERO;
     for i in 0..n {
         let k = nearest[i] as usize;
         if k >= nf {
             return Err(Error::IndexOutOfRange { what: "nearest body face", at: i, index: k, len: nf });
         }
-        let nrm = next.normals[k];
-        let d = dot3(sub3(x[i], next.centroids[k]), nrm);
-        let pen = eps - d;
-        if pen > T::ZERO {
-            energy += pen * pen * pen;
-            if let Some(g) = grad.as_deref_mut() {
-                g[i] = sub3(g[i], scale3(nrm, weight * three * pen * pen));
-            }
+        let (e, gi) = vertex_collision(x[i], k, next, eps, weight);
+        energy += e;
+        if let Some(g) = grad.as_deref_mut() {
+            g[i] = add3(g[i], gi);
         }
     }
     Ok(energy * weight)
+}
+
+/// Vertex collision penalty against face `k` of `next` before the weight (`max(eps - d, 0)³`,
+/// m³) and its weighted gradient: the one place of the term's per-vertex math ([`collision`]
+/// multiplies the sum by the weight). `k` must be in range.
+#[inline(always)]
+pub(super) fn vertex_collision<T: Real>(x: [T; 3], k: usize, next: FaceFrame<'_, T>, eps: T, weight: T) -> (T, [T; 3]) {
+    let nrm = next.normals[k];
+    let d = dot3(sub3(x, next.centroids[k]), nrm);
+    let pen = eps - d;
+    if pen > T::ZERO {
+        (pen * pen * pen, neg3(scale3(nrm, weight * T::from_f64(3.0) * pen * pen)))
+    } else {
+        (T::ZERO, [T::ZERO; 3])
+    }
 }
 
 /// Signed distance (m) of every vertex to the plane of its nearest face at the next frame, as

@@ -115,45 +115,64 @@ pub fn friction<T: Real>(
         return Err(Error::IndexOutOfRange { what: "floor axis", at: 0, index: axis, len: 3 });
     }
     let mu_g = T::from_f64(params.mu * GRAVITY);
-    let half = T::from_f64(0.5);
-    let reg = T::from_f64(1e-4);
-    let tiny = T::from_f64(1e-30);
     let mut energy = T::ZERO;
     for i in 0..n {
         let (u, w) = (nearest_a[i] as usize, nearest_b[i] as usize);
         if u >= nf || w >= nf {
             return Err(Error::IndexOutOfRange { what: "friction nearest body face", at: i, index: u.max(w), len: nf });
         }
-        if !(within_friction_radius(pos[i], frame_a.centroids[u], params)
-            && within_friction_radius(x[i], frame_b.centroids[w], params))
-        {
-            continue;
-        }
-        let nrm = scale3(add3(frame_a.normals[u], frame_b.normals[w]), half);
-        let x_hat = add3(pos[i], sub3(frame_b.centroids[u], frame_a.centroids[u]));
-        let d = sub3(x[i], x_hat);
-        let q = sub3(d, scale3(nrm, dot3(d, nrm)));
-        let l2 = dot3(q, q);
-        let l = l2.sqrt();
-        if l <= tiny {
-            continue;
-        }
-        let a = q[axis];
-        let h = T::ONE - a * a / l2;
-        let s = (h.abs() + reg).sqrt();
-        let k = mu_g * cloth.mass[i];
-        energy += k * s * l;
+        let (e, gi) = vertex_friction(mu_g * cloth.mass[i], pos[i], x[i], [u, w], frame_a, frame_b, params);
+        energy += e;
         if let Some(g) = grad.as_deref_mut() {
-            // dE/dq = k (s q / l + l ds/dq), ds/dq = sign(h) / (2 s) dh/dq,
-            // dh/dq = 2 a² q / l⁴ - 2 a f / l².
-            let sign = if h < T::ZERO { -T::ONE } else { T::ONE };
-            let ds = sign / (T::from_f64(2.0) * s);
-            let mut gq = scale3(q, k * (s / l + l * ds * T::from_f64(2.0) * a * a / (l2 * l2)));
-            gq[axis] -= k * l * ds * T::from_f64(2.0) * a / l2;
-            // q = (I - n nᵀ) d is symmetric in d.
-            let gd = sub3(gq, scale3(nrm, dot3(gq, nrm)));
-            g[i] = add3(g[i], gd);
+            g[i] = add3(g[i], gi);
         }
     }
     Ok(energy)
+}
+
+/// One vertex's friction energy (J) and gradient (J/m): `k = mu × 9.81 × m` (N), `pos` and `x`
+/// the vertex now and predicted (m), `faces = [u, w]` its nearest faces at `B_a` and `B_b` (in
+/// range, checked by the caller); zero when the vertex is not in contact. The one place of the
+/// term's per-vertex math.
+#[inline(always)]
+pub(super) fn vertex_friction<T: Real>(
+    k: T,
+    pos: [T; 3],
+    x: [T; 3],
+    faces: [usize; 2],
+    frame_a: FaceFrame<'_, T>,
+    frame_b: FaceFrame<'_, T>,
+    params: &FrictionParams,
+) -> (T, [T; 3]) {
+    let none = (T::ZERO, [T::ZERO; 3]);
+    let [u, w] = faces;
+    if !(within_friction_radius(pos, frame_a.centroids[u], params)
+        && within_friction_radius(x, frame_b.centroids[w], params))
+    {
+        return none;
+    }
+    let half = T::from_f64(0.5);
+    let reg = T::from_f64(1e-4);
+    let tiny = T::from_f64(1e-30);
+    let axis = params.floor_axis;
+    let nrm = scale3(add3(frame_a.normals[u], frame_b.normals[w]), half);
+    let x_hat = add3(pos, sub3(frame_b.centroids[u], frame_a.centroids[u]));
+    let d = sub3(x, x_hat);
+    let q = sub3(d, scale3(nrm, dot3(d, nrm)));
+    let l2 = dot3(q, q);
+    let l = l2.sqrt();
+    if l <= tiny {
+        return none;
+    }
+    let a = q[axis];
+    let h = T::ONE - a * a / l2;
+    let s = (h.abs() + reg).sqrt();
+    // dE/dq = k (s q / l + l ds/dq), ds/dq = sign(h) / (2 s) dh/dq,
+    // dh/dq = 2 a² q / l⁴ - 2 a f / l².
+    let sign = if h < T::ZERO { -T::ONE } else { T::ONE };
+    let ds = sign / (T::from_f64(2.0) * s);
+    let mut gq = scale3(q, k * (s / l + l * ds * T::from_f64(2.0) * a * a / (l2 * l2)));
+    gq[axis] -= k * l * ds * T::from_f64(2.0) * a / l2;
+    // q = (I - n nᵀ) d is symmetric in d.
+    (k * s * l, sub3(gq, scale3(nrm, dot3(gq, nrm))))
 }

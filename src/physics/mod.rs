@@ -17,7 +17,8 @@
 //!   2D rest triangles with [`Cloth::with_rest_2d`]).
 //! * [`Objective`]: which terms a scene enables ([`Objective::training`],
 //!   [`Objective::evaluation`], [`Objective::relaxation`], [`Objective::cloth_only`]), evaluated
-//!   with [`Objective::eval`] into [`Terms`].
+//!   with [`Objective::eval`] into [`Terms`], or as tasks of an executor with
+//!   [`ObjectiveTasks`] (the same bits for any number of threads).
 //! * Body data: [`face_frames`] (centroids and unit normals per face); nearest face centroids
 //!   through [`CentroidQuery`], implemented by the body module's
 //!   [`PointGrid`](crate::body::PointGrid) and [`BodyFrame`](crate::body::BodyFrame), and by
@@ -36,6 +37,7 @@ mod inertia;
 mod metrics;
 mod objective;
 mod stretching;
+mod tasks;
 
 pub use bending::bending;
 pub use cloth::{BendHinge, Cloth};
@@ -47,6 +49,7 @@ pub use inertia::{gravity, inertia};
 pub use metrics::{max_edge_strain, score_rollout, score_rollout_with, FrameScore, RolloutScore, PENETRATION_DEPTH};
 pub use objective::{CollisionInput, CollisionParams, FrictionInput, Objective, StepInputs, Terms};
 pub use stretching::stretching;
+pub use tasks::ObjectiveTasks;
 
 /// Thickness factor of the stretching energy (the reference's StVK thickness), metres.
 pub const THICKNESS: f64 = 4.7e-4;

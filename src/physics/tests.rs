@@ -213,64 +213,93 @@ fn gradient_check_friction() {
     }
 }
 
+/// A garment in motion over a test body, with every input of the full objective.
+struct ObjectiveScene {
+    g: Garment,
+    cloth: Cloth<f64>,
+    body: TestBody,
+    pos: Vec<[f64; 3]>,
+    vel: Vec<[f64; 3]>,
+    x: Vec<[f64; 3]>,
+    near_cur: Vec<u32>,
+    near_b: Vec<u32>,
+}
+
+impl ObjectiveScene {
+    /// An `nx x nz` random garment from seed `seed`.
+    fn new(seed: u64, nx: usize, nz: usize) -> ObjectiveScene {
+        let mut rng = Rng(seed);
+        let g = random_garment(&mut rng, nx, nz);
+        let cloth = Cloth::<f64>::new(&g);
+        let body = test_body(&mut rng, -0.002);
+        let pos = perturbed(&mut rng, g.rest(), 0.003);
+        let vel: Vec<[f64; 3]> = (0..pos.len()).map(|_| [0.0; 3].map(|_| rng.uniform(-0.005, 0.005))).collect();
+        let x = perturbed(&mut rng, g.rest(), 0.006);
+        let near_cur = brute_nearest(&pos, &body.cent[0]);
+        let near_b = brute_nearest(&x, &body.cent[1]);
+        ObjectiveScene { g, cloth, body, pos, vel, x, near_cur, near_b }
+    }
+
+    fn inputs(&self) -> StepInputs<'_, f64> {
+        let next = FaceFrame { centroids: &self.body.cent[1], normals: &self.body.norm[1] };
+        StepInputs {
+            pos: &self.pos,
+            velocity: &self.vel,
+            dt: 1.0 / 30.0,
+            collision: Some(CollisionInput { nearest: &self.near_cur, next }),
+            friction: Some(FrictionInput {
+                frame_a: FaceFrame { centroids: &self.body.cent[0], normals: &self.body.norm[0] },
+                frame_b: next,
+                nearest_a: &self.near_cur,
+                nearest_b: &self.near_b,
+            }),
+        }
+    }
+
+    /// Every term, with a friction radius wide enough for the test body's vertices to take part.
+    fn objective() -> Objective {
+        Objective {
+            friction: Some(FrictionParams { radius: 0.03, ..FrictionParams::PHYSICAL }),
+            ..Objective::training(5e3)
+        }
+    }
+}
+
 #[test]
 fn gradient_check_objective_sums_terms() {
-    let mut rng = Rng(5);
-    let g = random_garment(&mut rng, 6, 6);
-    let cloth = Cloth::<f64>::new(&g);
-    let body = test_body(&mut rng, -0.002);
-    let pos = perturbed(&mut rng, g.rest(), 0.003);
-    let vel: Vec<[f64; 3]> = (0..pos.len()).map(|_| [0.0; 3].map(|_| rng.uniform(-0.005, 0.005))).collect();
-    let x = perturbed(&mut rng, g.rest(), 0.006);
-    let near_cur = brute_nearest(&pos, &body.cent[0]);
-    let near_b = brute_nearest(&x, &body.cent[1]);
-    let inputs = StepInputs {
-        pos: &pos,
-        velocity: &vel,
-        dt: 1.0 / 30.0,
-        collision: Some(CollisionInput {
-            nearest: &near_cur,
-            next: FaceFrame { centroids: &body.cent[1], normals: &body.norm[1] },
-        }),
-        friction: Some(FrictionInput {
-            frame_a: FaceFrame { centroids: &body.cent[0], normals: &body.norm[0] },
-            frame_b: FaceFrame { centroids: &body.cent[1], normals: &body.norm[1] },
-            nearest_a: &near_cur,
-            nearest_b: &near_b,
-        }),
-    };
-    let obj = Objective {
-        friction: Some(FrictionParams { radius: 0.03, ..FrictionParams::PHYSICAL }),
-        ..Objective::training(5e3)
-    };
+    let sc = ObjectiveScene::new(5, 6, 6);
+    let ObjectiveScene { g, cloth, body, pos, vel, x, near_cur, near_b } = &sc;
+    let (cloth, pos, vel, x) = (cloth, &pos[..], &vel[..], &x[..]);
+    let inputs = sc.inputs();
+    let obj = ObjectiveScene::objective();
     let mut grad = vec![[7.0; 3]; x.len()]; // overwritten, not accumulated
-    let t = obj.eval(&cloth, &inputs, &x, Some(&mut grad)).unwrap();
+    let t = obj.eval(cloth, &inputs, x, Some(&mut grad)).unwrap();
     // The parts add up to the total, term by term.
     let mut sum = vec![[0.0; 3]; x.len()];
     let parts = [
-        stretching(&cloth, &x, Some(&mut sum)).unwrap(),
-        bending(&cloth, &x, Some(&mut sum)).unwrap(),
-        inertia(&cloth, &pos, &vel, 1.0 / 30.0, &x, Some(&mut sum)).unwrap(),
-        gravity(&cloth, &x, Some(&mut sum)).unwrap(),
+        stretching(cloth, x, Some(&mut sum)).unwrap(),
+        bending(cloth, x, Some(&mut sum)).unwrap(),
+        inertia(cloth, pos, vel, 1.0 / 30.0, x, Some(&mut sum)).unwrap(),
+        gravity(cloth, x, Some(&mut sum)).unwrap(),
     ];
     assert_eq!([t.stretching, t.bending, t.inertia, t.gravity], parts);
     assert!(t.collision > 0.0 && t.friction > 0.0, "{t:?}");
-    check_term("objective", &x, 1e-7, |y, gr| obj.eval(&cloth, &inputs, y, gr).unwrap().total());
+    check_term("objective", x, 1e-7, |y, gr| obj.eval(cloth, &inputs, y, gr).unwrap().total());
     // f32 evaluation of the same objective agrees to f32 precision.
-    let c32 = Cloth::<f32>::new(&g);
+    let c32 = Cloth::<f32>::new(g);
     let to32 = |v: &[[f64; 3]]| -> Vec<[f32; 3]> { v.iter().map(|p| p.map(|c| c as f32)).collect() };
-    let (x32, pos32, vel32) = (to32(&x), to32(&pos), to32(&vel));
+    let (x32, pos32, vel32) = (to32(x), to32(pos), to32(vel));
     let (c0, n0, c1, n1) = (to32(&body.cent[0]), to32(&body.norm[0]), to32(&body.cent[1]), to32(&body.norm[1]));
     let in32 = StepInputs {
         pos: &pos32,
         velocity: &vel32,
         dt: 1.0f32 / 30.0,
-        collision: Some(CollisionInput { nearest: &near_cur, next: FaceFrame { centroids: &c1, normals: &n1 } }),
+        collision: Some(CollisionInput { nearest: near_cur, next: FaceFrame { centroids: &c1, normals: &n1 } }),
         friction: Some(FrictionInput {
             frame_a: FaceFrame { centroids: &c0, normals: &n0 },
             frame_b: FaceFrame { centroids: &c1, normals: &n1 },
-            nearest_a: &near_cur,
-            nearest_b: &near_b,
+            nearest_a: near_cur,
+            nearest_b: near_b,
         }),
     };
     let mut g32 = vec![[0.0f32; 3]; x.len()];
@@ -392,4 +421,63 @@ fn physics_centroid_query_hints_change_no_answer() {
             assert!(g == w || d2(*g) == d2(*w), "point {i}: {g} vs {w}");
         }
     }
+}
+
+/// The task-split objective: the terms and gradient of [`Objective::eval`] within rounding, the
+/// same bits whatever the executor, errors as values that do not outlive their evaluation.
+#[test]
+fn physics_objective_tasks_match_eval_for_any_executor() {
+    use crate::exec::{Executor, Serial, ThreadPool};
+    // Several blocks of vertices, triangles and hinges, so that tasks split them differently.
+    let sc = ObjectiveScene::new(11, 40, 30);
+    let (cloth, body, x, near_cur) = (&sc.cloth, &sc.body, &sc.x, &sc.near_cur);
+    let inputs = sc.inputs();
+    let next = inputs.collision.unwrap().next;
+    let obj = ObjectiveScene::objective();
+    let mut want_g = vec![[0.0; 3]; x.len()];
+    let want = obj.eval(cloth, &inputs, x, Some(&mut want_g)).unwrap();
+    assert!(want.named().iter().all(|(_, v)| *v != 0.0), "every term takes part: {want:?}");
+    let mut tasks = ObjectiveTasks::new(cloth);
+    let mut run = |exec: &dyn Executor, o: &Objective| {
+        let mut g = vec![[7.0; 3]; x.len()]; // overwritten, not accumulated
+        let t = tasks.eval(exec, o, cloth, &inputs, x, Some(&mut g)).unwrap();
+        assert_eq!(tasks.eval(exec, o, cloth, &inputs, x, None).unwrap(), t, "value without the gradient");
+        (t, g)
+    };
+    let (serial, serial_g) = run(&Serial, &obj);
+    for ((name, a), (_, b)) in serial.named().iter().zip(want.named()) {
+        assert!((a - b).abs() <= 1e-12 * b.abs(), "{name}: tasks {a} against eval {b}");
+    }
+    assert!(rel_err(&serial_g, &want_g) < 1e-12, "gradient {}", rel_err(&serial_g, &want_g));
+    for threads in [2, 3, 5] {
+        let pool = ThreadPool::new(threads);
+        assert_eq!(run(&pool, &obj), (serial, serial_g.clone()), "{threads} threads");
+    }
+    // Terms switched off are zero and leave the rest as they were.
+    let cloth_only = Objective::cloth_only();
+    let (t, _) = run(&ThreadPool::new(2), &cloth_only);
+    assert_eq!((t.collision, t.friction), (0.0, 0.0));
+    assert_eq!(
+        [t.stretching, t.bending, t.inertia, t.gravity],
+        [serial.stretching, serial.bending, serial.inertia, serial.gravity]
+    );
+    // A bad face index is an error value, and the next evaluation does not see it again.
+    let mut bad = near_cur.clone();
+    bad[x.len() - 3] = body.cent[1].len() as u32;
+    let bad_inputs = StepInputs { collision: Some(CollisionInput { nearest: &bad, next }), ..inputs };
+    let pool = ThreadPool::new(3);
+    let err = tasks.eval(&pool, &obj, cloth, &bad_inputs, x, None).unwrap_err();
+    assert_eq!(err, obj.eval(cloth, &bad_inputs, x, None).unwrap_err());
+    assert_eq!(tasks.eval(&pool, &obj, cloth, &inputs, x, None).unwrap(), serial);
+    // Buffers made for another garment are refused: other counts, or the same counts with the
+    // triangles in another order.
+    let other = Cloth::<f64>::new(&random_garment(&mut Rng(12), 6, 6));
+    assert!(matches!(tasks.eval(&Serial, &obj, &other, &inputs, x, None), Err(Error::SizeMismatch { .. })));
+    let (rest, mut faces) = grid(40, 30, 0.4, 0.3, 0.0);
+    faces.reverse();
+    let reordered = Cloth::<f64>::new(&Garment::new(GarmentDesc::new(&rest, &faces)).unwrap());
+    let mut g = vec![[0.0; 3]; x.len()];
+    let foreign = tasks.eval(&pool, &obj, &reordered, &inputs, x, Some(&mut g));
+    assert!(matches!(foreign, Err(Error::OutOfRange { .. })), "{foreign:?}");
+    assert_eq!(tasks.eval(&pool, &obj, cloth, &inputs, x, None).unwrap(), serial);
 }

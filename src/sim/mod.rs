@@ -10,10 +10,8 @@
 mod clock;
 pub mod driver;
 mod effects;
-pub mod exec;
 pub mod graph;
 pub mod network;
-pub(crate) mod par;
 mod projection;
 mod refine;
 mod saved;
@@ -21,6 +19,9 @@ mod saved;
 use crate::body::rigid::{best_rigid_motion, RigidMotion};
 use crate::body::{BodyMesh, BodySurvey, Nearest, PointGrid};
 use crate::error::{Error, Result};
+#[cfg(feature = "std")]
+pub use crate::exec::ThreadPool;
+pub use crate::exec::{Executor, Serial};
 use crate::features::{self, BodyNodes, Embeddings, GarmentNodes, DT, DT_STARTUP, EDGE_WIDTH, NODE_WIDTH};
 use crate::hierarchy::{Hierarchy, HierarchyConfig};
 use crate::kernels::{Kernels, Tier};
@@ -36,9 +37,6 @@ pub use clock::Clock;
 pub use clock::StdClock;
 pub use driver::{FixedStep, Interpolator};
 pub use effects::StepEffects;
-#[cfg(feature = "std")]
-pub use exec::ThreadPool;
-pub use exec::{Executor, Serial};
 pub use graph::Graph;
 use network::{BodyEdges, Net, Workspace};
 pub use network::{Probe, Stage};
@@ -826,7 +824,7 @@ impl<'m> Sim<'m> {
                 pinned: &self.pinned,
                 body: self.body.as_ref().map(|b| RefineBody { mesh: &b.mesh, now, next: body_next.unwrap_or(now) }),
             };
-            r.apply(&input, self.clock.as_deref(), &mut self.new_pos, &mut self.new_vel)?;
+            r.apply(&*self.exec, &input, self.clock.as_deref(), &mut self.new_pos, &mut self.new_vel)?;
         }
         if let Some(b) = &mut self.body {
             if let Some(proj) = &mut b.projection {

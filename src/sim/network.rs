@@ -1,10 +1,10 @@
 //! The network's forward pass over a step's buffers: encode, process (blocks), decode. Every
 //! buffer is sized once by [`Workspace::new`]; [`Workspace::forward`] allocates nothing.
 
-use super::exec::Executor;
 use super::graph::{EdgeList, Graph};
-use super::par::{first_error, split, target_bounds, Disjoint};
 use crate::error::{Error, Result};
+use crate::exec::par::{first_error, split, target_bounds, Disjoint};
+use crate::exec::Executor;
 use crate::features::{BODY_EDGE_WIDTH, EDGE_WIDTH, NODE_NORMALISED, NODE_WIDTH};
 use crate::kernels::{self, EdgeInputs, EdgeMlp, Epilogue, Kernels, Operand, MAX_OPERANDS};
 use crate::model::file::{MlpView, Model};

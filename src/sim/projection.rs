@@ -10,8 +10,8 @@
 
 use crate::body::{BodyMesh, Nearest, PointGrid};
 use crate::error::{Error, Result};
+use crate::exec::Executor;
 use crate::physics::{face_frames, push_out, FaceFrame};
-use crate::sim::Executor;
 use alloc::vec;
 use alloc::vec::Vec;
 

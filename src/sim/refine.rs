@@ -11,10 +11,11 @@
 use super::clock::{Clock, Deadline};
 use crate::body::{BodyMesh, PointGrid};
 use crate::error::{Error, Result};
+use crate::exec::Executor;
 use crate::math::finite3;
 use crate::mesh::Garment;
-use crate::physics::{face_frames, CentroidQuery, Cloth, FaceFrame, Objective};
-use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, StepBody, StepState};
+use crate::physics::{face_frames, Cloth, FaceFrame, Objective};
+use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, Query, StepBody, StepState};
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -143,10 +144,11 @@ impl Refiner {
         };
         let next_at = Vec::with_capacity(mesh.map_or(0, |m| m.n_vertices()));
         let params = LbfgsParams { max_iterations: iterations as usize, ..LbfgsParams::default() };
+        let cloth = Cloth::new(garment);
         Ok(Refiner {
-            cloth: Cloth::new(garment),
+            solver: ImplicitStep::with_tasks(&cloth, REFINE_MEMORY.min(iterations as usize)),
+            cloth,
             objective,
-            solver: ImplicitStep::new(n, REFINE_MEMORY.min(iterations as usize)),
             params,
             coast: vec![[0.0; 3]; n],
             predicted: vec![[0.0; 3]; n],
@@ -170,7 +172,8 @@ impl Refiner {
     }
 
     /// Refines the prediction `new_pos` (m, world, pinned vertices at their targets) in place and
-    /// adds each vertex's move to `new_vel`; a time budget reads `clock`. Allocates nothing.
+    /// adds each vertex's move to `new_vel`, in tasks of `exec` (the same bits for any number of
+    /// threads); a time budget reads `clock`. Allocates nothing.
     ///
     /// # Errors
     /// [`Error::NonFinite`] when the refined positions are not finite; errors of the objective
@@ -179,6 +182,7 @@ impl Refiner {
     /// discards.
     pub(super) fn apply(
         &mut self,
+        exec: &dyn Executor,
         input: &RefineInput<'_>,
         clock: Option<&dyn Clock>,
         new_pos: &mut [[f32; 3]],
@@ -215,7 +219,7 @@ impl Refiner {
                     prev: now.frame(), // not read: friction uses the current and next frames
                     current: now.frame(),
                     next: next.frame(),
-                    query_prev: &now.grid as &dyn CentroidQuery,
+                    query_prev: &now.grid as &Query,
                     query_current: &now.grid,
                     query_next: &next.grid,
                 })
@@ -231,6 +235,7 @@ impl Refiner {
         };
         let mut stop = || deadline.as_mut().is_some_and(Deadline::stop_before_next);
         let report = self.solver.refine_until(
+            exec,
             &self.cloth,
             &self.objective,
             &state,

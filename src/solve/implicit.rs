@@ -2,9 +2,11 @@
 
 use super::{Lbfgs, LbfgsParams, LbfgsReport};
 use crate::error::{Error, Result};
+use crate::exec::par::{split, Disjoint};
+use crate::exec::{Executor, Serial};
 use crate::math::{add3, Real};
 use crate::physics::{check_len, CentroidQuery, Cloth, CollisionInput, FaceFrame, FrictionFrames, FrictionInput};
-use crate::physics::{within_friction_radius, Objective, StepInputs, Terms};
+use crate::physics::{within_friction_radius, Objective, ObjectiveTasks, StepInputs, Terms};
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -36,12 +38,15 @@ pub struct StepBody<'a, T> {
     /// Faces at the next frame.
     pub next: FaceFrame<'a, T>,
     /// Nearest centroid at the previous frame.
-    pub query_prev: &'a dyn CentroidQuery,
+    pub query_prev: &'a Query,
     /// Nearest centroid at the current frame.
-    pub query_current: &'a dyn CentroidQuery,
+    pub query_current: &'a Query,
     /// Nearest centroid at the next frame.
-    pub query_next: &'a dyn CentroidQuery,
+    pub query_next: &'a Query,
 }
+
+/// A nearest-centroid query that tasks may share.
+pub type Query = dyn CentroidQuery + Sync;
 
 /// Reusable workspace of the implicit step (L-BFGS buffers, nearest-face indices, the
 /// preconditioner).
@@ -51,11 +56,12 @@ pub struct ImplicitStep<T: Real> {
     near_cur: Vec<u32>,
     near_a: Vec<u32>,
     near_b: Vec<u32>,
-    /// Scratch: a copy of the last call's collision faces, the hints of their refresh.
-    near_hint: Vec<u32>,
     x32: Vec<[f32; 3]>,
     diag: Vec<T>,
     precondition: bool,
+    /// The objective's task buffers, when the workspace was made for one garment
+    /// ([`ImplicitStep::with_tasks`]).
+    tasks: Option<ObjectiveTasks<T>>,
 }
 
 fn to_f32<T: Real>(x: &[[T; 3]], out: &mut [[f32; 3]]) {
@@ -72,11 +78,18 @@ impl<T: Real> ImplicitStep<T> {
             near_cur: vec![0; n],
             near_a: vec![0; n],
             near_b: vec![0; n],
-            near_hint: vec![0; n],
             x32: vec![[0.0; 3]; n],
             diag: vec![T::ZERO; n],
             precondition: true,
+            tasks: None,
         }
+    }
+
+    /// A workspace for `cloth`'s garment that evaluates the objective as tasks of the executor
+    /// [`ImplicitStep::refine_until`] is given ([`ObjectiveTasks`]): the same bits for any number
+    /// of threads, within rounding of a workspace from [`ImplicitStep::new`].
+    pub fn with_tasks(cloth: &Cloth<T>, memory: usize) -> ImplicitStep<T> {
+        ImplicitStep { tasks: Some(ObjectiveTasks::new(cloth)), ..ImplicitStep::new(cloth.n_vertices(), memory) }
     }
 
     /// Whether L-BFGS is preconditioned with the inverse of `m / dt² + k_stretch` per vertex
@@ -124,18 +137,20 @@ impl<T: Real> ImplicitStep<T> {
         params: &LbfgsParams,
         x: &mut [[T; 3]],
     ) -> Result<LbfgsReport> {
-        self.refine_until(cloth, objective, state, body, params, x, &mut || false)
+        self.refine_until(&Serial, cloth, objective, state, body, params, x, &mut || false)
     }
 
     /// As [`ImplicitStep::refine`], also stopping when `stop()` says so (asked before every
     /// iteration after the first, [`Lbfgs::minimize_until`](crate::solve::Lbfgs::minimize_until)):
-    /// the solve of a time budget. Allocates nothing.
+    /// the solve of a time budget. The nearest-face searches, and with
+    /// [`ImplicitStep::with_tasks`] the objective, run as tasks of `exec`. Allocates nothing.
     ///
     /// # Errors
     /// As [`ImplicitStep::step`].
     #[allow(clippy::too_many_arguments)] // the solve's inputs and its stop rule
     pub fn refine_until(
         &mut self,
+        exec: &dyn Executor,
         cloth: &Cloth<T>,
         objective: &Objective,
         state: &StepState<'_, T>,
@@ -164,7 +179,7 @@ impl<T: Real> ImplicitStep<T> {
                 x[i] = state.targets[i];
             }
         }
-        let Self { lbfgs, near_cur, near_a, near_b, near_hint, x32, diag, precondition } = self;
+        let Self { lbfgs, near_cur, near_a, near_b, x32, diag, precondition, tasks } = self;
         if *precondition {
             diag.iter_mut().for_each(|d| *d = T::ZERO);
             cloth.stretch_stiffness_into(diag)?;
@@ -176,11 +191,13 @@ impl<T: Real> ImplicitStep<T> {
         } else {
             lbfgs.set_preconditioner(None)?;
         }
-        let mut scratch = Contacts { near_cur, near_a, near_b, near_hint, x32 };
-        let friction_b = prepare_contacts(objective, state, body, &mut scratch);
+        let mut scratch = Contacts { near_cur, near_a, near_b, x32 };
+        let friction_b = prepare_contacts(exec, objective, state, body, &mut scratch);
         let next = body.map(|b| b.next);
+        let mut eval = Eval { exec, tasks: tasks.as_mut() };
         let f = |y: &[[T; 3]], grad: &mut [[T; 3]]| {
-            let t = eval_terms(cloth, objective, state, next, friction_b, &mut scratch, y, Some(&mut *grad))?;
+            let t =
+                eval_terms(&mut eval, cloth, objective, state, next, friction_b, &mut scratch, y, Some(&mut *grad))?;
             for (g, &p) in grad.iter_mut().zip(pinned) {
                 if p {
                     *g = [T::ZERO; 3];
@@ -213,10 +230,11 @@ impl<T: Real> ImplicitStep<T> {
         if body.is_none() && (objective.collision.is_some() || objective.friction.is_some()) {
             return Err(Error::Empty { what: "body (collision or friction enabled)" });
         }
-        let Self { near_cur, near_a, near_b, near_hint, x32, .. } = self;
-        let mut scratch = Contacts { near_cur, near_a, near_b, near_hint, x32 };
-        let friction_b = prepare_contacts(objective, state, body, &mut scratch);
-        eval_terms(cloth, objective, state, body.map(|b| b.next), friction_b, &mut scratch, x, None)
+        let Self { near_cur, near_a, near_b, x32, tasks, .. } = self;
+        let mut scratch = Contacts { near_cur, near_a, near_b, x32 };
+        let friction_b = prepare_contacts(&Serial, objective, state, body, &mut scratch);
+        let mut eval = Eval { exec: &Serial, tasks: tasks.as_mut() };
+        eval_terms(&mut eval, cloth, objective, state, body.map(|b| b.next), friction_b, &mut scratch, x, None)
     }
 }
 
@@ -227,18 +245,49 @@ struct Contacts<'a> {
     /// Friction's nearest faces of the last evaluated `x` (at `B_b`); they start as those of
     /// `pos` at `B_a`, the hints of the first search.
     near_b: &'a mut [u32],
-    /// Search hints (a copy of the collision faces being refreshed).
-    near_hint: &'a mut [u32],
     x32: &'a mut [[f32; 3]],
 }
 
 /// What friction needs per evaluation: the query at `B_b` and the two frames.
-type FrictionFramesOf<'a, T> = (&'a dyn CentroidQuery, FaceFrame<'a, T>, FaceFrame<'a, T>);
+type FrictionFramesOf<'a, T> = (&'a Query, FaceFrame<'a, T>, FaceFrame<'a, T>);
+
+/// How the objective is evaluated: on `exec`, as tasks when the workspace has task buffers.
+struct Eval<'a, T: Real> {
+    exec: &'a dyn Executor,
+    tasks: Option<&'a mut ObjectiveTasks<T>>,
+}
+
+/// Nearest centroids of `query` for the points `points[i]` with `search(i)` true, searched from
+/// `out[i]` (the last answer) and written there; the others keep theirs. Split into tasks of
+/// `exec` by vertex.
+fn refresh_nearest(
+    exec: &dyn Executor,
+    query: &Query,
+    points: impl Fn(usize) -> [f32; 3] + Sync,
+    search: impl Fn(usize) -> bool + Sync,
+    out: &mut [u32],
+) {
+    let n = out.len();
+    let tasks = exec.parallelism().clamp(1, n.max(1));
+    let out = Disjoint::new(out);
+    exec.run(tasks, &|t| {
+        let r = split(n, tasks, t);
+        let first = r.start;
+        // SAFETY: the tasks' vertex ranges are disjoint.
+        let out = unsafe { out.range(r.clone()) };
+        for i in r {
+            if search(i) {
+                out[i - first] = query.nearest_hinted(points(i), out[i - first]);
+            }
+        }
+    });
+}
 
 /// Nearest faces of `pos` (collision at the current frame, friction at `B_a`), each search
 /// starting from the last call's answers (a step's garment moves little; the answers do not
 /// depend on the hints); friction's faces of `x` start as those of `pos`.
 fn prepare_contacts<'a, T: Real>(
+    exec: &dyn Executor,
     objective: &Objective,
     state: &StepState<'_, T>,
     body: Option<&StepBody<'a, T>>,
@@ -246,17 +295,16 @@ fn prepare_contacts<'a, T: Real>(
 ) -> Option<FrictionFramesOf<'a, T>> {
     let b = body?;
     to_f32(state.pos, c.x32);
-    c.near_hint.copy_from_slice(c.near_cur);
-    b.query_current.nearest_into_hinted(c.x32, c.near_hint, c.near_cur);
+    let x32 = &*c.x32;
+    refresh_nearest(exec, b.query_current, |i| x32[i], |_| true, c.near_cur);
     let fp = objective.friction.as_ref()?;
     let (qa, fa, qb, fb) = match fp.frames {
         FrictionFrames::CurrentNext => (b.query_current, b.current, b.query_next, b.next),
         FrictionFrames::PrevCurrent => (b.query_prev, b.prev, b.query_current, b.current),
     };
-    if core::ptr::addr_eq(qa, b.query_current) {
-        c.near_a.copy_from_slice(c.near_cur);
-    } else {
-        qa.nearest_into_hinted(c.x32, c.near_cur, c.near_a);
+    c.near_a.copy_from_slice(c.near_cur);
+    if !core::ptr::addr_eq(qa, b.query_current) {
+        refresh_nearest(exec, qa, |i| x32[i], |_| true, c.near_a);
     }
     c.near_b.copy_from_slice(c.near_a);
     Some((qb, fa, fb))
@@ -265,6 +313,7 @@ fn prepare_contacts<'a, T: Real>(
 /// The objective at `y`, refreshing friction's nearest faces of `y` first.
 #[allow(clippy::too_many_arguments)]
 fn eval_terms<T: Real>(
+    eval: &mut Eval<'_, T>,
     cloth: &Cloth<T>,
     objective: &Objective,
     state: &StepState<'_, T>,
@@ -283,13 +332,17 @@ fn eval_terms<T: Real>(
         // Only vertices within the radius at `B_a` can take part: the others' face at `B_b`
         // changes nothing, and keeps its last (valid) value.
         let nf = fa.centroids.len();
-        for (i, (p, y)) in state.pos.iter().zip(y).enumerate() {
-            let u = c.near_a[i] as usize;
-            if u >= nf || within_friction_radius(*p, fa.centroids[u], fp) {
-                c.near_b[i] = qb.nearest_hinted(y.map(|v| v.to_f64() as f32), c.near_b[i]);
-            }
-        }
+        let (pos, near_a) = (state.pos, &*c.near_a);
+        let point = |i: usize| y[i].map(|v| v.to_f64() as f32);
+        let search = |i: usize| {
+            let u = near_a[i] as usize;
+            u >= nf || within_friction_radius(pos[i], fa.centroids[u], fp)
+        };
+        refresh_nearest(eval.exec, qb, point, search, c.near_b);
         inputs.friction = Some(FrictionInput { frame_a: fa, frame_b: fb, nearest_a: c.near_a, nearest_b: c.near_b });
     }
-    objective.eval(cloth, &inputs, y, grad)
+    match eval.tasks.as_deref_mut() {
+        Some(tasks) => tasks.eval(eval.exec, objective, cloth, &inputs, y, grad),
+        None => objective.eval(cloth, &inputs, y, grad),
+    }
 }

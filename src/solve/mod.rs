@@ -10,7 +10,7 @@ mod lbfgs;
 mod push_out;
 mod relax;
 
-pub use implicit::{ImplicitStep, StepBody, StepState};
+pub use implicit::{ImplicitStep, Query, StepBody, StepState};
 pub use lbfgs::{Lbfgs, LbfgsParams, LbfgsReport, Termination};
 pub use push_out::push_out;
 pub use relax::{relax_rest_shape, RestBody};

@@ -1,8 +1,8 @@
 //! The optimiser of MODEL.md section 7: Adam, the step-decay learning-rate schedule and global
 //! gradient-norm clipping, over flat f32 parameter vectors.
 
-use crate::sim::par::{split, Disjoint};
-use crate::sim::{Executor, Serial};
+use crate::exec::par::{split, Disjoint};
+use crate::exec::{Executor, Serial};
 use alloc::vec;
 use alloc::vec::Vec;
 

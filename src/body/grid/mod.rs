@@ -25,10 +25,10 @@
 //! lowest point index wins. Results do not depend on the grid resolution.
 
 use crate::error::{Error, Result};
+use crate::exec::par::{split, Disjoint};
+use crate::exec::Executor;
 use crate::kernels::{Kernels, Tier};
 use crate::math::finite3;
-use crate::sim::par::{split, Disjoint};
-use crate::sim::Executor;
 use alloc::vec;
 use alloc::vec::Vec;
 use core::ops::Range;

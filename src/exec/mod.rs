@@ -1,5 +1,5 @@
-//! Intra-step parallelism: the step splits its row and edge loops into independent tasks and
-//! hands them to an [`Executor`]. An engine plugs in its job system (through the C ABI too);
+//! Intra-step parallelism: the step (network and solver alike) splits its loops into independent
+//! tasks and hands them to an [`Executor`]. An engine plugs in its job system (through the C ABI too);
 //! without one the step runs serially, and under `std` [`ThreadPool`] offers persistent worker
 //! threads that run a step's tasks without allocating.
 
@@ -33,6 +33,8 @@ unsafe impl Executor for Serial {
         }
     }
 }
+
+pub(crate) mod par;
 
 #[cfg(feature = "std")]
 pub use pool::ThreadPool;
