@@ -3,7 +3,7 @@
 //! measured in the same run.
 
 use crate::error::Result;
-use crate::kernels::{peak, Kernels};
+use crate::kernels::{peak, Kernels, Tier};
 use crate::model::file::Model;
 use crate::sim::{BodyDesc, Precision, Sim, SimConfig};
 use crate::workloads::Workload;
@@ -26,6 +26,8 @@ pub struct BenchRow {
     pub blocks: usize,
     /// Arithmetic.
     pub precision: Precision,
+    /// The kernel path the step ran on (for bf16, [`crate::kernels::bf16_choice`]).
+    pub tier: Tier,
     /// Threads.
     pub threads: usize,
     /// Median wall time per step, ms.
@@ -134,7 +136,10 @@ pub fn bench_step(
     let median_ms = times.get(times.len() / 2).copied().unwrap_or(f64::NAN);
     let flops = sim.last_step_flops();
     let gflops = flops as f64 / (median_ms * 1e-3) / 1e9;
-    let per_core = if precision == Precision::Bf16 { peak.bf16_gflops } else { peak.f32_gflops };
+    // The peak of the arithmetic the step ran: bf16 widened onto f32 FMAs peaks as f32 does.
+    let tier = sim.tier();
+    let native_bf16 = precision == Precision::Bf16 && tier == Tier::Avx512Bf16 && peak.bf16_native;
+    let per_core = if native_bf16 { peak.bf16_gflops } else { peak.f32_gflops };
     let peak_gflops = per_core * threads as f64;
     Ok(BenchRow {
         workload: w.name.clone(),
@@ -143,6 +148,7 @@ pub fn bench_step(
         latent: model.spec().latent,
         blocks: model.spec().blocks.len(),
         precision,
+        tier,
         threads,
         median_ms,
         min_ms: times.first().copied().unwrap_or(f64::NAN),

@@ -266,6 +266,9 @@ fn bench(a: BenchArgs) -> hood::Result<()> {
         peak.f32_gflops,
         peak.bf16_gflops
     );
+    if precisions.contains(&Precision::Bf16) {
+        eprintln!("{}", hood::kernels::bf16_choice().describe());
+    }
     if a.threads.iter().any(|&t| t > 1) {
         if let Some(ns) = core_to_core_ns() {
             eprintln!("core-to-core latency: {ns:.0} ns one way (about 35: threads share an L3; 170-200: across chiplets, slower 2-thread steps; more: a busy machine)");
@@ -295,12 +298,13 @@ fn bench(a: BenchArgs) -> hood::Result<()> {
 fn print_row(r: &BenchRow, header: bool) {
     if header {
         say!(
-            "{:<9} {:>6} {:>6} {:>4} {:>5} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6}",
+            "{:<9} {:>6} {:>6} {:>4} {:>5} {:>10} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6}",
             "workload",
             "verts",
             "bodyE",
             "h",
             "prec",
+            "tier",
             "thr",
             "median ms",
             "GFLOP/step",
@@ -310,12 +314,13 @@ fn print_row(r: &BenchRow, header: bool) {
         );
     }
     say!(
-        "{:<9} {:>6} {:>6} {:>4} {:>5} {:>3} {:>10.2} {:>10.3} {:>9.1} {:>8.1} {:>5.0}%",
+        "{:<9} {:>6} {:>6} {:>4} {:>5} {:>10} {:>3} {:>10.2} {:>10.3} {:>9.1} {:>8.1} {:>5.0}%",
         r.workload,
         r.vertices,
         r.body_edges,
         r.latent,
         if r.precision == Precision::Bf16 { "bf16" } else { "f32" },
+        r.tier.name(),
         r.threads,
         r.median_ms,
         r.flops as f64 / 1e9,
@@ -341,6 +346,7 @@ fn to_json(rows: &[BenchRow], peak: &hood::kernels::peak::Peak) -> String {
         latent: usize,
         blocks: usize,
         precision: &'static str,
+        tier: &'static str,
         threads: usize,
         median_ms: f64,
         min_ms: f64,
@@ -363,6 +369,7 @@ fn to_json(rows: &[BenchRow], peak: &hood::kernels::peak::Peak) -> String {
             latent: r.latent,
             blocks: r.blocks,
             precision: if r.precision == Precision::Bf16 { "bf16" } else { "f32" },
+            tier: r.tier.name(),
             threads: r.threads,
             median_ms: r.median_ms,
             min_ms: r.min_ms,

@@ -9,12 +9,16 @@
 //! read once under `std`) caps the tier, and [`Kernels::with_tier`] picks one explicitly, so one
 //! machine can test every path it has.
 //!
-//! bf16 weights on a CPU without AVX-512-BF16 run on f32 FMAs: the weights are widened once
+//! bf16 weights run on whichever of `vdpbf16ps` and widened f32 FMAs is faster on the running
+//! CPU, measured once ([`bf16_choice`], [`Kernels::best_bf16`]).
+//!
+//! bf16 weights on a tier without AVX-512-BF16 run on f32 FMAs: the weights are widened once
 //! per call into caller scratch and the activations rounded to bf16 first, so every tier computes the same products
 //! (exact in f32) and differs only in summation order.
 //!
 //! All kernels write into caller buffers and never allocate.
 
+mod choose;
 mod frame;
 
 /// Row statistics shared with the trainer, so both normalise with the same arithmetic.
@@ -30,6 +34,8 @@ mod tests;
 mod x86;
 
 use core::sync::atomic::{AtomicU8, Ordering};
+
+pub use choose::{bf16_choice, Bf16Choice, Bf16Reason, WIDEN_MARGIN};
 
 pub use pack::{
     pack_bf16, pack_f32, packed_len_bf16, packed_len_f32, padded_cols, PackedBf16, PackedF32, Weights, PANEL,

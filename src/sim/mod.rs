@@ -140,7 +140,8 @@ pub struct SimConfig {
     /// Run the start-up (relaxation) step with a static body and dt = 1/3 s before the first
     /// regular step (MODEL.md section 5).
     pub startup: bool,
-    /// Kernel path cap (`None`: the best this CPU has).
+    /// Kernel path cap (`None`: the best this CPU has; for bf16, the faster of its native and
+    /// widened paths, [`crate::kernels::bf16_choice`]).
     pub tier: Option<Tier>,
     /// Teleport threshold, metres: when the body's centroid, or some body vertex beyond what
     /// the speed limit carries, moves farther than this in one frame, the garment is carried
@@ -355,6 +356,8 @@ impl<'m> Sim<'m> {
             return Err(Error::UnsupportedEffect { effect: "per-vertex materials" });
         }
         let kernels = match cfg.tier {
+            // bf16 weights on whichever of vdpbf16ps and widened f32 FMAs is faster here.
+            None if cfg.precision == Precision::Bf16 => Kernels::best_bf16(),
             None => Kernels::best(),
             Some(t) => Kernels::with_tier(t.min(Kernels::best().tier())).unwrap_or(Kernels::scalar()),
         };
