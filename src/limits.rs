@@ -23,9 +23,10 @@ pub const MAX_VERTICES: usize = 1 << 24;
 /// triangles as vertices).
 pub const MAX_FACES: usize = 1 << 25;
 
-/// Most joint samples (frames times joints) of one motion clip, 2^26: a 100-joint skeleton over
-/// 670,000 frames (6 hours at 30 Hz).
-pub const MAX_MOTION_SAMPLES: usize = 1 << 26;
+/// Most joint samples (frames times joints) of one motion clip, read or resampled, 2^24 (470 MB
+/// of rotations and translations): a 100-joint skeleton over 167,000 frames (90 minutes at
+/// 30 Hz).
+pub const MAX_MOTION_SAMPLES: usize = 1 << 24;
 
 /// Most bytes of a model: the file itself, and the weights its shape needs (f32 and bf16 copies
 /// of every parameter), 1 GiB. A file whose spec would need more is refused on load, before its

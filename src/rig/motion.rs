@@ -144,7 +144,9 @@ impl Clip {
     /// slerp, translations linearly. The last output frame is at or before the last input frame.
     ///
     /// # Errors
-    /// [`Error::OutOfRange`] for a rate that is not positive.
+    /// [`Error::OutOfRange`] for a rate that is not positive; [`Error::CapacityExceeded`] when
+    /// the resampled clip would hold more than [`crate::limits::MAX_MOTION_SAMPLES`] joint
+    /// samples (a long frame time at a high rate), before anything is allocated.
     pub fn resample(&self, fps: f32) -> Result<Clip> {
         if !(fps > 0.0 && fps.is_finite()) {
             return Err(Error::OutOfRange { what: "frame rate", index: 0 });
@@ -152,7 +154,16 @@ impl Clip {
         let nj = self.joints.len();
         let step = 1.0 / fps as f64;
         let dt = self.frame_time as f64;
-        let m = ((self.n_frames - 1) as f64 * dt / step + 1e-6) as usize + 1;
+        let frames = ((self.n_frames - 1) as f64 * dt / step + 1e-6).floor() + 1.0;
+        let samples = frames * nj as f64;
+        if samples > crate::limits::MAX_MOTION_SAMPLES as f64 {
+            return Err(Error::CapacityExceeded {
+                what: "resampled clip joint samples (frames x joints)",
+                capacity: crate::limits::MAX_MOTION_SAMPLES,
+                needed: samples.min(usize::MAX as f64) as usize,
+            });
+        }
+        let m = frames as usize;
         let mut rotations = Vec::with_capacity(m * nj);
         let mut translations = Vec::with_capacity(m * nj);
         for k in 0..m {

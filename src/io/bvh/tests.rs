@@ -125,11 +125,11 @@ fn bvh_resamples_to_30_hz() {
 
 #[test]
 fn bvh_frame_counts_beyond_the_file_or_the_sample_bound_are_refused_unallocated() {
-    // 10^8 frames declared in a file of two: refused before the frames are allocated.
+    // 10^8 frames declared in a file of two: refused without reserving room for them.
     let e = parse(&SMALL.replacen("Frames: 2", "Frames: 100000000", 1)).unwrap_err();
-    assert!(e.to_string().contains("100000000 frames declared, but only"), "{e}");
+    assert!(e.to_string().contains("100000000 frames declared, 2 found"), "{e}");
     // 5,000 joints (siblings, one with channels) over 14,000 frames: 7 * 10^7 joint samples,
-    // beyond MAX_MOTION_SAMPLES, although the file is under 200 kB.
+    // beyond MAX_MOTION_SAMPLES, although the file is under 250 kB.
     let mut text = String::from("HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 1 Xrotation\n");
     for j in 0..4999 {
         text.push_str(&alloc::format!("JOINT j{j}\n{{\nOFFSET 0 0 0\nCHANNELS 0\n}}\n"));
@@ -140,4 +140,19 @@ fn bvh_frame_counts_beyond_the_file_or_the_sample_bound_are_refused_unallocated(
     }
     let e = parse(&text).unwrap_err();
     assert!(matches!(e, Error::CapacityExceeded { needed: 70_000_000, .. }), "{e}");
+}
+
+#[test]
+fn bvh_with_a_huge_frame_time_is_refused_when_resampled_not_allocated() {
+    // Found by the bvh fuzz target: three frames 6,066,666 s apart, resampled at 30 Hz, asked
+    // for 5.5 * 10^8 frames (5.8 GB) before this was bounded.
+    let text = SMALL.replacen("Frame Time: 0.05", "Frame Time: 06066666", 1);
+    let clip = parse(&text).unwrap();
+    let e = clip.resample(30.0).unwrap_err();
+    assert!(matches!(e, Error::CapacityExceeded { capacity: crate::limits::MAX_MOTION_SAMPLES, .. }), "{e}");
+    assert!(parse(SMALL).unwrap().resample(30.0).is_ok());
+    // Also found by it: 606,666 s between frames, 3.6 * 10^7 frames at 30 Hz (1 GB, a minute
+    // to fill under the sanitizer) while MAX_MOTION_SAMPLES was 2^26.
+    let text = SMALL.replacen("Frame Time: 0.05", "Frame Time: 0606666", 1);
+    assert!(matches!(parse(&text).unwrap().resample(30.0), Err(Error::CapacityExceeded { .. })));
 }
