@@ -154,7 +154,7 @@ impl Clip {
         let nj = self.joints.len();
         let step = 1.0 / fps as f64;
         let dt = self.frame_time as f64;
-        let frames = ((self.n_frames - 1) as f64 * dt / step + 1e-6).floor() + 1.0;
+        let frames = libm::floor((self.n_frames - 1) as f64 * dt / step + 1e-6) + 1.0;
         let samples = frames * nj as f64;
         if samples > crate::limits::MAX_MOTION_SAMPLES as f64 {
             return Err(Error::CapacityExceeded {

@@ -173,7 +173,8 @@ pub struct SimConfig {
     pub step: StepMode,
     /// Threads for the step's parallel parts when no executor is plugged in with
     /// [`Sim::set_executor`]: 1 runs serially; more (up to [`MAX_THREADS`]) starts a
-    /// [`ThreadPool`] (feature `std`), with fewer workers if the system refuses some. The
+    /// [`ThreadPool`] (feature `std`) of at most the machine's hardware threads, with fewer
+    /// workers if the system refuses some. The
     /// network and the solver (step mode and refinement) both use them, and give the same bits
     /// for any number of threads.
     pub threads: usize,
@@ -1056,10 +1057,15 @@ fn excess_motion(d: [f32; 3], limit: f32) -> [f32; 3] {
     d.map(|v| v * s)
 }
 
+/// The executor of [`SimConfig::threads`]: serial, or a pool of at most as many threads as the
+/// machine runs at once (more would only make the step's workers wait for each other).
 fn default_executor<'m>(threads: usize) -> Box<dyn Executor + 'm> {
     #[cfg(feature = "std")]
     if threads > 1 {
-        return Box::new(ThreadPool::new(threads));
+        let threads = crate::limits::cap_threads(threads);
+        if threads > 1 {
+            return Box::new(ThreadPool::new(threads));
+        }
     }
     let _ = threads;
     Box::new(Serial)
