@@ -377,6 +377,9 @@ impl Kernels {
         let k_e = mlp.w1_edge.k();
         let h = mlp.w1_edge.n();
         let bf = mlp.w1_edge.is_bf16();
+        if h == 0 {
+            return Err(Error::IncompatibleModel { reason: "edge MLP of width 0" });
+        }
         if mlp.w2.k() != h || mlp.w2.n() != h || mlp.w3.k() != h || mlp.w3.n() != k_e {
             return Err(Error::IncompatibleModel { reason: "edge MLP layer widths do not chain" });
         }
@@ -393,8 +396,11 @@ impl Kernels {
         let n_edges = edges.target.len();
         size_check("edge sources", n_edges, edges.source.len())?;
         size_check("edge latents", n_edges * k_e, latent.len())?;
-        if !edges.p_target.len().is_multiple_of(h) || !edges.p_source.len().is_multiple_of(h) {
-            return Err(Error::SizeMismatch { what: "node projections (multiple of h)", expected: h, got: 0 });
+        for (what, len) in [
+            ("target-node projections (a multiple of h)", edges.p_target.len()),
+            ("source-node projections (a multiple of h)", edges.p_source.len()),
+        ] {
+            size_check(what, len.next_multiple_of(h), len)?;
         }
         let n_t = edges.p_target.len() / h;
         let n_s = edges.p_source.len() / h;
@@ -432,9 +438,7 @@ pub fn aggregate(messages: &[f32], width: usize, offsets: &[u32], out: &mut [f32
     if width == 0 {
         return Ok(());
     }
-    if !messages.len().is_multiple_of(width) {
-        return Err(Error::SizeMismatch { what: "aggregate messages (multiple of width)", expected: width, got: 0 });
-    }
+    size_check("aggregate messages (a multiple of width)", messages.len().next_multiple_of(width), messages.len())?;
     let edges = messages.len() / width;
     for (r, w) in offsets.windows(2).enumerate() {
         if w[0] > w[1] || w[1] as usize > edges {

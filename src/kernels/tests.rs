@@ -597,3 +597,11 @@ fn kernels_peak_is_positive() {
     );
     assert!(p.f32_gflops > 0.1 && p.bf16_gflops > 0.1);
 }
+
+/// A node-projection or message buffer that is not a whole number of rows is refused with the
+/// lengths it has and needs (not a made-up zero).
+#[test]
+fn kernels_ragged_buffers_name_their_lengths() {
+    let got = aggregate(&[0.0; 7], 3, &[0, 1, 2], &mut [0.0; 6], false).unwrap_err();
+    assert_eq!(got, Error::SizeMismatch { what: "aggregate messages (a multiple of width)", expected: 9, got: 7 });
+}
