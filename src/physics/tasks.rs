@@ -99,8 +99,9 @@ impl<T: Real> ObjectiveTasks<T> {
     /// Allocates nothing.
     ///
     /// # Errors
-    /// As [`Objective::eval`]; [`Error::SizeMismatch`] for a `cloth` other than the one these
-    /// buffers were made for.
+    /// As [`Objective::eval`]; for a `cloth` other than the one these buffers were made for,
+    /// [`Error::SizeMismatch`] (other counts) or, when the gradient is asked for,
+    /// [`Error::OutOfRange`] (the same counts, another topology).
     pub fn eval(
         &mut self,
         exec: &dyn Executor,
