@@ -66,7 +66,7 @@ impl Normaliser {
             .zip(&self.sum)
             .map(|(sq, s)| {
                 let m = s / n;
-                (libm::sqrt((sq / n - m * m).max(0.0)) as f32).max(STD_EPSILON)
+                (crate::math::sqrt_f64((sq / n - m * m).max(0.0)) as f32).max(STD_EPSILON)
             })
             .collect();
         NormStats { mean, std }

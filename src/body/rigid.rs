@@ -79,9 +79,9 @@ fn top_eigenvector(a: &mut [[f64; 4]; 4]) -> [f64; 4] {
                     continue;
                 }
                 let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-                let t = theta.signum() / (theta.abs() + libm::sqrt(theta * theta + 1.0));
+                let t = theta.signum() / (theta.abs() + crate::math::sqrt_f64(theta * theta + 1.0));
                 let t = if theta == 0.0 { 1.0 } else { t };
-                let c = 1.0 / libm::sqrt(t * t + 1.0);
+                let c = 1.0 / crate::math::sqrt_f64(t * t + 1.0);
                 let s = t * c;
                 for k in 0..4 {
                     let (akp, akq) = (a[k][p], a[k][q]);

@@ -31,7 +31,7 @@ impl BodySurvey {
     /// `e`, the point farthest from the corners is `e / √3` from them (an equilateral face), so
     /// the typical face has points without a body vertex within `radius` once `e > √3 · radius`.
     pub fn too_coarse_for(&self, radius: f32) -> bool {
-        self.median_edge > libm::sqrtf(3.0) * radius
+        self.median_edge > crate::math::sqrt_f32(3.0) * radius
     }
 }
 
@@ -63,7 +63,7 @@ impl BodyMesh {
             volume += (a[0] * cross[0] + a[1] * cross[1] + a[2] * cross[2]) / 6.0;
             for (p, q) in [(a, b), (b, c), (c, a)] {
                 let d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
-                edges.push(libm::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) as f32);
+                edges.push(crate::math::sqrt_f64(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) as f32);
             }
         }
         let mid = edges.len() / 2;

@@ -186,10 +186,10 @@ fn body_query_radius_is_inclusive() {
     let exact = d2(pts[1], q);
     assert_eq!(exact, d2(pts[2], q));
     assert!(d2(pts[0], q) > exact);
-    grid.nearest_within(&[q], libm::sqrtf(exact), &mut out).unwrap();
+    grid.nearest_within(&[q], crate::math::sqrt_f32(exact), &mut out).unwrap();
     assert_eq!(out[0].map(|n| n.index), Some(1));
     // Just below: nothing.
-    grid.nearest_within(&[q], f32::from_bits(libm::sqrtf(exact).to_bits() - 1), &mut out).unwrap();
+    grid.nearest_within(&[q], f32::from_bits(crate::math::sqrt_f32(exact).to_bits() - 1), &mut out).unwrap();
     assert_eq!(out[0], None, "a radius below the distance must find nothing");
     // Without point 1, the equally distant point 2 is found, never the farther point 0.
     grid.rebuild(&[pts[0], pts[3], pts[2]]).unwrap();

@@ -179,7 +179,7 @@ fn brute_candidates(adj: &[BTreeSet<u32>], component: &[u32], n_components: usiz
 /// random meshes of the kinds generated here, `(kept - m / 2) / sqrt(m)` peaked at 1.7 without
 /// holes and 2.1 with them (a level-2 graph of 89 nodes keeping 64).
 fn shrink_bound(m: usize) -> usize {
-    m / 2 + (2.5 * libm::sqrt(m as f64)) as usize + 1
+    m / 2 + (2.5 * crate::math::sqrt_f64(m as f64)) as usize + 1
 }
 
 /// Checks every structural property of `h` built on the graph `(n, edges)` with components
@@ -265,7 +265,7 @@ fn hierarchy_large_grid_halves_per_level() {
     let mut before = g.n_vertices() as f64;
     for level in h.levels() {
         let now = level.nodes.len() as f64;
-        assert!(now <= 0.5 * before + 1.5 * libm::sqrt(before), "{now} of {before} nodes kept");
+        assert!(now <= 0.5 * before + 1.5 * crate::math::sqrt_f64(before), "{now} of {before} nodes kept");
         assert!(now >= 0.4 * before, "{now} of {before} nodes kept");
         before = now;
     }

@@ -72,7 +72,7 @@ pub(crate) fn layer_norm_stats(y: &[f32]) -> (f32, f32) {
     let n = y.len() as f32;
     let mean = lane_sum(y, |v| v) / n;
     let var = lane_sum(y, |v| (v - mean) * (v - mean)) / n;
-    (mean, 1.0 / libm::sqrtf(var + LN_EPS))
+    (mean, 1.0 / crate::math::sqrt_f32(var + LN_EPS))
 }
 
 /// [`layer_norm_stats`] of consecutive rows of `width` values (`stats` gets one entry per row).

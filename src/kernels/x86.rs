@@ -101,10 +101,18 @@ unsafe fn layer_norm_stats_rows_avx(y: &[f32], width: usize, stats: &mut [(f32, 
                     acc[r] = _mm256_add_ps(acc[r], _mm256_mul_ps(d, d));
                 }
             }
+            let mut var_eps = [0.0f32; R];
             for r in 0..R {
                 let (m, tail) = (mean[r], &y[(r0 + r) * width + full..(r0 + r + 1) * width]);
                 let var = finish(acc[r], tail.iter().fold(0.0f32, |t, v| t + (v - m) * (v - m))) / n;
-                stats[r0 + r] = (m, 1.0 / libm::sqrtf(var + super::LN_EPS));
+                var_eps[r] = var + super::LN_EPS;
+            }
+            // The four square roots and divisions in one vector each: correctly rounded per
+            // lane, so the same bits as the portable `1 / sqrt(var + eps)`.
+            let mut inv = [0.0f32; R];
+            _mm_storeu_ps(inv.as_mut_ptr(), _mm_div_ps(_mm_set1_ps(1.0), _mm_sqrt_ps(_mm_loadu_ps(var_eps.as_ptr()))));
+            for r in 0..R {
+                stats[r0 + r] = (mean[r], inv[r]);
             }
             r0 += R;
         }

@@ -270,7 +270,7 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
 
 fn cross_norm(a: [f64; 3], b: [f64; 3]) -> f64 {
     let c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-    libm::sqrt(dot(c, c))
+    crate::math::sqrt_f64(dot(c, c))
 }
 
 /// True when the triangle's height is below [`DEGENERATE_RATIO`] of its longest edge.
@@ -287,11 +287,11 @@ pub fn is_degenerate(rest: &[[f32; 3]], f: &[u32; 3]) -> bool {
 fn rest_frame(rest: &[[f32; 3]], f: &[u32; 3]) -> ([[f32; 2]; 2], f64) {
     let (x0, x1, x2) = (corner(rest, f[0]), corner(rest, f[1]), corner(rest, f[2]));
     let (e0, e1) = (sub(x0, x2), sub(x1, x2));
-    let l0 = libm::sqrt(dot(e0, e0));
+    let l0 = crate::math::sqrt_f64(dot(e0, e0));
     let b0 = e0.map(|c| c / l0);
     let p = dot(e1, b0);
     let perp = [e1[0] - p * b0[0], e1[1] - p * b0[1], e1[2] - p * b0[2]];
-    let lp = libm::sqrt(dot(perp, perp));
+    let lp = crate::math::sqrt_f64(dot(perp, perp));
     let b1 = perp.map(|c| c / lp);
     // Dm = [[E0.b0, E1.b0], [E0.b1, E1.b1]]
     let (a, b, c, d) = (l0, p, dot(e0, b1), dot(e1, b1));

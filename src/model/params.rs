@@ -26,7 +26,7 @@ pub struct Linear {
 impl Linear {
     /// PyTorch's default initialisation: weight and bias uniform in `±1/sqrt(in)`.
     pub fn init(inp: usize, out: usize, rng: &mut Rng) -> Linear {
-        let bound = 1.0 / libm::sqrt(inp.max(1) as f64);
+        let bound = 1.0 / crate::math::sqrt_f64(inp.max(1) as f64);
         let weight = (0..inp * out).map(|_| rng.uniform(-bound, bound) as f32).collect();
         let bias = (0..out).map(|_| rng.uniform(-bound, bound) as f32).collect();
         Linear { inp, out, weight, bias }

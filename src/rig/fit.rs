@@ -422,7 +422,7 @@ fn normal_offsets(n: usize, seed: u64) -> Vec<Vec3> {
     };
     let mut normal = move || {
         let (u, v) = (uniform(), uniform());
-        (libm::sqrt(-2.0 * libm::log(u)) * libm::cos(core::f64::consts::TAU * v)) as f32
+        (crate::math::sqrt_f64(-2.0 * libm::log(u)) * libm::cos(core::f64::consts::TAU * v)) as f32
     };
     (0..n).map(|_| Vec3::new(normal(), normal(), normal())).collect()
 }

@@ -22,7 +22,7 @@ pub fn step_decay(base: f64, halving: u64, step: u64) -> f64 {
 /// Scales `grad` so that its L2 norm is at most `max_norm`; returns the norm before clipping.
 /// A non-finite norm leaves `grad` unchanged (the caller decides to skip the step).
 pub fn clip_global_norm(grad: &mut [f32], max_norm: f64) -> f64 {
-    let norm = libm::sqrt(grad.iter().map(|&g| (g as f64) * (g as f64)).sum::<f64>());
+    let norm = crate::math::sqrt_f64(grad.iter().map(|&g| (g as f64) * (g as f64)).sum::<f64>());
     if norm.is_finite() && norm > max_norm {
         let s = (max_norm / norm) as f32;
         grad.iter_mut().for_each(|g| *g *= s);
@@ -67,7 +67,7 @@ impl Adam {
         let bc1 = 1.0 - libm::pow(self.beta1, self.t as f64);
         let bc2 = 1.0 - libm::pow(self.beta2, self.t as f64);
         let step = (lr / bc1) as f32;
-        let inv_sqrt_bc2 = (1.0 / libm::sqrt(bc2)) as f32;
+        let inv_sqrt_bc2 = (1.0 / crate::math::sqrt_f64(bc2)) as f32;
         let eps = self.eps as f32;
         let n = theta.len().min(grad.len()).min(self.m.len()).min(self.v.len());
         let (th, ms, vs) = (Disjoint::new(theta), Disjoint::new(&mut self.m), Disjoint::new(&mut self.v));
@@ -104,7 +104,7 @@ mod tests {
         let mut g: Vec<f32> = (0..1000).map(|i| ((i * 37 % 101) as f32 - 50.0) * 0.1).collect();
         let before = clip_global_norm(&mut g, 1.0);
         assert!(before > 10.0);
-        let after = libm::sqrt(g.iter().map(|&x| (x as f64).powi(2)).sum::<f64>());
+        let after = crate::math::sqrt_f64(g.iter().map(|&x| (x as f64).powi(2)).sum::<f64>());
         assert!((after - 1.0).abs() < 1e-6, "norm after clipping {after}");
         // Below the cap: untouched.
         let mut small = vec![0.3f32, -0.4];

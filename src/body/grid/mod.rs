@@ -28,7 +28,7 @@ use crate::error::{Error, Result};
 use crate::exec::par::{split, Disjoint};
 use crate::exec::Executor;
 use crate::kernels::{Kernels, Tier};
-use crate::math::finite3;
+use crate::math::{finite3, sqrt_f32};
 use alloc::vec;
 use alloc::vec::Vec;
 use core::ops::Range;
@@ -433,7 +433,7 @@ impl PointGrid {
                 return found(self.search::<B>(q, (hint, d2)));
             }
         }
-        let lower = sqrt(box_dist2(q, self.lo, self.hi));
+        let lower = sqrt_f32(box_dist2(q, self.lo, self.hi));
         if lower > FAR_CELLS * self.cell {
             // Far outside: the nearest of one point per block bounds the answer within about a
             // block; the block boxes then prune most blocks.
@@ -464,7 +464,7 @@ impl PointGrid {
         // Radius searches with a growing radius: the first that finds a point has found the
         // nearest.
         let ext = [self.hi[0] - self.lo[0], self.hi[1] - self.lo[1], self.hi[2] - self.lo[2]];
-        let diag = sqrt(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]);
+        let diag = sqrt_f32(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]);
         let mut step = 2.0 * self.cell;
         loop {
             let r = lower + step;
@@ -695,7 +695,7 @@ impl PointGrid {
     /// A squared distance widened by the rounding slack, for pruning comparisons.
     #[inline(always)]
     fn padded(&self, d2: f32) -> f32 {
-        let d = sqrt(d2) * (1.0 + 1e-5) + self.pad;
+        let d = sqrt_f32(d2) * (1.0 + 1e-5) + self.pad;
         d * d
     }
 
@@ -825,7 +825,7 @@ impl PointGrid {
                 if rest < 0.0 {
                     continue;
                 }
-                let r = sqrt(rest);
+                let r = sqrt_f32(rest);
                 let x0 = cell_index((q[0] - r - self.lo[0]) * self.inv_edge[0], last).max(origin[0]);
                 let x1 = cell_index((q[0] + r - self.lo[0]) * self.inv_edge[0], last);
                 if x0 > x1 {
@@ -870,7 +870,7 @@ impl PointGrid {
                 if rest < 0.0 {
                     continue;
                 }
-                let r = sqrt(rest);
+                let r = sqrt_f32(rest);
                 let x0 = cell_index((q[0] - r - self.lo[0]) * self.inv_edge[0], last);
                 let x1 = cell_index((q[0] + r - self.lo[0]) * self.inv_edge[0], last);
                 let row = dims[0] * (y + dims[1] * z);
@@ -927,7 +927,7 @@ impl PointGrid {
     /// Cell coordinates (clamped into the grid) of the box around `q` reaching `sqrt(d2)`.
     #[inline(always)]
     fn cell_range(&self, q: [f32; 3], d2: f32) -> ([usize; 3], [usize; 3]) {
-        let r = sqrt(self.padded(d2));
+        let r = sqrt_f32(self.padded(d2));
         let lo = cell_of_clamped([q[0] - r, q[1] - r, q[2] - r], self.lo, self.inv_edge, self.blocks);
         let hi = cell_of_clamped([q[0] + r, q[1] + r, q[2] + r], self.lo, self.inv_edge, self.blocks);
         (lo, hi)
@@ -1147,7 +1147,7 @@ fn in_chunks<T: Send>(
 /// A search result as a [`Nearest`].
 #[inline(always)]
 fn found((i, d2): (u32, f32)) -> Option<Nearest> {
-    (i != NONE).then(|| Nearest { index: i, distance: sqrt(d2) })
+    (i != NONE).then(|| Nearest { index: i, distance: sqrt_f32(d2) })
 }
 
 /// Takes `(i, d2)` if it is nearer, or as near with a lower index.
@@ -1524,22 +1524,5 @@ mod x86 {
             let bi = _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bi), _mm256_castsi256_ps(i), take));
             (bd, bi)
         }
-    }
-}
-
-/// `√x` by the `sqrtss` instruction (the same IEEE result as `libm::sqrtf`), as an intrinsic so
-/// that it takes the VEX form inside the AVX2 search: the legacy form there stalls on the
-/// upper halves of the vector registers.
-#[inline(always)]
-fn sqrt(x: f32) -> f32 {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use core::arch::x86_64::{_mm_cvtss_f32, _mm_set_ss, _mm_sqrt_ss};
-        // SAFETY: SSE is part of the x86-64 baseline.
-        unsafe { _mm_cvtss_f32(_mm_sqrt_ss(_mm_set_ss(x))) }
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        libm::sqrtf(x)
     }
 }

@@ -16,8 +16,8 @@
 //! for the chord and the distance, each point through the same lexicographic minimum. The answer is therefore the single search's, bit for bit,
 //! whether a tile is taken or not.
 
-use super::{cell_index, cell_of_clamped, fmax, fmin, slab_gap, sqrt, PointGrid, LANES, NONE};
-use crate::math::finite3;
+use super::{cell_index, cell_of_clamped, fmax, fmin, slab_gap, PointGrid, LANES, NONE};
+use crate::math::{finite3, sqrt_f32};
 
 /// Queries per tile: one per lane.
 pub(super) const TILE: usize = LANES;
@@ -113,7 +113,7 @@ impl TileBest for PortableTile {
             let (dz, dy) = (slab_gap(q[2], z), slab_gap(q[1], y));
             let rest = r2 - dz * dz - dy * dy;
             if rest >= 0.0 {
-                let r = sqrt(rest);
+                let r = sqrt_f32(rest);
                 lo = fmin(lo, q[0] - r);
                 hi = fmax(hi, q[0] + r);
             }
@@ -152,7 +152,7 @@ impl PointGrid {
         let mut reach2 = [f32::NAN; TILE];
         for ((q, s), r2) in queries.iter().zip(start).zip(reach2.iter_mut()) {
             *r2 = self.padded(s.1);
-            let r = sqrt(*r2);
+            let r = sqrt_f32(*r2);
             for a in 0..3 {
                 lo[a] = fmin(lo[a], q[a] - r);
                 hi[a] = fmax(hi[a], q[a] + r);

@@ -178,13 +178,13 @@ const G: f32 = crate::physics::GRAVITY as f32;
 
 /// Time in the air of a ballistic flight `h` metres high, s.
 fn flight_time(h: f32) -> f32 {
-    libm::sqrtf(8.0 * h / G)
+    crate::math::sqrt_f32(8.0 * h / G)
 }
 
 /// Height of a ballistic flight `h` metres high, `t` seconds after take-off (0 outside the
 /// flight): the body in the air falls exactly as gravity makes it.
 fn ballistic(h: f32, t: f32) -> f32 {
-    let v0 = libm::sqrtf(2.0 * G * h);
+    let v0 = crate::math::sqrt_f32(2.0 * G * h);
     if (0.0..=flight_time(h)).contains(&t) {
         (v0 * t - 0.5 * G * t * t).max(0.0)
     } else {
