@@ -138,7 +138,7 @@ pub fn bench_step(
     let gflops = flops as f64 / (median_ms * 1e-3) / 1e9;
     // The peak of the arithmetic the step ran: bf16 widened onto f32 FMAs peaks as f32 does.
     let tier = sim.tier();
-    let native_bf16 = precision == Precision::Bf16 && tier == Tier::Avx512Bf16 && peak.bf16_native;
+    let native_bf16 = precision == Precision::Bf16 && tier >= Tier::Avx512Bf16 && peak.bf16_native;
     let per_core = if native_bf16 { peak.bf16_gflops } else { peak.f32_gflops };
     let peak_gflops = per_core * threads as f64;
     Ok(BenchRow {

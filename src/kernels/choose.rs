@@ -1,7 +1,8 @@
 //! Which tier runs bf16 weights, chosen by measurement.
 //!
-//! On a CPU with AVX-512-BF16, bf16 weights run either with `vdpbf16ps` ([`Tier::Avx512Bf16`]) or
-//! widened onto f32 FMAs ([`Tier::Avx512`]); both compute the same products, exactly, and differ
+//! On a CPU with AVX-512-BF16, bf16 weights run either natively, with `vdpbf16ps`
+//! ([`Tier::Avx512Bf16`]) or on the AMX tiles where the CPU has them ([`Tier::Amx`]), or widened
+//! onto f32 FMAs ([`Tier::Avx512`]); all compute the same products, exactly, and differ
 //! only in summation order. Which is faster depends on the core: where `vdpbf16ps` issues at half
 //! the FMA rate (Intel server cores with two FMA units) the widened path wins, where it issues at
 //! the FMA rate (AMD Zen 4) the native one does. So the first call times the edge MLP both ways
@@ -45,19 +46,24 @@ pub struct Bf16Choice {
 impl Bf16Choice {
     /// Whether bf16 products use a native bf16 instruction on this tier.
     pub fn native(&self) -> bool {
-        self.tier == Tier::Avx512Bf16
+        self.tier >= Tier::Avx512Bf16
     }
 
     /// One line for people: the tier and why.
     #[cfg(feature = "std")]
     pub fn describe(&self) -> std::string::String {
-        let how = if self.native() { "vdpbf16ps" } else { "widened onto f32 FMAs" };
+        let how = match self.tier {
+            Tier::Amx => "AMX tiles",
+            Tier::Avx512Bf16 => "vdpbf16ps",
+            _ => "widened onto f32 FMAs",
+        };
         let why = match self.reason {
             Bf16Reason::Capped => std::string::String::from("the tier cap (HOOD_KERNEL_TIER)"),
             Bf16Reason::NoNativeBf16 => std::string::String::from("no AVX-512-BF16 on this CPU"),
             Bf16Reason::Measured { native_us, widened_us } => std::format!(
-                "measured on the edge MLP: vdpbf16ps {native_us:.0} us, widened {widened_us:.0} us \
-                 (widened must win by {WIDEN_MARGIN}x)"
+                "measured on the edge MLP: {} {native_us:.0} us, widened {widened_us:.0} us \
+                 (widened must win by {WIDEN_MARGIN}x)",
+                if detected_tier() == Tier::Amx { "AMX" } else { "vdpbf16ps" }
             ),
             Bf16Reason::Unmeasured => std::string::String::from("not measured (no clock)"),
         };
@@ -86,9 +92,10 @@ fn measured() -> Bf16Choice {
     static CHOICE: std::sync::OnceLock<Bf16Choice> = std::sync::OnceLock::new();
     *CHOICE.get_or_init(|| {
         let time = |tier| Kernels::with_tier(tier).and_then(|k| bench::edge_mlp_bf16_us(k).ok());
-        match (time(Tier::Avx512Bf16), time(Tier::Avx512)) {
+        let native = detected_tier();
+        match (time(native), time(Tier::Avx512)) {
             (Some(native_us), Some(widened_us)) => {
-                let tier = if widened_us * WIDEN_MARGIN < native_us { Tier::Avx512 } else { Tier::Avx512Bf16 };
+                let tier = if widened_us * WIDEN_MARGIN < native_us { Tier::Avx512 } else { native };
                 Bf16Choice { tier, reason: Bf16Reason::Measured { native_us, widened_us } }
             }
             _ => Bf16Choice { tier: detected_tier(), reason: Bf16Reason::Unmeasured },
@@ -185,9 +192,10 @@ mod bench {
             assert_eq!(bf16_choice(), c, "measured once per process");
             match c.reason {
                 Bf16Reason::Measured { native_us, widened_us } => {
-                    assert_eq!(detected_tier(), Tier::Avx512Bf16);
+                    assert!(detected_tier() >= Tier::Avx512Bf16);
                     assert!(native_us > 0.0 && widened_us > 0.0);
-                    assert_eq!(c.tier == Tier::Avx512, widened_us * WIDEN_MARGIN < native_us);
+                    let widened = widened_us * WIDEN_MARGIN < native_us;
+                    assert_eq!(c.tier, if widened { Tier::Avx512 } else { detected_tier() });
                 }
                 Bf16Reason::NoNativeBf16 => assert!(c.tier < Tier::Avx512Bf16 && !c.native()),
                 Bf16Reason::Capped | Bf16Reason::Unmeasured => {}

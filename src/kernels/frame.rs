@@ -159,6 +159,30 @@ pub(crate) trait Simd: Copy {
         layer_norm_stats_rows(y, width, stats);
     }
 
+    /// A tier's own product for bf16 operands (the AMX tiles), or `false` when the register
+    /// tiles run it. Arguments and contract as [`gemm`]'s; called between [`Simd::bf16_begin`]
+    /// and [`Simd::bf16_end`].
+    #[inline(always)]
+    unsafe fn gemm_bf16(
+        self,
+        _segs: &[SegBf16],
+        _rows: usize,
+        _n: usize,
+        _out: *mut f32,
+        _ldo: usize,
+        _epi: &TileEpi,
+    ) -> bool {
+        false
+    }
+
+    /// Sets up what [`Simd::gemm_bf16`] needs for one kernel call (the tile configuration).
+    #[inline(always)]
+    fn bf16_begin(self) {}
+
+    /// Releases what [`Simd::bf16_begin`] set up.
+    #[inline(always)]
+    fn bf16_end(self) {}
+
     /// Writes `src` (k values) as prepared bf16 activations (`kp · SLOTS_PER_PAIR / 2` slots).
     #[inline(always)]
     fn prep_bf16(self, src: &[f32], dst: &mut [f32]) {
@@ -309,6 +333,82 @@ unsafe fn kernel_bf16<S: Simd, const R: usize, const NV: usize>(
     }
 }
 
+/// The epilogue of one output vector `y` at column `c` of output row `o` (`g`: that row of the
+/// addend, if any): `+ bias`, `+ addend`, ReLU, then store or add.
+#[inline(always)]
+unsafe fn epilogue_vec<S: Simd>(s: S, mut y: S::V, c: usize, g: Option<*const f32>, o: *mut f32, epi: &TileEpi) {
+    // SAFETY: the caller's: `LANES` columns from `c` exist in the bias, `g` and `o`.
+    unsafe {
+        if !epi.bias.is_null() {
+            y = s.add(y, s.load(epi.bias.add(c)));
+        }
+        if let Some(g) = g {
+            y = s.add(y, s.load(g.add(c)));
+        }
+        if epi.relu {
+            y = s.max(y, s.zero());
+        }
+        if epi.accumulate {
+            y = s.add(y, s.load(o.add(c)));
+        }
+        s.store(o.add(c), y);
+    }
+}
+
+/// [`epilogue_vec`] for one value.
+#[inline(always)]
+unsafe fn epilogue_one(mut y: f32, c: usize, g: Option<*const f32>, o: *mut f32, epi: &TileEpi) {
+    // SAFETY: the caller's: column `c` exists in the bias, `g` and `o`.
+    unsafe {
+        if !epi.bias.is_null() {
+            y += *epi.bias.add(c);
+        }
+        if let Some(g) = g {
+            y += *g.add(c);
+        }
+        if epi.relu {
+            y = y.max(0.0);
+        }
+        if epi.accumulate {
+            y += *o.add(c);
+        }
+        *o.add(c) = y;
+    }
+}
+
+/// Applies the epilogue to one panel of sums (`PANEL` values at `sums`) and writes them to output
+/// row `row`, columns `c0..min(c0 + PANEL, n)`: for kernels that accumulate outside registers.
+///
+/// # Safety
+/// As [`gemm`]'s; `sums` holds `PANEL` values and `c0 < n`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn epilogue_row<S: Simd>(
+    s: S,
+    sums: *const f32,
+    row: usize,
+    c0: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    // SAFETY: as the contract: row `row` exists in `out` and the addend, columns below `n`.
+    unsafe {
+        let o = out.add(row * ldo);
+        let g = if epi.addend.is_null() { None } else { Some(epi.addend.add(row * n)) };
+        if c0 + PANEL <= n && PANEL.is_multiple_of(S::LANES) {
+            for v in (0..PANEL).step_by(S::LANES) {
+                epilogue_vec(s, s.load(sums.add(v)), c0 + v, g, o, epi);
+            }
+        } else {
+            for j in 0..(n - c0).min(PANEL) {
+                epilogue_one(*sums.add(j), c0 + j, g, o, epi);
+            }
+        }
+    }
+}
+
 /// Applies the epilogue to a tile and writes output rows `row0..row0+R`, columns from panel `p0`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
@@ -333,21 +433,7 @@ unsafe fn store_tile<S: Simd, const R: usize, const NV: usize>(
             let g = if epi.addend.is_null() { None } else { Some(epi.addend.add(row * n)) };
             if c0 + width <= n {
                 for (v, &a) in acc_r.iter().enumerate() {
-                    let c = c0 + v * S::LANES;
-                    let mut y = a;
-                    if !epi.bias.is_null() {
-                        y = s.add(y, s.load(epi.bias.add(c)));
-                    }
-                    if let Some(g) = g {
-                        y = s.add(y, s.load(g.add(c)));
-                    }
-                    if epi.relu {
-                        y = s.max(y, s.zero());
-                    }
-                    if epi.accumulate {
-                        y = s.add(y, s.load(o.add(c)));
-                    }
-                    s.store(o.add(c), y);
+                    epilogue_vec(s, a, c0 + v * S::LANES, g, o, epi);
                 }
             } else {
                 let mut tile = [0.0f32; MAX_TILE];
@@ -355,21 +441,7 @@ unsafe fn store_tile<S: Simd, const R: usize, const NV: usize>(
                     s.store(tile.as_mut_ptr().add(v * S::LANES), a);
                 }
                 for (j, &t) in tile.iter().enumerate().take(n.saturating_sub(c0).min(width)) {
-                    let c = c0 + j;
-                    let mut y = t;
-                    if !epi.bias.is_null() {
-                        y += *epi.bias.add(c);
-                    }
-                    if let Some(g) = g {
-                        y += *g.add(c);
-                    }
-                    if epi.relu {
-                        y = y.max(0.0);
-                    }
-                    if epi.accumulate {
-                        y += *o.add(c);
-                    }
-                    *o.add(c) = y;
+                    epilogue_one(t, c0 + j, g, o, epi);
                 }
             }
         }
@@ -447,6 +519,12 @@ pub(crate) unsafe fn gemm<S: Simd>(
     ldo: usize,
     epi: &TileEpi,
 ) {
+    if let Segs::Bf16(sg) = segs {
+        // SAFETY: forwarded contract.
+        if unsafe { s.gemm_bf16(sg, rows, n, out, ldo, epi) } {
+            return;
+        }
+    }
     let panels = n.div_ceil(PANEL);
     let mut p = 0;
     // SAFETY: forwarded; each pass covers panels below `panels`.
@@ -503,6 +581,10 @@ pub(crate) unsafe fn linear<S: Simd>(
                 wide = next;
             }
         }
+    }
+    let native_bf16 = ops[0].w.is_bf16() && !emulate;
+    if native_bf16 {
+        s.bf16_begin();
     }
     let mut b0 = 0;
     while b0 < rows {
@@ -562,6 +644,9 @@ pub(crate) unsafe fn linear<S: Simd>(
             }
         }
         b0 += br;
+    }
+    if native_bf16 {
+        s.bf16_end();
     }
 }
 
@@ -634,6 +719,10 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
             }
         }
     }
+    let native_bf16 = mlp.w1_edge.is_bf16() && S::SLOTS_PER_PAIR != 2;
+    if native_bf16 {
+        s.bf16_begin();
+    }
     let mut e0 = 0;
     while e0 < n_edges {
         let br = (n_edges - e0).min(EDGE_BLOCK);
@@ -700,5 +789,8 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
             }
         }
         e0 += br;
+    }
+    if native_bf16 {
+        s.bf16_end();
     }
 }

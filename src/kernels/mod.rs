@@ -2,10 +2,10 @@
 //! edge MLP (split first layer: gathered node projections + edge product), and aggregation over
 //! edges sorted by target.
 //!
-//! Paths ([`Tier`]): a scalar reference, AVX2+FMA, AVX-512F and AVX-512-BF16 (bf16 weights and
-//! activations, f32 accumulation with `vdpbf16ps`). The CPU is probed once ([`detected_tier`]);
+//! Paths ([`Tier`]): a scalar reference, AVX2+FMA, AVX-512F, AVX-512-BF16 (bf16 weights and
+//! activations, f32 accumulation with `vdpbf16ps`) and AMX-BF16 (the same on the tile unit). The CPU is probed once ([`detected_tier`]);
 //! a [`Kernels`] value carries the chosen path as a capability token, so hot code never probes.
-//! [`force_tier`] (or the environment variable `HOOD_KERNEL_TIER=scalar|avx2|avx512|avx512bf16`,
+//! [`force_tier`] (or the environment variable `HOOD_KERNEL_TIER=scalar|avx2|avx512|avx512bf16|amx`,
 //! read once under `std`) caps the tier, and [`Kernels::with_tier`] picks one explicitly, so one
 //! machine can test every path it has.
 //!
@@ -24,6 +24,8 @@ mod frame;
 /// Row statistics shared with the trainer, so both normalise with the same arithmetic.
 #[cfg(feature = "train")]
 pub(crate) use frame::{lane_dot, lane_sum, layer_norm_stats};
+#[cfg(target_arch = "x86_64")]
+mod amx;
 mod pack;
 #[cfg(feature = "std")]
 pub mod peak;
@@ -67,19 +69,22 @@ pub enum Tier {
     Avx512 = 3,
     /// AVX-512F + AVX-512-BF16: bf16 products with `vdpbf16ps`.
     Avx512Bf16 = 4,
+    /// AVX-512-BF16 + AMX-BF16 (Linux): bf16 products on the tile unit; f32 as [`Tier::Avx512Bf16`].
+    Amx = 5,
 }
 
 impl Tier {
     /// Every tier, lowest first.
-    pub const ALL: [Tier; 4] = [Tier::Scalar, Tier::Avx2Fma, Tier::Avx512, Tier::Avx512Bf16];
+    pub const ALL: [Tier; 5] = [Tier::Scalar, Tier::Avx2Fma, Tier::Avx512, Tier::Avx512Bf16, Tier::Amx];
 
-    /// Short lowercase name (`scalar`, `avx2`, `avx512`, `avx512bf16`).
+    /// Short lowercase name (`scalar`, `avx2`, `avx512`, `avx512bf16`, `amx`).
     pub fn name(self) -> &'static str {
         match self {
             Tier::Scalar => "scalar",
             Tier::Avx2Fma => "avx2",
             Tier::Avx512 => "avx512",
             Tier::Avx512Bf16 => "avx512bf16",
+            Tier::Amx => "amx",
         }
     }
 
@@ -111,6 +116,9 @@ pub fn detected_tier() -> Tier {
 fn probe() -> Tier {
     #[cfg(target_arch = "x86_64")]
     {
+        if x86::AmxBf16::new().is_some() {
+            return Tier::Amx;
+        }
         if x86::Avx512Bf16::new().is_some() {
             return Tier::Avx512Bf16;
         }
@@ -154,6 +162,8 @@ enum Backend {
     Avx512(x86::Avx512),
     #[cfg(target_arch = "x86_64")]
     Avx512Bf16(x86::Avx512Bf16),
+    #[cfg(target_arch = "x86_64")]
+    Amx(x86::AmxBf16),
 }
 
 /// A chosen kernel path. Holding one proves the CPU supports it (its SIMD variants are made only
@@ -284,6 +294,8 @@ impl Kernels {
             Tier::Avx512 => Backend::Avx512(x86::Avx512::new()?),
             #[cfg(target_arch = "x86_64")]
             Tier::Avx512Bf16 => Backend::Avx512Bf16(x86::Avx512Bf16::new()?),
+            #[cfg(target_arch = "x86_64")]
+            Tier::Amx => Backend::Amx(x86::AmxBf16::new()?),
             #[cfg(not(target_arch = "x86_64"))]
             _ => return None,
         };
@@ -300,6 +312,8 @@ impl Kernels {
             Backend::Avx512(_) => Tier::Avx512,
             #[cfg(target_arch = "x86_64")]
             Backend::Avx512Bf16(_) => Tier::Avx512Bf16,
+            #[cfg(target_arch = "x86_64")]
+            Backend::Amx(_) => Tier::Amx,
         }
     }
 
@@ -350,6 +364,8 @@ impl Kernels {
             Backend::Avx512(t) => t.linear(ops, bias, epilogue, out, scratch),
             #[cfg(target_arch = "x86_64")]
             Backend::Avx512Bf16(t) => t.linear(ops, bias, epilogue, out, scratch),
+            #[cfg(target_arch = "x86_64")]
+            Backend::Amx(t) => t.linear(ops, bias, epilogue, out, scratch),
         }
         Ok(())
     }
@@ -419,6 +435,8 @@ impl Kernels {
             Backend::Avx512(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
             #[cfg(target_arch = "x86_64")]
             Backend::Avx512Bf16(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
+            #[cfg(target_arch = "x86_64")]
+            Backend::Amx(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
         }
         Ok(())
     }

@@ -3,7 +3,7 @@
 //!
 //! f32: a loop of independent FMA chains (12 accumulators, enough to cover FMA latency × ports
 //! on current x86 cores) on the widest vectors the tier has. bf16: the same with `vdpbf16ps`
-//! where the CPU has AVX-512-BF16; elsewhere the bf16 kernels run on f32 FMAs, so their peak is
+//! where the CPU has AVX-512-BF16, four independent `tdpbf16ps` on the AMX tier; elsewhere the bf16 kernels run on f32 FMAs, so their peak is
 //! the f32 peak. Runs are timed on thread CPU time where available ([`Stopwatch`]), so other
 //! processes on a shared machine do not count against the loop. One FLOP is one multiply or one add (an FMA lane counts 2, a `vdpbf16ps` lane 4).
 
@@ -124,15 +124,17 @@ pub fn measure(k: Kernels, target_ms: f64) -> Peak {
             Tier::Scalar => None,
             Tier::Avx2Fma => Avx2Fma::new()
                 .map(|t| best_gflops(12.0 * 8.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx2(t, n, a, b))),
-            Tier::Avx512 | Tier::Avx512Bf16 => Avx512::new()
+            Tier::Avx512 | Tier::Avx512Bf16 | Tier::Amx => Avx512::new()
                 .map(|t| best_gflops(12.0 * 16.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx512(t, n, a, b))),
         };
         if let Some(f32_gflops) = f32_gflops {
-            let native = if tier == Tier::Avx512Bf16 {
-                Avx512Bf16::new()
-                    .map(|t| best_gflops(12.0 * 16.0 * 4.0, target_ms, reps, |n| peak_loops::dpbf16(t, n, a, b)))
-            } else {
-                None
+            let native = match tier {
+                Tier::Avx512Bf16 => Avx512Bf16::new()
+                    .map(|t| best_gflops(12.0 * 16.0 * 4.0, target_ms, reps, |n| peak_loops::dpbf16(t, n, a, b))),
+                Tier::Amx => super::x86::AmxBf16::new().map(|t| {
+                    best_gflops(4.0 * 16.0 * 16.0 * 32.0 * 2.0, target_ms, reps, |n| super::amx::peak_loop(t, n))
+                }),
+                _ => None,
             };
             return Peak { tier, f32_gflops, bf16_gflops: native.unwrap_or(f32_gflops), bf16_native: native.is_some() };
         }

@@ -51,6 +51,18 @@ impl Avx512Bf16 {
     }
 }
 
+/// Proof that the CPU has AVX-512-BF16 and AMX-BF16, and that this process may use the tiles
+/// (see [`super::amx`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct AmxBf16(Avx512Bf16);
+
+impl AmxBf16 {
+    pub(crate) fn new() -> Option<Self> {
+        let v = Avx512Bf16::new()?;
+        super::amx::usable().then_some(Self(v))
+    }
+}
+
 /// [`frame::layer_norm_stats_rows`] in 256-bit vectors, for every x86 tier: per row the eight
 /// partial sums of [`frame::lane_sum`] in one register, the same tail and the same reduction
 /// tree, so the results are bitwise the portable ones. Four rows go at a time: one row's two
@@ -302,12 +314,20 @@ impl Simd for Avx512 {
     }
 }
 
+/// What the AVX-512-BF16 tiers share: the 512-bit f32 operations, the LayerNorm statistics and
+/// packed bf16 pairs as `__m512bh`.
+macro_rules! avx512_bf16_vocabulary {
+    () => {
+        avx512_f32_ops!();
+        ln_stats_avx!();
+        const SLOTS_PER_PAIR: usize = 1;
+        type WP = __m512bh;
+        type XP = __m512bh;
+    };
+}
+
 impl Simd for Avx512Bf16 {
-    avx512_f32_ops!();
-    ln_stats_avx!();
-    const SLOTS_PER_PAIR: usize = 1;
-    type WP = __m512bh;
-    type XP = __m512bh;
+    avx512_bf16_vocabulary!();
 
     #[inline(always)]
     unsafe fn load_w_half(self, p: *const u16, half: usize) -> __m512 {
@@ -352,6 +372,61 @@ impl Simd for Avx512Bf16 {
             }
         }
         frame::pack_bf16_pairs(&src[16 * blocks..], &mut dst[8 * blocks..]);
+    }
+}
+
+/// The AVX-512-BF16 vocabulary, with bf16 products on the tile unit.
+impl Simd for AmxBf16 {
+    avx512_bf16_vocabulary!();
+
+    #[inline(always)]
+    unsafe fn load_w_half(self, p: *const u16, half: usize) -> __m512 {
+        // SAFETY: forwarded contract; the token holds the AVX-512-BF16 one.
+        unsafe { self.0.load_w_half(p, half) }
+    }
+    #[inline(always)]
+    unsafe fn load_w2(self, p: *const u16) -> __m512bh {
+        // SAFETY: as above.
+        unsafe { self.0.load_w2(p) }
+    }
+    #[inline(always)]
+    unsafe fn bcast_x2(self, p: *const f32) -> __m512bh {
+        // SAFETY: as above.
+        unsafe { self.0.bcast_x2(p) }
+    }
+    #[inline(always)]
+    unsafe fn dot2(self, acc: __m512, w: __m512bh, x: __m512bh) -> __m512 {
+        // SAFETY: as above.
+        unsafe { self.0.dot2(acc, w, x) }
+    }
+    #[inline(always)]
+    fn prep_bf16(self, src: &[f32], dst: &mut [f32]) {
+        self.0.prep_bf16(src, dst)
+    }
+    #[inline(always)]
+    unsafe fn gemm_bf16(
+        self,
+        segs: &[frame::SegBf16],
+        rows: usize,
+        n: usize,
+        out: *mut f32,
+        ldo: usize,
+        epi: &frame::TileEpi,
+    ) -> bool {
+        // SAFETY: forwarded contract of `frame::gemm`; the token proves AMX is usable and the
+        // frame configured the tiles (`bf16_begin`).
+        unsafe { super::amx::gemm(self.0, segs, rows, n, out, ldo, epi) };
+        true
+    }
+    #[inline(always)]
+    fn bf16_begin(self) {
+        // SAFETY: the token proves AMX is usable in this process.
+        unsafe { super::amx::configure() }
+    }
+    #[inline(always)]
+    fn bf16_end(self) {
+        // SAFETY: as above.
+        unsafe { super::amx::release() }
     }
 }
 
@@ -414,6 +489,7 @@ macro_rules! entries {
 entries!(Avx2Fma, "avx2,fma");
 entries!(Avx512, "avx2,fma,avx512f");
 entries!(Avx512Bf16, "avx2,fma,avx512f,avx512bf16");
+entries!(AmxBf16, "avx2,fma,avx512f,avx512bf16");
 
 /// Throughput loops for [`super::peak`]: `iters` rounds of 12 independent accumulator chains.
 /// Returns a value depending on every chain so the work cannot be elided.
