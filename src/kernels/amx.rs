@@ -216,10 +216,17 @@ pub(crate) unsafe fn gemm<S: Simd>(
             for r0 in (0..rows).step_by(2 * TILE_ROWS) {
                 let nr = (rows - r0).min(2 * TILE_ROWS);
                 let two_rows = nr > TILE_ROWS;
+                // Only the output tiles this block covers.
                 zero!("0");
-                zero!("1");
-                zero!("2");
-                zero!("3");
+                if two_panels {
+                    zero!("1");
+                }
+                if two_rows {
+                    zero!("2");
+                    if two_panels {
+                        zero!("3");
+                    }
+                }
                 for seg in segs {
                     let kp = 2 * seg.pairs;
                     for q in (0..seg.pairs / TILE_PAIRS).map(|i| i * TILE_PAIRS) {
@@ -245,9 +252,15 @@ pub(crate) unsafe fn gemm<S: Simd>(
                     }
                 }
                 store!("0", c.0[0].as_mut_ptr());
-                store!("1", c.0[1].as_mut_ptr());
-                store!("2", c.0[2].as_mut_ptr());
-                store!("3", c.0[3].as_mut_ptr());
+                if two_panels {
+                    store!("1", c.0[1].as_mut_ptr());
+                }
+                if two_rows {
+                    store!("2", c.0[2].as_mut_ptr());
+                    if two_panels {
+                        store!("3", c.0[3].as_mut_ptr());
+                    }
+                }
                 for r in 0..nr {
                     for pj in 0..if two_panels { 2 } else { 1 } {
                         let t = (r / TILE_ROWS) * 2 + pj;
