@@ -5,7 +5,7 @@ use criterion::measurement::WallTime;
 use criterion::{criterion_group, criterion_main, BenchmarkGroup, BenchmarkId, Criterion, SamplingMode};
 use hood::model::{write_model, ModelBytes, ModelSpec, Params};
 use hood::sim::{BodyDesc, Precision, Sim, SimConfig, SimState, DEFAULT_SOLVER_ITERATIONS};
-use hood::workloads::{default_shared_dir, workload, Workload};
+use hood::workloads::{workload, Workload};
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -90,7 +90,8 @@ fn matrix(name: &str) -> Vec<(usize, Precision, usize)> {
 }
 
 fn bench_step(c: &mut Criterion) {
-    let shared = default_shared_dir();
+    // Without an assets folder the asset workloads are skipped.
+    let shared = hood::assets::locate(None).unwrap_or_default();
     let mut g = c.benchmark_group("step");
     g.sample_size(10).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(5));
     for name in ["grid-1k", "skirt-4k", "dress-12k", "tee"] {
@@ -126,7 +127,7 @@ fn bench_step(c: &mut Criterion) {
 }
 
 fn bench_effects(c: &mut Criterion) {
-    let Ok(w) = workload("tee", &default_shared_dir()) else {
+    let Ok(w) = workload("tee", &hood::assets::locate(None).unwrap_or_default()) else {
         eprintln!("effects: skipped (the fixture scene is absent)");
         return;
     };

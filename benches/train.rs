@@ -1,6 +1,6 @@
 //! The trainer's optimiser step on the fixture t-shirt (1,311 vertices, 13,380-vertex body) at
 //! h = 32, 64, 128 on 1 and 2 threads: the whole step (inputs, forward, losses, backward,
-//! clipping, Adam) and its parts. Skipped with a message when `../shared` is absent.
+//! clipping, Adam) and its parts. Skipped with a message when the assets folder ([`hood::assets`]) is absent.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use hood::bench::core_to_core_ns;
@@ -14,7 +14,7 @@ use hood::train::{
     clip_global_norm, learning_rate, Adam, BodyFrames, FastWorkspace, GarmentState, InputBuilder, Network, Stats,
     StepData,
 };
-use hood::workloads::{default_shared_dir, workload};
+use hood::workloads::workload;
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -152,8 +152,8 @@ impl<'a> Trainer<'a> {
 }
 
 fn bench_train(c: &mut Criterion) {
-    let Ok(w) = workload("tee", &default_shared_dir()) else {
-        eprintln!("train: skipped (the fixture t-shirt under ../shared is absent)");
+    let Ok(w) = workload("tee", &hood::assets::locate(None).unwrap_or_default()) else {
+        eprintln!("train: skipped (the fixture t-shirt beside the assets folder is absent)");
         return;
     };
     let (mesh, frames) = w.body.as_ref().unwrap();

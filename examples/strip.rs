@@ -5,9 +5,9 @@
 //! ```
 //!
 //! Writes `OUT_DIR/procedural_walk_skirt.png` (the procedural mannequin walking, with a skirt
-//! posed by skinning with diffused weights) and, when `ASSETS_DIR` (default `../shared/assets`)
-//! holds the MakeHuman body and the CMU walk, `OUT_DIR/cmu_walk.png` (the walk retargeted onto
-//! the MakeHuman body), and `OUT_DIR/motions/<family>.png` for every family of the motion corpus
+//! posed by skinning with diffused weights) and, when `ASSETS_DIR` (default: `$HOOD_ASSETS`,
+//! else `shared/assets` in the working directory or a parent) holds the MakeHuman body and the
+//! CMU walk, `OUT_DIR/cmu_walk.png` (the walk retargeted onto the MakeHuman body), and `OUT_DIR/motions/<family>.png` for every family of the motion corpus
 //! (seed 1, eight frames over four seconds; `docs/motions/` holds them). Six frames each
 //! otherwise, side view (from the character's left), metres.
 
@@ -44,8 +44,10 @@ fn pick(motion: &BodyMotion, k: usize) -> Vec<usize> {
 fn main() -> hood::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let out = PathBuf::from(args.get(1).map_or("target/strips", String::as_str));
-    let assets =
-        PathBuf::from(args.get(2).map_or(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/assets"), String::as_str));
+    let assets = match args.get(2) {
+        Some(dir) => hood::assets::locate(Some(std::path::Path::new(dir)))?,
+        None => hood::assets::locate(None).unwrap_or_default(),
+    };
     std::fs::create_dir_all(&out)
         .map_err(|e| hood::Error::Io { path: out.display().to_string(), message: e.to_string() })?;
 

@@ -36,6 +36,8 @@ extern crate std;
 pub struct ReadmeDoctests;
 
 #[cfg(feature = "std")]
+pub mod assets;
+#[cfg(feature = "std")]
 pub mod bench;
 pub mod body;
 pub mod checksum;

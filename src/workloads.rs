@@ -1,6 +1,6 @@
 //! The named workloads of EVALUATION.md, built in one place for the command line, the benches
-//! and the report. Procedural ones need no files; asset ones read `../shared` (or a given
-//! folder) and fail with [`Error::Io`] when it is absent.
+//! and the report. Procedural ones need no files; asset ones read the parity fixtures beside the
+//! assets folder ([`crate::assets`]) and fail with [`Error::Io`] when they are absent.
 
 use crate::body::BodyMesh;
 use crate::error::{Error, Result};
@@ -9,7 +9,7 @@ use crate::mesh::{shapes, Garment, GarmentDesc};
 use crate::rig::procedural::Mannequin;
 use crate::scene::{self, GarmentKind, MotionKind};
 use crate::sim::{Graph, Sim, SimState};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::string::{String, ToString};
 use std::vec::Vec;
 
@@ -80,22 +80,18 @@ pub const NAMES: &[&str] = &["grid-1k", "skirt-4k", "dress-12k", "tee", "tee-sub
 /// Seconds of the walk the procedural workloads step through (30 frames at 30 Hz).
 pub const WALK_SECONDS: f32 = 1.0;
 
-/// `../shared` next to the crate's source checkout.
-pub fn default_shared_dir() -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared"))
-}
-
-/// Builds workload `name`; asset workloads read `shared` (see [`default_shared_dir`]).
+/// Builds workload `name`; asset workloads (`tee`, `tee-sub`) read the parity fixtures beside
+/// `assets` ([`crate::assets::fixtures`]).
 ///
 /// # Errors
 /// [`Error::Parse`] for an unknown name; [`Error::Io`] when the files it needs are absent.
-pub fn workload(name: &str, shared: &Path) -> Result<Workload> {
+pub fn workload(name: &str, assets: &Path) -> Result<Workload> {
     match name {
         "grid-1k" => grid_1k(),
         "skirt-4k" => worn_procedural("skirt-4k", GarmentKind::Skirt, 4400),
         "dress-12k" => worn_procedural("dress-12k", GarmentKind::Dress, 12_000),
-        "tee" => fixture_tee(shared, false),
-        "tee-sub" => fixture_tee(shared, true),
+        "tee" => fixture_tee(assets, false),
+        "tee-sub" => fixture_tee(assets, true),
         _ => Err(Error::parse("workload", 0, std::format!("unknown workload '{name}' (known: {})", NAMES.join(", ")))),
     }
 }
@@ -149,8 +145,8 @@ fn worn_procedural(name: &str, kind: GarmentKind, vertices: usize) -> Result<Wor
 
 /// `tee` / `tee-sub`: the reference fixture's scene (the MakeHuman t-shirt on the 13,380-vertex
 /// body, one step) and its one-step midpoint subdivision (5,148 vertices).
-fn fixture_tee(shared: &Path, subdivide: bool) -> Result<Workload> {
-    let path = shared.join("fixtures/hood-parity/fixture_scene.safetensors");
+fn fixture_tee(assets: &Path, subdivide: bool) -> Result<Workload> {
+    let path = crate::assets::fixtures(assets).join("hood-parity/fixture_scene.safetensors");
     let st = SafeTensors::read(&path)?;
     let rows = |n: &str| -> Result<Vec<[f32; 3]>> { st.f32(n)?.rows::<3>() };
     let tris = |n: &str| -> Result<Vec<[u32; 3]>> {

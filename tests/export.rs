@@ -31,6 +31,20 @@ fn grid_obj(n: usize, h: f32, y: f32) -> String {
     s
 }
 
+/// A two-frame body OBJ sequence in `dir`: a tetrahedron 1 m high that drops 1 cm.
+fn write_dropping_body(dir: &std::path::Path) {
+    std::fs::create_dir_all(dir).unwrap();
+    for (f, dy) in [0.0f32, -0.01].into_iter().enumerate() {
+        let body = hood::io::obj::to_string(
+            &[[-0.4, dy, -0.4], [0.4, dy, -0.4], [0.0, dy, 0.4], [0.0, 1.0 + dy, 0.0]],
+            &[[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]],
+            None,
+        )
+        .unwrap();
+        std::fs::write(dir.join(format!("{f}.obj")), body).unwrap();
+    }
+}
+
 fn moved(positions: &[[f32; 3]], t: f32) -> Vec<[f32; 3]> {
     positions.iter().map(|p| [p[0] + 0.1 * t, p[1] - 0.01 * t * p[0], p[2] + 0.003 * t]).collect()
 }
@@ -216,18 +230,9 @@ fn export_cli_simulate_writes_every_format() {
 
     // A 6 x 6 grid with texture coordinates over a two-frame body (a tetrahedron moving down).
     let files = out.join("files");
-    std::fs::create_dir_all(files.join("body")).unwrap();
+    write_dropping_body(&files.join("body"));
     let garment = files.join("cloth.obj");
     std::fs::write(&garment, grid_obj(6, 0.06, 1.1)).unwrap();
-    for (f, dy) in [0.0f32, -0.01].into_iter().enumerate() {
-        let body = hood::io::obj::to_string(
-            &[[-0.4, dy, -0.4], [0.4, dy, -0.4], [0.0, dy, 0.4], [0.0, 1.0 + dy, 0.0]],
-            &[[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]],
-            None,
-        )
-        .unwrap();
-        std::fs::write(files.join("body").join(format!("{f}.obj")), body).unwrap();
-    }
     let sim = files.join("out");
     let (g, b) = (garment.to_str().unwrap(), files.join("body"));
     hood(&["--garment-obj", g, "--body-obj", b.to_str().unwrap(), "--export", "obj,usda,pc2", "--no-body"], &sim);
@@ -238,5 +243,76 @@ fn export_cli_simulate_writes_every_format() {
     assert!(std::fs::read_dir(&sim).unwrap().all(|e| !e.unwrap().file_name().to_string_lossy().starts_with("body")));
     let usda = std::fs::read_to_string(sim.join("scene.usda")).unwrap();
     assert!(usda.contains("primvars:st") && !usda.contains("def Mesh \"body\""));
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// `hood simulate --garment-obj` options: pins by OBJ group and by a vertex list ride on a body
+/// OBJ sequence (a rigid drop of 1 cm moves them by exactly that); a file in centimetres, z up,
+/// with `--scale 0.01 --up z` starts where the metre, y-up file does; a bad `--pins` or
+/// `--material` is refused.
+#[test]
+fn export_cli_own_garment_pins_scale_and_axes() {
+    let out = std::env::temp_dir().join(format!("hood-own-garment-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    std::fs::create_dir_all(&out).unwrap();
+    let run = |args: &[&str], dir: &std::path::Path| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+            .args(["simulate", "--random-model", "16", "--frames", "1", "--strip", "1", "--body-obj"])
+            .arg(out.join("body"))
+            .args(args)
+            .arg("--out")
+            .arg(dir)
+            .output()
+            .unwrap()
+    };
+    let ok = |args: &[&str], dir: &std::path::Path| {
+        let o = run(args, dir);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    write_dropping_body(&out.join("body"));
+    let (n, h, y) = (6, 0.06, 1.1);
+    let text = grid_obj(n, h, y);
+    let metres = out.join("cloth.obj");
+    std::fs::write(&metres, &text).unwrap();
+    let input = Obj::read(&metres).unwrap();
+    // The hem group: the vertices of the last row of quads.
+    let hem: Vec<usize> = ((n - 2) * n..n * n).collect();
+    let list = out.join("pins.txt");
+    std::fs::write(&list, "# two corners\n0, 5\n").unwrap();
+    for (pins, pinned) in [("group:hem", hem), (list.to_str().unwrap(), vec![0, 5])] {
+        let dir = out.join(pins.replace(['/', ':'], "_"));
+        ok(&["--garment-obj", metres.to_str().unwrap(), "--pins", pins], &dir);
+        let last = Obj::read(dir.join("garment_0001.obj")).unwrap();
+        for &v in &pinned {
+            let (p, q) = (last.positions[v], input.positions[v]);
+            let want = [q[0], q[1] - 0.01, q[2]];
+            assert!((0..3).all(|k| (p[k] - want[k]).abs() < 1e-5), "{pins}: vertex {v} at {p:?}, want {want:?}");
+        }
+    }
+    // The same cloth in centimetres, z up.
+    let cm: String = text
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(rest) => {
+                let c: Vec<f32> = rest.split_whitespace().map(|t| t.parse().unwrap()).collect();
+                format!("v {} {} {}\n", c[0] * 100.0, -c[2] * 100.0, c[1] * 100.0)
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    let centimetres = out.join("cloth-cm-z-up.obj");
+    std::fs::write(&centimetres, cm).unwrap();
+    let dir = out.join("cm");
+    ok(&["--garment-obj", centimetres.to_str().unwrap(), "--scale", "0.01", "--up", "z", "--pins", "none"], &dir);
+    let first = Obj::read(dir.join("garment_0000.obj")).unwrap();
+    for (p, q) in first.positions.iter().zip(&input.positions) {
+        assert!((0..3).all(|k| (p[k] - q[k]).abs() < 1e-5), "{p:?} vs {q:?}");
+    }
+    for (flag, value) in [("--pins", "group:nowhere"), ("--material", "silk"), ("--up", "x")] {
+        let o = run(&["--garment-obj", metres.to_str().unwrap(), flag, value], &out.join("refused"));
+        assert!(!o.status.success(), "{flag} {value} accepted");
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(stderr.contains("hood:"), "{flag} {value}: {stderr}");
+    }
     let _ = std::fs::remove_dir_all(&out);
 }

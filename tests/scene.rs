@@ -63,7 +63,7 @@ fn scene_motion_names_round_trip() {
 
 #[test]
 fn scene_makehuman_jeans_on_cmu_walk() {
-    let assets = hood::workloads::default_shared_dir().join("assets");
+    let assets = common::shared_dir().join("assets");
     if !assets.join("body/base.obj").exists() {
         common::skip("scene_makehuman_jeans_on_cmu_walk", &assets);
         return;
@@ -77,6 +77,36 @@ fn scene_makehuman_jeans_on_cmu_walk() {
     assert!(x.iter().flatten().all(|c| c.is_finite()));
 }
 
+/// A garment of the user's on the MakeHuman body: the fitted jeans and t-shirt given back as
+/// meshes in centimetres, z up (as a Blender export without axis conversion would give them)
+/// come out as the built-in pieces: same rest shape, the jeans' waist pinned automatically, the
+/// t-shirt free; and they follow a clip of the motion corpus.
+#[test]
+fn scene_own_garment_on_makehuman_matches_the_fitted_piece() {
+    use hood::scene::own::{GarmentOptions, Pins, UpAxis};
+    use hood::scene::{makehuman_wearing, MakeHumanGarment, MakeHumanMotion, Wearing};
+    let assets = common::shared_dir().join("assets");
+    if !assets.join("body/base.obj").exists() {
+        common::skip("scene_own_garment_on_makehuman_matches_the_fitted_piece", &assets);
+        return;
+    }
+    let motion = MakeHumanMotion::named(&assets, MotionKind::parse("jumps-1001"));
+    for which in [MakeHumanGarment::Jeans, MakeHumanGarment::Tee] {
+        let piece = hood::scene::makehuman_on(&assets, which, MotionKind::parse("jumps-1001"), 20).unwrap();
+        let file: Vec<[f32; 3]> =
+            piece.garment.rest().iter().map(|p| [p[0] * 100.0, -p[2] * 100.0, p[1] * 100.0]).collect();
+        let options = GarmentOptions { scale: 0.01, up: UpAxis::Z, pins: Pins::Auto, material: None };
+        let own = Wearing::Own { name: "mine", positions: &file, triangles: piece.garment.faces(), options: &options };
+        let s = makehuman_wearing(&assets, own, motion.clone(), 20).unwrap();
+        assert_eq!(s.n_frames(), piece.n_frames());
+        assert_eq!(s.garment.pinned(), piece.garment.pinned(), "{which:?}");
+        let (a, b) = (s.initial_garment(10).unwrap(), piece.initial_garment(10).unwrap());
+        let worst =
+            a.iter().zip(&b).map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).abs()).fold(0.0, f32::max)).fold(0.0, f32::max);
+        assert!(worst < 1e-4, "{which:?}: {worst} m from the built-in piece at frame 10");
+    }
+}
+
 /// The initial garment states the trainer starts from: stretching energy per vertex and the
 /// largest edge strain over a few frames of every scene kind.
 #[test]
@@ -88,7 +118,7 @@ fn scene_initial_states_are_not_torn() {
         procedural(&m, GarmentKind::Dress, 400, MotionKind::RandomPoses(2), 2.0).unwrap(),
         procedural(&m, GarmentKind::Cape, 200, MotionKind::ArmSwings, 2.0).unwrap(),
     ];
-    let assets = hood::workloads::default_shared_dir().join("assets");
+    let assets = common::shared_dir().join("assets");
     if assets.join("body/base.obj").exists() {
         for g in [hood::scene::MakeHumanGarment::Tee, hood::scene::MakeHumanGarment::Jeans] {
             scenes.push(hood::scene::makehuman(&assets, g, 60).unwrap());
@@ -126,7 +156,7 @@ fn scene_initial_states_are_not_torn() {
 fn scene_bodies_are_outward_and_fine_enough_for_the_body_edges() {
     let m = Mannequin::new();
     let mut scenes = vec![procedural(&m, GarmentKind::Dress, 800, MotionKind::Walk, 0.1).unwrap()];
-    let assets = hood::workloads::default_shared_dir().join("assets");
+    let assets = common::shared_dir().join("assets");
     if assets.join("body/base.obj").exists() {
         scenes.push(hood::scene::makehuman(&assets, hood::scene::MakeHumanGarment::Tee, 2).unwrap());
     } else {
@@ -145,7 +175,7 @@ fn scene_bodies_are_outward_and_fine_enough_for_the_body_edges() {
 #[test]
 fn scene_every_makehuman_outfit_piece_loads() {
     use hood::scene::MakeHumanGarment;
-    let assets = hood::workloads::default_shared_dir().join("assets");
+    let assets = common::shared_dir().join("assets");
     if !assets.join("body/base.obj").exists() {
         common::skip("scene_every_makehuman_outfit_piece_loads", &assets);
         return;

@@ -564,7 +564,7 @@ const JUMPS_FRAMES: usize = if cfg!(debug_assertions) { 600 } else { 3000 };
 /// The full sequence: `cargo test --release --test stability shared_tee_on_jumps`.
 #[test]
 fn stability_shared_tee_on_jumps_forward_and_back() {
-    let assets = hood::workloads::default_shared_dir().join("assets");
+    let assets = common::shared_dir().join("assets");
     if !assets.join("body/base.obj").exists() {
         common::skip("stability_shared_tee_on_jumps_forward_and_back", &assets);
         return;

@@ -244,7 +244,7 @@ fn train_step_timing_tee() {
     use hood::body::{BodyFrame, Nearest};
     use hood::train::{clip_global_norm, learning_rate, Adam};
     use std::time::Instant;
-    let w = match hood::workloads::workload("tee", &hood::workloads::default_shared_dir()) {
+    let w = match hood::workloads::workload("tee", &common::shared_dir().join("assets")) {
         Ok(w) => w,
         Err(e) => {
             println!("train_step_timing_tee: skipped ({e})");

@@ -4,8 +4,8 @@ use clap::{Args, Parser, Subcommand};
 use hood::bench::{bench_step, core_to_core_ns, machine_peak, BenchRow};
 use hood::model::{write_model, ModelBytes, ModelSpec, Params};
 use hood::sim::Precision;
-use hood::workloads::{default_shared_dir, workload, NAMES};
-use std::path::PathBuf;
+use hood::workloads::{workload, NAMES};
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 /// `println!` for the command's output, without its panic: a closed stdout (`hood info m.hood |
@@ -197,9 +197,10 @@ struct BenchArgs {
     /// Untimed steps first.
     #[arg(long, default_value_t = 3)]
     warmup: usize,
-    /// Folder holding `fixtures/` and `assets/` (default: ../shared beside the source).
+    /// The assets folder; the tee workloads read the parity fixtures beside it (default:
+    /// $HOOD_ASSETS, else `shared/assets` in the working directory or a parent).
     #[arg(long)]
-    shared: Option<PathBuf>,
+    assets: Option<PathBuf>,
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
@@ -235,12 +236,17 @@ fn random_model(h: usize) -> hood::Result<ModelBytes> {
 }
 
 fn bench(a: BenchArgs) -> hood::Result<()> {
-    let shared = a.shared.clone().unwrap_or_else(default_shared_dir);
+    let assets = hood::assets::locate(a.assets.as_deref());
     let names: Vec<String> =
         if a.workload.is_empty() { NAMES.iter().map(|s| s.to_string()).collect() } else { a.workload.clone() };
     let mut workloads = Vec::new();
     for n in &names {
-        match workload(n, &shared) {
+        // Without an assets folder the procedural workloads still run.
+        let built = match &assets {
+            Ok(dir) => workload(n, dir),
+            Err(e) => workload(n, Path::new("")).map_err(|_| e.clone()),
+        };
+        match built {
             Ok(w) => workloads.push(w),
             Err(e) if a.workload.is_empty() => eprintln!("skipping {n}: {e}"),
             Err(e) => return Err(e),

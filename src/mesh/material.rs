@@ -1,6 +1,9 @@
 //! Cloth materials (MODEL.md section 3): SI parameters and their network encoding.
 
+use crate::error::{Error, Result};
 use crate::math::Real;
+use alloc::format;
+use alloc::vec::Vec;
 
 /// Material parameters of a cloth vertex, in SI units.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -54,6 +57,38 @@ impl Material {
         })
     }
 
+    /// A material as text: a name of [`Material::PRESETS`], or four numbers
+    /// `density,mu,lambda,bending` in the fields' SI units (kg/m^2, Pa, Pa, J).
+    ///
+    /// # Errors
+    /// [`Error::Parse`] (format `"material"`) for another name, a number that does not parse
+    /// or a material that is not [`valid`](Self::is_valid).
+    pub fn parse(text: &str) -> Result<Material> {
+        if let Some(m) = Material::preset(text) {
+            return Ok(m);
+        }
+        let numbers: Vec<f32> =
+            text.split(',').map(|t| t.trim().parse::<f32>()).collect::<core::result::Result<_, _>>().map_err(|_| {
+                Error::parse(
+                    "material",
+                    0,
+                    format!("'{text}': not a preset ({}) nor density,mu,lambda,bending", Material::PRESETS.join(", ")),
+                )
+            })?;
+        let [density, mu, lambda, bending] = numbers[..] else {
+            return Err(Error::parse(
+                "material",
+                0,
+                format!("'{text}': four numbers density,mu,lambda,bending, not {}", numbers.len()),
+            ));
+        };
+        let m = Material { density, mu, lambda, bending };
+        if !m.is_valid() {
+            return Err(Error::parse("material", 0, format!("'{text}': every parameter must be finite and positive")));
+        }
+        Ok(m)
+    }
+
     /// True when every parameter is finite and strictly positive.
     pub fn is_valid(&self) -> bool {
         [self.density, self.mu, self.lambda, self.bending].iter().all(|v| v.is_finite() && *v > 0.0)
@@ -97,6 +132,16 @@ mod tests {
         let want = [0.6475499f32, 0.2844717, 0.4550707];
         for (g, w) in got.iter().zip(want) {
             assert!((g - w).abs() < 2e-6, "{got:?} vs {want:?}");
+        }
+    }
+
+    #[test]
+    fn material_parses_presets_and_numbers_and_refuses_the_rest() {
+        assert_eq!(Material::parse("stiff-bend").unwrap(), Material::preset("stiff-bend").unwrap());
+        let m = Material::parse("0.3, 20000,40000,1e-5").unwrap();
+        assert_eq!(m, Material { density: 0.3, mu: 20000.0, lambda: 40000.0, bending: 1e-5 });
+        for bad in ["silk", "0.3,20000,40000", "0.3,20000,40000,1e-5,1", "0.3,-1,40000,1e-5", "0.3,nan,1,1", ""] {
+            assert!(matches!(Material::parse(bad), Err(Error::Parse { format: "material", .. })), "{bad}");
         }
     }
 }

@@ -24,7 +24,7 @@ use std::time::Duration;
 
 #[derive(Args)]
 pub struct ReportArgs {
-    /// Model files (comma-separated); default: every `models/*.hood`, or untrained random models
+    /// Model files (comma-separated); default: every `models/*.hood` of the working directory, or untrained random models
     /// (timing only) when there is none.
     #[arg(long, value_delimiter = ',')]
     model: Vec<PathBuf>,
@@ -75,9 +75,10 @@ pub struct ReportArgs {
     #[arg(long, value_enum, default_value_t = ObjectiveArg::Evaluation)]
     objective: ObjectiveArg,
     /// Output folder for `report.md` and `report.svg`.
-    #[arg(long, short, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/docs"))]
+    #[arg(long, short, default_value = "docs")]
     out: PathBuf,
-    /// Folder of the MakeHuman assets (default: ../shared/assets beside the source).
+    /// The assets folder: MakeHuman body, garments, motion clips (default: $HOOD_ASSETS, else
+    /// `shared/assets` in the working directory or a parent).
     #[arg(long)]
     assets: Option<PathBuf>,
     /// Also write the "which step for your garment and budget" table into this Markdown file
@@ -120,8 +121,8 @@ fn spec_label(s: &ModelSpec) -> String {
 fn candidates(a: &ReportArgs) -> Result<Vec<Candidate>> {
     let mut files = a.model.clone();
     if files.is_empty() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
-        if let Ok(rd) = std::fs::read_dir(&dir) {
+        let dir = Path::new("models");
+        if let Ok(rd) = std::fs::read_dir(dir) {
             files = rd
                 .filter_map(|e| e.ok().map(|e| e.path()))
                 .filter(|p| p.extension().is_some_and(|x| x == "hood"))
@@ -192,10 +193,11 @@ fn scene_of(a: &ReportArgs, name: &str, vertices: usize, seconds: f32, m: &Manne
     let Some(which) = MakeHumanGarment::parse(garment) else {
         return Err(Error::parse("workload", 0, format!("unknown workload '{name}'")));
     };
-    let assets = a.assets.clone().unwrap_or_else(|| hood::workloads::default_shared_dir().join("assets"));
     // The MakeHuman garments' walk is the CMU walk (no motion given).
     let motion = motion.filter(|&mo| mo != MotionKind::Walk);
-    match makehuman_on(&assets, which, motion, a.frames + 1) {
+    let scene =
+        hood::assets::locate(a.assets.as_deref()).and_then(|dir| makehuman_on(&dir, which, motion, a.frames + 1));
+    match scene {
         Ok(s) => Ok(Some(s)),
         Err(e @ Error::Io { .. }) => {
             eprintln!("skipping {name}: {e}");

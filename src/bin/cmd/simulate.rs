@@ -7,9 +7,10 @@ use hood::eval::{common_state_gaps, rollout_observed, strip_images, Animation, F
 use hood::eval::{Reference, RolloutOptions, Summary};
 use hood::io::export::{mdd, pc2, usda, write_file, ExportMesh, ObjTemplate};
 use hood::io::obj::Obj;
-use hood::mesh::{Garment, GarmentDesc};
+use hood::mesh::Material;
 use hood::model::ModelBytes;
 use hood::rig::procedural::Mannequin;
+use hood::scene::own::{garment_from_mesh, FaceAttachment, GarmentOptions, Pins, UpAxis};
 use hood::scene::{procedural, GarmentKind, MotionKind};
 use hood::sim::{Precision, SimConfig, StepMode};
 use hood::{Error, Result};
@@ -56,14 +57,33 @@ pub struct SimulateArgs {
     /// Network arithmetic: f32 or bf16.
     #[arg(long, default_value = "f32")]
     precision: String,
-    /// A garment OBJ (metres, y up) to simulate instead of the built-in scenes; needs --body-obj.
-    #[arg(long, requires = "body_obj")]
+    /// A garment OBJ of your own instead of the built-in garments, modelled around the body's
+    /// reference shape: the MakeHuman body's rest pose (then --motion or --bvh moves it), or the
+    /// first frame of --body-obj. See --scale, --up, --pins, --material.
+    #[arg(long)]
     garment_obj: Option<PathBuf>,
     /// The body as an OBJ sequence: a folder whose `.obj` files (same topology, sorted by name)
-    /// are the frames at 30 Hz.
+    /// are the frames at 30 Hz, in metres, y up.
     #[arg(long, requires = "garment_obj")]
     body_obj: Option<PathBuf>,
-    /// Folder of the MakeHuman assets (default: ../shared/assets beside the source).
+    /// Metres per unit of the --garment-obj file (0.01 for centimetres).
+    #[arg(long, default_value_t = 1.0, requires = "garment_obj")]
+    scale: f32,
+    /// The --garment-obj file's up axis: y, or z (turned to y up).
+    #[arg(long, default_value = "y", requires = "garment_obj")]
+    up: String,
+    /// Which --garment-obj vertices follow the body: auto (the waistband of a garment that does
+    /// not reach the shoulders; none for tops and dresses), none, group:NAME[,NAME] (the vertices
+    /// of the faces of those OBJ groups) or a file of 0-based vertex indices (separated by
+    /// spaces, commas or lines; `#` starts a comment).
+    #[arg(long, default_value = "auto", requires = "garment_obj")]
+    pins: String,
+    /// The --garment-obj material: default, soft-stretch, stiff-stretch, soft-bend, stiff-bend,
+    /// or density,mu,lambda,bending in SI units (kg/m^2, Pa, Pa, J).
+    #[arg(long, default_value = "default", requires = "garment_obj")]
+    material: String,
+    /// The assets folder: MakeHuman body, garments, motion clips (default: $HOOD_ASSETS, else
+    /// `shared/assets` in the working directory or a parent).
     #[arg(long)]
     assets: Option<PathBuf>,
     /// A BVH clip of your own for a MakeHuman garment (`--garment tee`, ...), instead of
@@ -171,11 +191,45 @@ fn obj_sequence(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// A garment OBJ on a body OBJ sequence: no pins; the garment starts at its rest shape pushed
-/// out of the body at the first frame.
-fn files_scene(garment_obj: &Path, body_dir: &Path) -> Result<Playback> {
-    let g = Obj::read(garment_obj)?;
-    let garment = Garment::new(GarmentDesc::new(&g.positions, &g.triangles))?;
+/// How --scale, --up, --pins and --material make a garment of `obj`.
+fn garment_options(a: &SimulateArgs, obj: &Obj) -> Result<GarmentOptions> {
+    let up = UpAxis::parse(&a.up).ok_or_else(|| Error::parse("up", 0, format!("'{}' (use y or z)", a.up)))?;
+    let pins = match a.pins.as_str() {
+        "auto" => Pins::Auto,
+        "none" => Pins::None,
+        spec => match spec.strip_prefix("group:") {
+            Some(names) => {
+                let names: Vec<&str> = names.split(',').collect();
+                let mut v: Vec<u32> =
+                    obj.triangles_in_groups(&names)?.into_iter().flat_map(|t| obj.triangles[t]).collect();
+                v.sort_unstable();
+                v.dedup();
+                Pins::Vertices(v)
+            }
+            None => Pins::Vertices(read_vertex_list(Path::new(spec))?),
+        },
+    };
+    Ok(GarmentOptions { scale: a.scale, up, pins, material: Some(Material::parse(&a.material)?) })
+}
+
+/// 0-based vertex indices from a text file: separated by whitespace or commas, `#` comments.
+fn read_vertex_list(path: &Path) -> Result<Vec<u32>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let mut v = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.split('#').next().unwrap_or("");
+        for token in line.split(|c: char| c.is_whitespace() || c == ',').filter(|t| !t.is_empty()) {
+            let k =
+                token.parse().map_err(|_| Error::parse("pins", i + 1, format!("'{token}' is not a vertex index")))?;
+            v.push(k);
+        }
+    }
+    Ok(v)
+}
+
+/// A garment OBJ on a body OBJ sequence: the garment starts at its rest shape pushed out of the
+/// body at the first frame; its pins ride on the body face nearest each in that frame.
+fn files_scene(g: &Obj, body_dir: &Path, options: &GarmentOptions) -> Result<Playback> {
     let files = obj_sequence(body_dir)?;
     let first = Obj::read(&files[0])?;
     let body = hood::body::BodyMesh::new(first.positions.len(), &first.triangles)?;
@@ -191,40 +245,71 @@ fn files_scene(garment_obj: &Path, body_dir: &Path) -> Result<Playback> {
         }
         body_frames.push(o.positions);
     }
+    let garment = garment_from_mesh(&g.positions, &g.triangles, options, &body, &body_frames[0])?;
     let mut initial = garment.rest().to_vec();
     hood::scene::push_out_of(&body, &body_frames[0], &mut initial, garment.pinned())?;
+    let pinned = garment.pinned_indices();
+    let pin_targets = if pinned.is_empty() {
+        Vec::new()
+    } else {
+        let attached = FaceAttachment::new(&body, &body_frames[0], garment.rest(), &pinned)?;
+        let mut targets = Vec::with_capacity(body_frames.len());
+        for frame in &body_frames {
+            let mut t = garment.rest().to_vec();
+            attached.place(&body, frame, &mut t)?;
+            targets.push(t);
+        }
+        targets
+    };
     let frames = body_frames.len();
-    Ok(Playback {
-        garment,
-        body: Some(body),
-        body_frames,
-        pin_targets: Vec::new(),
-        initial,
-        initial_velocity: Vec::new(),
-        frames,
-    })
+    Ok(Playback { garment, body: Some(body), body_frames, pin_targets, initial, initial_velocity: Vec::new(), frames })
 }
 
 /// The scene the arguments name, as a boxed animation, and its description.
 fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
-    if let (Some(g), Some(b)) = (&a.garment_obj, &a.body_obj) {
-        let p = files_scene(g, b)?;
-        return Ok((Box::new(p), format!("{} on {}", g.display(), b.display())));
+    if let Some(path) = &a.garment_obj {
+        let obj = Obj::read(path)?;
+        let options = garment_options(a, &obj)?;
+        if let Some(b) = &a.body_obj {
+            let p = files_scene(&obj, b, &options)?;
+            return Ok((Box::new(p), format!("{} on {}", path.display(), b.display())));
+        }
+        use hood::scene::{makehuman_wearing, MakeHumanMotion, Wearing};
+        let assets = hood::assets::locate(a.assets.as_deref())?;
+        let motion = match &a.bvh {
+            Some(bvh) => MakeHumanMotion::Bvh(bvh.clone(), bvh_rest(&a.bvh_rest)?),
+            None => MakeHumanMotion::named(&assets, Some(motion_kind(&a.motion)?).filter(|_| a.motion != "walk")),
+        };
+        let name = path.file_stem().map_or_else(|| "garment".into(), |s| s.to_string_lossy().into_owned());
+        let wearing =
+            Wearing::Own { name: &name, positions: &obj.positions, triangles: &obj.triangles, options: &options };
+        let s = makehuman_wearing(&assets, wearing, motion, a.frames + 1)?;
+        let name = s.name.clone();
+        return Ok((Box::new(s), name));
     }
     if let Some(bvh) = &a.bvh {
-        use hood::scene::{makehuman_on_bvh, BvhRest, MakeHumanGarment};
+        use hood::scene::{makehuman_on_bvh, MakeHumanGarment};
         let which = MakeHumanGarment::parse(&a.garment).ok_or_else(|| {
             Error::parse("garment", 0, format!("--bvh needs a MakeHuman garment, not '{}'", a.garment))
         })?;
-        let rest = BvhRest::parse(&a.bvh_rest).ok_or_else(|| {
-            Error::parse("bvh rest", 0, format!("unknown rest '{}' (one of {})", a.bvh_rest, BvhRest::NAMES.join(", ")))
-        })?;
-        let assets = a.assets.clone().unwrap_or_else(|| hood::workloads::default_shared_dir().join("assets"));
+        let rest = bvh_rest(&a.bvh_rest)?;
+        let assets = hood::assets::locate(a.assets.as_deref())?;
         let s = makehuman_on_bvh(&assets, which, bvh, rest, a.frames + 1)?;
         let name = s.name.clone();
         return Ok((Box::new(s), name));
     }
     named_scene(&a.garment, a.vertices, &a.motion, a.frames, a.assets.as_deref())
+}
+
+fn bvh_rest(name: &str) -> Result<hood::scene::BvhRest> {
+    use hood::scene::BvhRest;
+    BvhRest::parse(name).ok_or_else(|| {
+        Error::parse("bvh rest", 0, format!("unknown rest '{name}' (one of {})", BvhRest::NAMES.join(", ")))
+    })
+}
+
+fn motion_kind(name: &str) -> Result<MotionKind> {
+    MotionKind::parse(name).ok_or_else(|| Error::parse("motion", 0, format!("unknown motion '{name}'")))
 }
 
 /// A built-in scene long enough for `frames` steps, as a boxed animation, and its description:
@@ -240,8 +325,7 @@ pub fn named_scene(
 ) -> Result<(Box<dyn Animation>, String)> {
     let seconds = (frames + 1) as f32 / 30.0 + 0.1;
     let motion_name = motion;
-    let motion =
-        MotionKind::parse(motion).ok_or_else(|| Error::parse("motion", 0, format!("unknown motion '{motion}'")))?;
+    let motion = motion_kind(motion)?;
     if let Some(kind) = GarmentKind::parse(garment) {
         let s = procedural(&Mannequin::new(), kind, vertices, motion, seconds)?;
         let name = s.name.clone();
@@ -256,7 +340,7 @@ pub fn named_scene(
             format!("unknown garment '{garment}' (skirt, dress, cape, {})", names.join(", ")),
         ));
     };
-    let assets = assets.map_or_else(|| hood::workloads::default_shared_dir().join("assets"), Path::to_path_buf);
+    let assets = hood::assets::locate(assets)?;
     let on = (motion_name != "walk").then_some(motion);
     let s = makehuman_on(&assets, which, on, frames + 1)?;
     let name = s.name.clone();

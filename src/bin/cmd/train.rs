@@ -82,9 +82,11 @@ pub struct TrainArgs {
     /// same iteration again leaves it as it is.
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     snapshot_every: Option<u64>,
-    /// Folder holding `assets/` (default: ../shared beside the source).
+    /// The assets folder (MakeHuman body, garments, motion clips; default: $HOOD_ASSETS, else
+    /// `shared/assets` in the working directory or a parent). Without one, the scenes that need
+    /// it are skipped with a warning.
     #[arg(long)]
-    shared: Option<PathBuf>,
+    assets: Option<PathBuf>,
     /// Start afresh even when the folder holds a checkpoint.
     #[arg(long)]
     fresh: bool,
@@ -251,11 +253,11 @@ fn append(path: &Path, line: &str) -> hood::Result<()> {
     writeln!(f, "{line}").map_err(|e| hood::Error::io(path, e))
 }
 
-fn build_data(cfg: &TrainConfig, shared: &Path) -> hood::Result<Dataset> {
+fn build_data(cfg: &TrainConfig, assets: &Path) -> hood::Result<Dataset> {
     let t = Instant::now();
     let bar = Progress::new("building scenes", "scenes", cfg.scenes.len() as u64, Duration::from_secs(10));
     let mut built = 0;
-    let data = Dataset::build(cfg, &shared.join("assets"), |name| {
+    let data = Dataset::build(cfg, assets, |name| {
         bar.set_position(built);
         bar.set_message(name);
         built += 1;
@@ -271,7 +273,14 @@ fn build_data(cfg: &TrainConfig, shared: &Path) -> hood::Result<Dataset> {
 pub fn train(a: TrainArgs) -> hood::Result<()> {
     let dir = expand(&a.dir);
     std::fs::create_dir_all(&dir).map_err(|e| hood::Error::io(&dir, e))?;
-    let shared = a.shared.clone().unwrap_or_else(hood::workloads::default_shared_dir);
+    let assets = match hood::assets::locate(a.assets.as_deref()) {
+        Ok(dir) => dir,
+        Err(e) if a.assets.is_none() => {
+            eprintln!("warning: {e}");
+            PathBuf::from("assets")
+        }
+        Err(e) => return Err(e),
+    };
     let ckpt = dir.join("checkpoint.safetensors");
     let log = dir.join("log.jsonl");
     let vlog = dir.join("validation.jsonl");
@@ -285,7 +294,7 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
             eprintln!("scenes from {}: {} instead of {}", p.display(), other.scenes.len(), cfg.scenes.len());
             cfg.scenes = other.scenes;
         }
-        let mut t = Trainer::resume(&ckpt, build_data(&cfg, &shared)?)?;
+        let mut t = Trainer::resume(&ckpt, build_data(&cfg, &assets)?)?;
         t.cfg.scenes = cfg.scenes;
         eprintln!("resumed {} at iteration {}", ckpt.display(), t.iteration);
         t
@@ -298,7 +307,7 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
             Some(p) => TrainConfig::from_json(&std::fs::read_to_string(p).map_err(|e| hood::Error::io(p, e))?)?,
             None => TrainConfig::default(),
         };
-        let data = build_data(&cfg, &shared)?;
+        let data = build_data(&cfg, &assets)?;
         match &a.from_model {
             Some(p) => {
                 let bytes = ModelBytes::new(&std::fs::read(p).map_err(|e| hood::Error::io(p, e))?);

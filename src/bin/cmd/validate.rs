@@ -132,7 +132,8 @@ pub struct ValidateArgs {
     /// Output folder: `<model>-<scene>.png` strips and `validation.md` (the table).
     #[arg(long, short, default_value = "hood-validate")]
     out: PathBuf,
-    /// Folder of the MakeHuman assets (default: ../shared/assets beside the source).
+    /// The assets folder: MakeHuman body, garments, motion clips (default: $HOOD_ASSETS, else
+    /// `shared/assets` in the working directory or a parent).
     #[arg(long)]
     assets: Option<PathBuf>,
 }
