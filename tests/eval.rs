@@ -282,22 +282,24 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     let after = |s: &str, key: &str| s.split(key).nth(1).and_then(|t| t.split([',', ' ']).next()).map(str::to_owned);
     let own = after(&sim, "; relative gap mean ").unwrap();
     let common = after(&sim, "training objective): relative gap mean ").unwrap();
-    assert!(rows[0][8].starts_with(&format!("{own} (")), "simulate {own}, validate {}", rows[0][8]);
-    assert!(rows[0][11].starts_with(&format!("{common} (")), "simulate {common}, validate {}", rows[0][11]);
+    assert!(rows[0][9].starts_with(&format!("{own} (")), "simulate {own}, validate {}", rows[0][9]);
+    assert!(rows[0][12].starts_with(&format!("{common} (")), "simulate {common}, validate {}", rows[0][12]);
     assert!(sim.contains("garment on the body (worn vertices over 10 cm off: max 0.0 %"), "{sim}");
     let means = format!("over the 1 scene(s): models-compact {own}, a-compact {own}.");
     assert!(table.contains(&means), "{table}");
+    // The worn centroid's shift, in cm as simulate's verdict gives it.
+    assert_eq!(Some(rows[0][7].to_string()), after(&sim, "shift max "), "{sim}");
     let strain = after(&sim, "largest strain ").unwrap();
-    assert_eq!(rows[0][16], strain);
+    assert_eq!(rows[0][17], strain);
     let objective = after(&sim, "objective mean ").unwrap();
-    assert_eq!(rows[0][12], objective.trim_end_matches(';'));
+    assert_eq!(rows[0][13], objective.trim_end_matches(';'));
     // The peak is the largest of the per-frame objectives simulate prints, past frame 1.
     let peak = sim
         .lines()
         .filter(|l| l.starts_with("frame") && !l.contains("(with start-up step)"))
         .filter_map(|l| Some((l.split("objective").nth(1)?.split_whitespace().next()?.parse::<f64>().ok()?, l)))
         .fold(0.0f64, |m, (e, _)| m.max(e));
-    let shown: f64 = rows[0][13].split(' ').next().unwrap().parse().unwrap();
+    let shown: f64 = rows[0][14].split(' ').next().unwrap().parse().unwrap();
     assert!((shown - peak).abs() <= 0.006 + 1e-4 * peak, "validate {shown}, simulate {peak}");
     // With the refinement effect, validate scores what `simulate --refine` scores, closer to
     // the optimum than the model alone.
@@ -311,7 +313,7 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     let o = simulate(&["--refine", "5"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let gap = after(&text(&o), "; relative gap mean ").unwrap();
-    assert!(refined[8].starts_with(&format!("{gap} (")), "simulate --refine 5 {gap}, validate {}", refined[8]);
+    assert!(refined[9].starts_with(&format!("{gap} (")), "simulate --refine 5 {gap}, validate {}", refined[9]);
     // The absolute gap (J, in parentheses) is what a few iterations from the prediction cut; the
     // relative one also moves with the descent available at the (now different) states.
     let absolute = |cell: &str| {
@@ -319,7 +321,7 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
         let (value, unit) = inner.split_once(' ').unwrap();
         value.parse::<f64>().unwrap() * if unit == "mJ" { 1e-3 } else { 1.0 }
     };
-    assert!(absolute(refined[8]) < absolute(rows[0][8]), "refined {}, model alone {}", refined[8], rows[0][8]);
+    assert!(absolute(refined[9]) < absolute(rows[0][9]), "refined {}, model alone {}", refined[9], rows[0][9]);
     let o = hood(&["validate", model, "--scenes", "poncho"]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("unknown scene"));
     let _ = std::fs::remove_dir_all(&out);

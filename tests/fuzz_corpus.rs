@@ -13,13 +13,14 @@ type Entry = fn(&[u8]);
 
 #[test]
 fn fuzz_corpora_replay_without_panics() {
-    let targets: [(&str, Entry); 6] = [
+    let targets: [(&str, Entry); 7] = [
         ("model", entries::model),
         ("obj", entries::obj),
         ("bvh", entries::bvh),
         ("mhclo", entries::mhclo),
         ("json", entries::json),
         ("safetensors", entries::safetensors),
+        ("gltf", entries::gltf),
     ];
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus");
     for (target, entry) in targets {

@@ -78,12 +78,12 @@ fn scene_makehuman_jeans_on_cmu_walk() {
 }
 
 /// A garment of the user's on the MakeHuman body: the fitted jeans and t-shirt given back as
-/// meshes in centimetres, z up (as a Blender export without axis conversion would give them)
-/// come out as the built-in pieces: same rest shape, the jeans' waist pinned automatically, the
+/// meshes around `base.obj` (its frame, in tenths of its units), z up (as a Blender export
+/// without axis conversion would give them) come out as the built-in pieces: same rest shape, the jeans' waist pinned automatically, the
 /// t-shirt free; and they follow a clip of the motion corpus.
 #[test]
 fn scene_own_garment_on_makehuman_matches_the_fitted_piece() {
-    use hood::scene::own::{GarmentOptions, Pins, UpAxis};
+    use hood::scene::own::{GarmentOptions, OwnGarment, Pins, UpAxis};
     use hood::scene::{makehuman_wearing, MakeHumanGarment, MakeHumanMotion, Wearing};
     let assets = common::shared_dir().join("assets");
     if !assets.join("body/base.obj").exists() {
@@ -93,10 +93,17 @@ fn scene_own_garment_on_makehuman_matches_the_fitted_piece() {
     let motion = MakeHumanMotion::named(&assets, MotionKind::parse("jumps-1001"));
     for which in [MakeHumanGarment::Jeans, MakeHumanGarment::Tee] {
         let piece = hood::scene::makehuman_on(&assets, which, MotionKind::parse("jumps-1001"), 20).unwrap();
+        // In base.obj's frame (decimetres, centred) times 10, z up; --scale 0.1 brings it back.
+        let shift = hood::io::makehuman::MakeHuman::load(assets.join("body")).unwrap().floor_shift;
         let file: Vec<[f32; 3]> =
-            piece.garment.rest().iter().map(|p| [p[0] * 100.0, -p[2] * 100.0, p[1] * 100.0]).collect();
-        let options = GarmentOptions { scale: 0.01, up: UpAxis::Z, pins: Pins::Auto, material: None };
-        let own = Wearing::Own { name: "mine", positions: &file, triangles: piece.garment.faces(), options: &options };
+            piece.garment.rest().iter().map(|p| [p[0] * 100.0, -p[2] * 100.0, (p[1] - shift) * 100.0]).collect();
+        let options = GarmentOptions { scale: 0.1, up: UpAxis::Z, pins: Pins::Auto, ..Default::default() };
+        let own = Wearing::Own(OwnGarment {
+            name: "mine",
+            positions: &file,
+            triangles: piece.garment.faces(),
+            options: &options,
+        });
         let s = makehuman_wearing(&assets, own, motion.clone(), 20).unwrap();
         assert_eq!(s.n_frames(), piece.n_frames());
         assert_eq!(s.garment.pinned(), piece.garment.pinned(), "{which:?}");

@@ -148,3 +148,13 @@ pub fn safetensors(data: &[u8]) {
     #[cfg(feature = "train")]
     let _ = hood::train::session::checkpoint_config(&st);
 }
+
+/// glTF bytes (GLB, or JSON with `data:` buffers): a skinned body read, a few frames of its
+/// first animation posed and skinned, and its mesh used as a body.
+pub fn gltf(data: &[u8]) {
+    let Ok(body) = hood::io::gltf::GltfBody::from_slice(data) else { return };
+    use_mesh(&body.positions, &body.triangles);
+    if let Ok(poses) = body.poses(None, 30.0, 8) {
+        let _ = hood::rig::motion::BodyMotion::skinned(&body.skeleton, &body.weights, &body.positions, &poses, 30.0);
+    }
+}

@@ -375,6 +375,9 @@ pub struct Summary {
     /// Largest drift of a vertex from its skinned position over the frames, m (garments with
     /// pins).
     pub max_drift: Option<f64>,
+    /// Largest shift of the worn vertices' centroid from its skinned position over the frames,
+    /// m ([`OffBodyFrame::shift`]): a top riding up while it stays within 10 cm of the body.
+    pub max_shift: Option<f64>,
 }
 
 impl Summary {
@@ -392,8 +395,11 @@ impl Summary {
             Some(f) => alloc::format!("garment LOST from frame {f}"),
             None => "garment on the body".into(),
         };
-        let drift =
+        let mut drift =
             self.max_drift.map_or(alloc::string::String::new(), |d| alloc::format!("; drift max {:.1} cm", 100.0 * d));
+        if let Some(d) = self.max_shift {
+            drift.push_str(&alloc::format!("; shift max {:.1} cm", 100.0 * d));
+        }
         Some(alloc::format!("{verdict} (worn vertices over 10 cm off: max {max:.1} %, mean {mean:.1} %{drift})"))
     }
 }
@@ -977,6 +983,7 @@ fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
         s.off_body_mean = Some(off.iter().map(|o| o.1.off_percent).sum::<f64>() / off.len() as f64);
         s.lost_at = off.iter().find(|o| o.1.off_percent >= LOST_PERCENT).map(|o| o.0);
         s.max_drift = off.iter().filter_map(|o| o.1.max_drift).reduce(f64::max);
+        s.max_shift = Some(off.iter().map(|o| o.1.shift).fold(0.0, f64::max));
     }
     s
 }

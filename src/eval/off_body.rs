@@ -12,6 +12,9 @@
 //!   (the animation's pin targets, which for a [`Scene`](crate::scene::Scene) are the whole
 //!   garment skinned with the body): trousers whose legs slide off show here even while the waist
 //!   holds.
+//! * **Shift**: the distance between the centroid of the worn vertices and the centroid of
+//!   their skinned positions: a top that rides up to the chest, or slides round the body, shows
+//!   here while every vertex stays within [`OFF_DISTANCE`] of the body.
 //!
 //! Distances to the body surface are exact over the faces around the nearest body vertex (the
 //! surface point nearest a garment vertex lies on one of them unless the body is coarser than
@@ -43,6 +46,9 @@ pub struct OffBodyFrame {
     pub off_percent: f64,
     /// Largest distance of a vertex from its skinned position, m (garments with pins only).
     pub max_drift: Option<f64>,
+    /// Distance between the centroid of the worn vertices and that of their skinned positions,
+    /// m.
+    pub shift: f64,
 }
 
 /// Measures [`OffBodyFrame`]s of one garment on one animation (buffers sized once).
@@ -147,8 +153,13 @@ impl OffBody {
         self.surface_distances(anim.body_frame(t), &worn, &mut dist)?;
         let off = dist.iter().filter(|&&d| d > OFF_DISTANCE).count();
         let off_percent = if worn.is_empty() { 0.0 } else { 100.0 * off as f64 / worn.len() as f64 };
+        anim.pin_targets(t, &mut self.skinned)?;
+        let centroid = |x: &[[f32; 3]]| {
+            self.worn.iter().map(|&i| Vec3::from(x[i as usize]).as_dvec3()).sum::<glam::DVec3>()
+                / self.worn.len().max(1) as f64
+        };
+        let shift = (centroid(garment) - centroid(&self.skinned)).length();
         let max_drift = if self.drift {
-            anim.pin_targets(t, &mut self.skinned)?;
             let d = garment
                 .iter()
                 .zip(&self.skinned)
@@ -158,7 +169,7 @@ impl OffBody {
         } else {
             None
         };
-        Ok(OffBodyFrame { off_percent, max_drift })
+        Ok(OffBodyFrame { off_percent, max_drift, shift })
     }
 }
 
@@ -179,6 +190,11 @@ mod tests {
         assert_eq!(on.off_percent, 0.0);
         // The skirt is pinned: at frame 0 it sits at its skinned pose.
         assert!(on.max_drift.unwrap() < 0.01, "{:?}", on.max_drift);
+        assert!(on.shift < 0.01, "{}", on.shift);
+        // Ridden up 15 cm: still on the body, shifted 15 cm.
+        let up: Vec<[f32; 3]> = x0.iter().map(|p| [p[0], p[1] + 0.15, p[2]]).collect();
+        let ridden = ob.measure(&s, 0, &up).unwrap();
+        assert!((ridden.shift - 0.15).abs() < 0.01, "{}", ridden.shift);
         // Half the worn vertices 30 cm out, away from the body's vertical axis: half off,
         // drift 30 cm.
         let mut moved = x0.clone();

@@ -4,6 +4,7 @@
 
 pub mod bvh;
 pub mod export;
+pub mod gltf;
 pub mod json;
 pub mod makehuman;
 pub mod obj;

@@ -431,6 +431,27 @@ impl BodyMotion {
             p[1] += dy;
         }
     }
+
+    /// `rest` skinned with `weights` at each of `poses`, `fps` frames per second.
+    ///
+    /// # Errors
+    /// Errors of [`SkinTransforms::update`] and [`skin`] (sizes that disagree).
+    pub fn skinned(
+        skel: &Skeleton,
+        weights: &SkinWeights,
+        rest: &[[f32; 3]],
+        poses: &[Pose],
+        fps: f32,
+    ) -> Result<BodyMotion> {
+        let n = rest.len();
+        let mut positions = vec![[0.0f32; 3]; n * poses.len()];
+        let mut tr = SkinTransforms::new(skel.len());
+        for (pose, out) in poses.iter().zip(positions.chunks_exact_mut(n.max(1))) {
+            tr.update(skel, pose)?;
+            skin(&tr, weights, rest, out)?;
+        }
+        Ok(BodyMotion { fps, n_vertices: n, positions })
+    }
 }
 
 /// Skins `rest` (with `weights`, in the rig's units) at every frame of `clip` retargeted by

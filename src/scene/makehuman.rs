@@ -211,18 +211,8 @@ impl MakeHumanMotion {
 pub enum Wearing<'a> {
     /// A piece of the assets' outfits, fitted with its `.mhclo` binding.
     Piece(MakeHumanGarment),
-    /// A mesh of the user's around the body's rest shape, made a garment by
-    /// [`own::garment_from_mesh`](super::own::garment_from_mesh).
-    Own {
-        /// What it is, for the scene's name.
-        name: &'a str,
-        /// Positions in the file's units and frame.
-        positions: &'a [[f32; 3]],
-        /// Triangles.
-        triangles: &'a [[u32; 3]],
-        /// Scale, up axis, pins, material.
-        options: &'a super::own::GarmentOptions,
-    },
+    /// A mesh of the user's around the body's rest shape.
+    Own(super::own::OwnGarment<'a>),
 }
 
 /// The rest of a BVH clip, which retargeting aligns the rig to.
@@ -263,22 +253,19 @@ pub fn makehuman_wearing(
     let body = BodyMesh::new(mh.body.rest.len(), &mh.body.faces)?;
     let (garment, garment_name) = match wearing {
         Wearing::Piece(which) => (outfit_piece(assets, &mh, which)?, which.description()),
-        Wearing::Own { name, positions, triangles, options } => {
-            (super::own::garment_from_mesh(positions, triangles, options, &body, &mh.body.rest)?, name)
+        Wearing::Own(own) => {
+            // Modelled around `base.obj`: the garment goes with the body into metres, onto the floor.
+            let options = super::own::GarmentOptions {
+                scale: own.options.scale * METRES_PER_UNIT,
+                offset: [0.0, mh.floor_shift, 0.0],
+                ..own.options.clone()
+            };
+            (super::own::OwnGarment { options: &options, ..own }.garment(&body, &mh.body.rest)?, own.name)
         }
     };
     let motion_name = motion.name();
     let poses = makehuman_poses(assets, &mh, motion, max_frames)?;
-    let nb = mh.body.rest.len();
-    let mut positions = Vec::with_capacity(poses.len() * nb);
-    let mut tr = crate::rig::SkinTransforms::new(mh.skeleton.len());
-    let mut buf = vec![[0.0; 3]; nb];
-    for pose in &poses {
-        tr.update(&mh.skeleton, pose)?;
-        crate::rig::skin(&tr, &mh.body_weights, &mh.body.rest, &mut buf)?;
-        positions.extend_from_slice(&buf);
-    }
-    let body_motion = BodyMotion { fps: MODEL_FPS, n_vertices: nb, positions };
+    let body_motion = BodyMotion::skinned(&mh.skeleton, &mh.body_weights, &mh.body.rest, &poses, MODEL_FPS)?;
     let name = alloc::format!("MakeHuman {garment_name} on {motion_name}");
     Scene::new(name, garment, body, &mh.body.rest, &mh.body_weights, mh.skeleton.clone(), poses, body_motion)
 }

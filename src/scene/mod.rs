@@ -372,5 +372,9 @@ pub use makehuman::{
 };
 
 #[cfg(feature = "std")]
+mod gltf;
+#[cfg(feature = "std")]
 mod makehuman;
 pub mod own;
+#[cfg(feature = "std")]
+pub use gltf::gltf_wearing;

@@ -65,6 +65,8 @@ pub struct GarmentOptions {
     pub scale: f32,
     /// The file's up axis.
     pub up: UpAxis,
+    /// Added after turning and scaling, in the body's frame (m).
+    pub offset: [f32; 3],
     /// The pinned vertices.
     pub pins: Pins,
     /// Every vertex's material (`None`: [`Material::default`]).
@@ -73,7 +75,30 @@ pub struct GarmentOptions {
 
 impl Default for GarmentOptions {
     fn default() -> Self {
-        GarmentOptions { scale: 1.0, up: UpAxis::Y, pins: Pins::Auto, material: None }
+        GarmentOptions { scale: 1.0, up: UpAxis::Y, offset: [0.0; 3], pins: Pins::Auto, material: None }
+    }
+}
+
+/// A garment mesh of the user's and how to make it a [`Garment`] ([`garment_from_mesh`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OwnGarment<'a> {
+    /// What it is, for the scene's name.
+    pub name: &'a str,
+    /// Positions in the file's units and frame.
+    pub positions: &'a [[f32; 3]],
+    /// Triangles.
+    pub triangles: &'a [[u32; 3]],
+    /// Scale, up axis, pins, material.
+    pub options: &'a GarmentOptions,
+}
+
+impl OwnGarment<'_> {
+    /// The garment, around `body` standing at `body_pos` ([`garment_from_mesh`]).
+    ///
+    /// # Errors
+    /// As [`garment_from_mesh`].
+    pub fn garment(&self, body: &BodyMesh, body_pos: &[[f32; 3]]) -> Result<Garment> {
+        garment_from_mesh(self.positions, self.triangles, self.options, body, body_pos)
     }
 }
 
@@ -86,7 +111,7 @@ pub const HANGING_HEIGHT: f32 = 0.75;
 pub const AUTO_PIN_REACH: f32 = 0.03;
 
 /// A [`Garment`] of `positions` (in the file's units and frame) and `triangles`, transformed by
-/// `options` into metres, y up, made of its material and pinned as it says. `body_pos` is the
+/// `options` into the body's frame (m, y up), made of its material and pinned as it says. `body_pos` is the
 /// body (`body`) as the garment was modelled around it, for [`Pins::Auto`].
 ///
 /// # Errors
@@ -103,7 +128,15 @@ pub fn garment_from_mesh(
     if !(options.scale.is_finite() && options.scale > 0.0) {
         return Err(Error::OutOfRange { what: "garment scale", index: 0 });
     }
-    let rest: Vec<[f32; 3]> = positions.iter().map(|&p| options.up.to_y_up(p).map(|c| c * options.scale)).collect();
+    let mut rest: Vec<[f32; 3]> =
+        positions.iter().map(|&p| add3(scale3(options.up.to_y_up(p), options.scale), options.offset)).collect();
+    // A garment modelled into the body (a tight fit, a proxy drawn on the skin) rests outside it:
+    // a rest shape inside would pull the garment back in at every step.
+    let fixed = match &options.pins {
+        Pins::Vertices(v) => pinned_flags(rest.len(), v)?,
+        _ => vec![false; rest.len()],
+    };
+    super::push_out_of(body, body_pos, &mut rest, &fixed)?;
     let materials = vec![options.material.unwrap_or_default(); rest.len()];
     let mut garment = Garment::new(GarmentDesc::new(&rest, triangles).materials(&materials))?;
     let pins = match &options.pins {
@@ -117,38 +150,58 @@ pub fn garment_from_mesh(
     Ok(garment)
 }
 
-/// The pins a garment needs not to fall, as the MakeHuman jeans are pinned: none for a garment
-/// that reaches the shoulders (its highest point above [`HANGING_HEIGHT`] of the body's
-/// height); otherwise its highest boundary loop among those within [`AUTO_PIN_REACH`] of the
-/// body (the waistband), ascending. The body stands y up at `body_pos`, the garment at its rest
-/// positions around it.
+/// The pins a garment needs not to fall, as the MakeHuman jeans are pinned, for each connected
+/// piece of it (an outfit of a top and trousers in one mesh): none for a piece that reaches the
+/// shoulders (its highest point above [`HANGING_HEIGHT`] of the body's height); otherwise the
+/// piece's highest boundary loop among those within [`AUTO_PIN_REACH`] of the body (its
+/// waistband). Ascending. The body stands y up at `body_pos`, the garment at its rest positions
+/// around it.
 ///
 /// # Errors
-/// [`Error::Empty`] when the garment needs pins and no boundary loop lies within reach (pin it
-/// by hand); errors of the body queries.
+/// [`Error::Empty`] when a piece needs pins and none of its boundary loops lies within reach
+/// (pin it by hand); errors of the body queries.
 pub fn auto_pins(garment: &Garment, body: &BodyMesh, body_pos: &[[f32; 3]]) -> Result<Vec<u32>> {
     body.check_positions(body_pos)?;
     let (low, high) = body_pos.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), p| (l.min(p[1]), h.max(p[1])));
-    let top = garment.rest().iter().map(|p| p[1]).fold(f32::NEG_INFINITY, f32::max);
-    if top > low + HANGING_HEIGHT * (high - low) {
+    let rest = garment.rest();
+    let piece = garment.component_of();
+    let mut top = vec![f32::NEG_INFINITY; garment.n_components()];
+    for (p, &c) in rest.iter().zip(piece) {
+        top[c as usize] = top[c as usize].max(p[1]);
+    }
+    let hanging: Vec<bool> = top.iter().map(|&t| t <= low + HANGING_HEIGHT * (high - low)).collect();
+    if !hanging.contains(&true) {
         return Ok(Vec::new());
     }
     let surface = SurfaceDistance::new(body, body_pos)?;
-    let rest = garment.rest();
-    let mut best: Option<(f32, &Vec<u32>)> = None;
+    // Per piece: the height of its highest loop within reach, and that loop.
+    let mut best: Vec<Option<(f32, &Vec<u32>)>> = vec![None; hanging.len()];
     for l in garment.boundary_loops() {
+        let Some(&first) = l.first() else { continue };
+        let c = piece[first as usize] as usize;
+        if !hanging[c] {
+            continue;
+        }
         let points: Vec<[f32; 3]> = l.iter().map(|&v| rest[v as usize]).collect();
-        let distance = surface.distances(&points)?.iter().sum::<f32>() / points.len().max(1) as f32;
-        let height = points.iter().map(|p| p[1]).sum::<f32>() / points.len().max(1) as f32;
-        if distance <= AUTO_PIN_REACH && best.is_none_or(|(h, _)| height > h) {
-            best = Some((height, l));
+        let distance = surface.distances(&points)?.iter().sum::<f32>() / points.len() as f32;
+        let height = points.iter().map(|p| p[1]).sum::<f32>() / points.len() as f32;
+        if distance <= AUTO_PIN_REACH && best[c].is_none_or(|(h, _)| height > h) {
+            best[c] = Some((height, l));
         }
     }
-    let Some((_, l)) = best else {
-        // The message reads "<what> is empty".
-        return Err(Error::Empty { what: "for automatic pins, the set of boundary loops within 3 cm of the body" });
-    };
-    let mut v = l.clone();
+    let mut v = Vec::new();
+    for (c, b) in best.iter().enumerate() {
+        match b {
+            Some((_, l)) => v.extend_from_slice(l),
+            // The message reads "<what> is empty".
+            None if hanging[c] => {
+                return Err(Error::Empty {
+                    what: "for automatic pins, the set of boundary loops within 3 cm of the body",
+                })
+            }
+            None => {}
+        }
+    }
     v.sort_unstable();
     v.dedup();
     Ok(v)
@@ -296,6 +349,21 @@ mod tests {
     }
 
     #[test]
+    fn auto_pins_treat_each_piece_of_an_outfit_alone() {
+        let (skirt, m) = worn(GarmentKind::Skirt);
+        let (dress, _) = worn(GarmentKind::Dress);
+        // A top that reaches the shoulders (the dress raised 30 cm) and the skirt, in one mesh.
+        let mut rest: Vec<[f32; 3]> = dress.garment.rest().iter().map(|p| [p[0], p[1] + 0.3, p[2]]).collect();
+        let offset = rest.len() as u32;
+        rest.extend_from_slice(skirt.garment.rest());
+        let mut faces = dress.garment.faces().to_vec();
+        faces.extend(skirt.garment.faces().iter().map(|f| f.map(|v| v + offset)));
+        let outfit = Garment::new(GarmentDesc::new(&rest, &faces)).unwrap();
+        let want: Vec<u32> = skirt.garment.pinned_indices().iter().map(|v| v + offset).collect();
+        assert_eq!(auto_pins(&outfit, &skirt.body, m.rest()).unwrap(), want);
+    }
+
+    #[test]
     fn a_skirt_held_off_the_body_cannot_be_pinned_automatically() {
         let (skirt, m) = worn(GarmentKind::Skirt);
         // Widen the skirt about the body's vertical axis so that no loop is within reach.
@@ -311,7 +379,13 @@ mod tests {
         let file: Vec<[f32; 3]> =
             skirt.garment.rest().iter().map(|p| [p[0] * 100.0, -p[2] * 100.0, p[1] * 100.0]).collect();
         let material = Material::preset("stiff-stretch").unwrap();
-        let options = GarmentOptions { scale: 0.01, up: UpAxis::Z, pins: Pins::Auto, material: Some(material) };
+        let options = GarmentOptions {
+            scale: 0.01,
+            up: UpAxis::Z,
+            pins: Pins::Auto,
+            material: Some(material),
+            ..Default::default()
+        };
         let g = garment_from_mesh(&file, skirt.garment.faces(), &options, &skirt.body, m.rest()).unwrap();
         for (a, b) in g.rest().iter().zip(skirt.garment.rest()) {
             assert!((0..3).all(|k| (a[k] - b[k]).abs() < 1e-5), "{a:?} vs {b:?}");

@@ -10,7 +10,7 @@ use hood::io::obj::Obj;
 use hood::mesh::Material;
 use hood::model::ModelBytes;
 use hood::rig::procedural::Mannequin;
-use hood::scene::own::{garment_from_mesh, FaceAttachment, GarmentOptions, Pins, UpAxis};
+use hood::scene::own::{garment_from_mesh, FaceAttachment, GarmentOptions, OwnGarment, Pins, UpAxis};
 use hood::scene::{procedural, GarmentKind, MotionKind};
 use hood::sim::{Precision, SimConfig, StepMode};
 use hood::{Error, Result};
@@ -66,7 +66,16 @@ pub struct SimulateArgs {
     /// are the frames at 30 Hz, in metres, y up.
     #[arg(long, requires = "garment_obj")]
     body_obj: Option<PathBuf>,
-    /// Metres per unit of the --garment-obj file (0.01 for centimetres).
+    /// A skinned body in glTF 2.0 (`.glb` or `.gltf`: mesh, skin, animations; metres, y up) for
+    /// --garment-obj, modelled around the body's bind pose; --animation picks the clip.
+    #[arg(long, requires = "garment_obj", conflicts_with_all = ["body_obj", "bvh"])]
+    body: Option<PathBuf>,
+    /// The --body file's animation to play (default: its first), sampled at 30 Hz.
+    #[arg(long, requires = "body")]
+    animation: Option<String>,
+    /// Units of the body's file per unit of the --garment-obj file: 1 when the garment was
+    /// modelled around that file (`assets/body/base.obj` for the MakeHuman body, the first
+    /// --body-obj frame, the --body glTF), 0.01 for centimetres around a body in metres.
     #[arg(long, default_value_t = 1.0, requires = "garment_obj")]
     scale: f32,
     /// The --garment-obj file's up axis: y, or z (turned to y up).
@@ -209,7 +218,7 @@ fn garment_options(a: &SimulateArgs, obj: &Obj) -> Result<GarmentOptions> {
             None => Pins::Vertices(read_vertex_list(Path::new(spec))?),
         },
     };
-    Ok(GarmentOptions { scale: a.scale, up, pins, material: Some(Material::parse(&a.material)?) })
+    Ok(GarmentOptions { scale: a.scale, up, pins, material: Some(Material::parse(&a.material)?), ..Default::default() })
 }
 
 /// 0-based vertex indices from a text file: separated by whitespace or commas, `#` comments.
@@ -248,19 +257,16 @@ fn files_scene(g: &Obj, body_dir: &Path, options: &GarmentOptions) -> Result<Pla
     let garment = garment_from_mesh(&g.positions, &g.triangles, options, &body, &body_frames[0])?;
     let mut initial = garment.rest().to_vec();
     hood::scene::push_out_of(&body, &body_frames[0], &mut initial, garment.pinned())?;
-    let pinned = garment.pinned_indices();
-    let pin_targets = if pinned.is_empty() {
-        Vec::new()
-    } else {
-        let attached = FaceAttachment::new(&body, &body_frames[0], garment.rest(), &pinned)?;
-        let mut targets = Vec::with_capacity(body_frames.len());
-        for frame in &body_frames {
-            let mut t = garment.rest().to_vec();
-            attached.place(&body, frame, &mut t)?;
-            targets.push(t);
-        }
-        targets
-    };
+    // Every vertex rides on its nearest body face: the pins' targets, and for the off-body
+    // metric the garment "skinned" with the body (its drift and shift).
+    let every: Vec<u32> = (0..garment.n_vertices() as u32).collect();
+    let attached = FaceAttachment::new(&body, &body_frames[0], garment.rest(), &every)?;
+    let mut pin_targets = Vec::with_capacity(body_frames.len());
+    for frame in &body_frames {
+        let mut t = garment.rest().to_vec();
+        attached.place(&body, frame, &mut t)?;
+        pin_targets.push(t);
+    }
     let frames = body_frames.len();
     Ok(Playback { garment, body: Some(body), body_frames, pin_targets, initial, initial_velocity: Vec::new(), frames })
 }
@@ -274,16 +280,21 @@ fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
             let p = files_scene(&obj, b, &options)?;
             return Ok((Box::new(p), format!("{} on {}", path.display(), b.display())));
         }
+        let name = path.file_stem().map_or_else(|| "garment".into(), |s| s.to_string_lossy().into_owned());
+        let own = OwnGarment { name: &name, positions: &obj.positions, triangles: &obj.triangles, options: &options };
+        if let Some(file) = &a.body {
+            let body = hood::io::gltf::GltfBody::read(file)?;
+            let s = hood::scene::gltf_wearing(&body, a.animation.as_deref(), own, a.frames + 1)?;
+            let name = s.name.clone();
+            return Ok((Box::new(s), name));
+        }
         use hood::scene::{makehuman_wearing, MakeHumanMotion, Wearing};
         let assets = hood::assets::locate(a.assets.as_deref())?;
         let motion = match &a.bvh {
             Some(bvh) => MakeHumanMotion::Bvh(bvh.clone(), bvh_rest(&a.bvh_rest)?),
             None => MakeHumanMotion::named(&assets, Some(motion_kind(&a.motion)?).filter(|_| a.motion != "walk")),
         };
-        let name = path.file_stem().map_or_else(|| "garment".into(), |s| s.to_string_lossy().into_owned());
-        let wearing =
-            Wearing::Own { name: &name, positions: &obj.positions, triangles: &obj.triangles, options: &options };
-        let s = makehuman_wearing(&assets, wearing, motion, a.frames + 1)?;
+        let s = makehuman_wearing(&assets, Wearing::Own(own), motion, a.frames + 1)?;
         let name = s.name.clone();
         return Ok((Box::new(s), name));
     }
@@ -376,6 +387,7 @@ fn print_frame(r: &FrameRecord, frames: usize) {
         if let Some(d) = o.max_drift {
             optional.push_str(&format!("  drift {:.1} cm", 100.0 * d));
         }
+        optional.push_str(&format!("  shift {:.1} cm", 100.0 * o.shift));
     }
     say!(
         "frame {:>4}/{frames}  {:>7.2} ms  objective {:>10.4} J (stretch {:.4}, bend {:.2e}, inertia {:.4}, gravity {:.4}, collision {:.2e}, friction {:.2e})  penetrating {:>5.2}%  strain {:.3}  speed {:.2} m/s{optional}{}",

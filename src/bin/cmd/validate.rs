@@ -281,8 +281,8 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
     let results = results.into_inner().map_err(|_| Error::parse("validate", 0, "a rollout thread panicked"))?;
     let mut table = format!(
         "Validation: {} frames, gap and inside count every {} frames, training objective, {}{}{}, one thread per rollout.\n\n\
-         | model | scene | vertices | on the body | worn vertices off: max % (mean) | drift max (cm) | finite | own rollout: relative gap (absolute) | of which stretching | p95 | from common states | objective mean (J) | largest after frame 1 (J, frame) | penetrating % | inside % | largest strain | s |\n\
-         |---|---|---:|---|---:|---:|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
+         | model | scene | vertices | on the body | worn vertices off: max % (mean) | drift max (cm) | worn centroid shift max (cm) | finite | own rollout: relative gap (absolute) | of which stretching | p95 | from common states | objective mean (J) | largest after frame 1 (J, frame) | penetrating % | inside % | largest strain | s |\n\
+         |---|---|---:|---|---:|---:|---:|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
         a.frames,
         a.gap_every,
         a.precision,
@@ -311,7 +311,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         let f2 = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.2}"));
         let f3 = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.3}"));
         table += &format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.4} | {} | {:.2} | {} | {:.3} | {:.0} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.4} | {} | {:.2} | {} | {:.3} | {:.0} |\n",
             stem(m),
             scenes[s].label,
             row.vertices,
@@ -325,6 +325,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
                 _ => "-".into(),
             },
             o.max_drift.map_or_else(|| "-".into(), |d| format!("{:.1}", 100.0 * d)),
+            o.max_shift.map_or_else(|| "-".into(), |d| format!("{:.1}", 100.0 * d)),
             if o.finite { "yes" } else { "**no**" },
             gap_cell(o),
             f3(o.gap_by_term.map(|t| t.stretching)),
