@@ -112,16 +112,10 @@ const CMU_FINGERS: &[(&str, &str)] = &[("LeftHandFinger1", "LeftHandIndex1"), ("
 /// goes onto the line through the lowest body vertex of each half of the clip (a stance in
 /// any clip that starts and ends on its feet), so that the soles sit where the rest pose's do.
 fn lifted_onto_the_floor(mh: &MakeHuman, mut poses: Vec<Pose>) -> Result<Vec<Pose>> {
-    let nb = mh.body.rest.len();
     let rest_low = mh.body.rest.iter().map(|v| v[1]).fold(f32::INFINITY, f32::min);
-    let mut lows = Vec::with_capacity(poses.len());
-    let mut tr = crate::rig::SkinTransforms::new(mh.skeleton.len());
-    let mut buf = vec![[0.0; 3]; nb];
-    for pose in &poses {
-        tr.update(&mh.skeleton, pose)?;
-        crate::rig::skin(&tr, &mh.body_weights, &mh.body.rest, &mut buf)?;
-        lows.push(buf.iter().map(|v| v[1]).fold(f32::INFINITY, f32::min));
-    }
+    let skinned = BodyMotion::skinned(&mh.skeleton, &mh.body_weights, &mh.body.rest, &poses, MODEL_FPS)?;
+    let lows: Vec<f32> =
+        (0..poses.len()).map(|f| skinned.frame(f).iter().map(|v| v[1]).fold(f32::INFINITY, f32::min)).collect();
     let n = poses.len();
     let lowest = |r: core::ops::Range<usize>| r.min_by(|&a, &b| lows[a].total_cmp(&lows[b])).unwrap_or(0);
     let (f1, f2) = (lowest(0..n / 2), lowest(n / 2..n));
