@@ -1,8 +1,9 @@
 //! `Sim::step` never allocates: a counting global allocator over every combination of effects,
-//! precisions and thread settings; nor do the body queries. Their own test binary, with a single
-//! test that runs both checks in turn: no other test may run beside a counting window, since the
-//! harness allocates on its own threads when a test ends (it copies the test's captured output),
-//! which two tests in this file running side by side once counted as the body queries'.
+//! precisions and thread settings; nor does an outfit's step, nor do the body queries. Their own
+//! test binary, with a single test that runs the checks in turn: no other test may run beside a
+//! counting window, since the harness allocates on its own threads when a test ends (it copies
+//! the test's captured output), which two tests in this file running side by side once counted
+//! as the body queries'.
 
 mod common;
 use common::*;
@@ -47,7 +48,34 @@ static GLOBAL: Counting = Counting;
 #[test]
 fn alloc_free_step_and_body_queries() {
     step_every_effect_precision_and_thread_count();
+    outfit_step();
     body_queries();
+}
+
+/// Garments of every step mode on one body, stepped together through their shared body query.
+fn outfit_step() {
+    use hood::sim::Outfit;
+    let scene = Scene::new(12, 10);
+    let bytes = random_model(16, 2, false);
+    let model = bytes.model().unwrap();
+    let configs = [
+        SimConfig { refine: Some(2), projection: Some(0.004), normals: true, ..SimConfig::network() },
+        SimConfig { step: StepMode::Solver { iterations: 4 }, threads: 2, ..SimConfig::network() },
+        SimConfig { step: StepMode::SolverBudget { micros: 1_000_000, max_iterations: 4 }, ..SimConfig::network() },
+        SimConfig { threads: 2, ..SimConfig::network() },
+    ];
+    let sims = configs.iter().map(|&cfg| scene.sim(&model, cfg).unwrap()).collect();
+    let mut outfit = Outfit::new(sims).unwrap();
+    let frames: Vec<Vec<[f32; 3]>> = (1..6).map(|t| scene.body_at(t)).collect();
+    outfit.step(&frames[0]).unwrap();
+    COUNTING.store(true, Ordering::SeqCst);
+    ALLOCATIONS.store(0, Ordering::SeqCst);
+    for f in &frames[1..] {
+        outfit.step(f).unwrap();
+    }
+    COUNTING.store(false, Ordering::SeqCst);
+    let n = ALLOCATIONS.load(Ordering::SeqCst);
+    assert_eq!(n, 0, "{n} allocations in 4 steps of an outfit");
 }
 
 fn step_every_effect_precision_and_thread_count() {

@@ -197,7 +197,7 @@ fn eval_runtime_refinement_closes_the_gap() {
 /// `hood simulate` end to end on a random model: the OBJ sequence and the preview strip appear.
 #[cfg(feature = "cli")]
 #[test]
-fn eval_cli_simulate_writes_obj_sequence_and_strip() {
+fn eval_cli_simulate_writes_obj_sequence_strip_and_animation() {
     let out = std::env::temp_dir().join(format!("hood-simulate-test-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
     let status = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
@@ -212,6 +212,13 @@ fn eval_cli_simulate_writes_obj_sequence_and_strip() {
     }
     let g = hood::io::obj::Obj::read(out.join("garment_0003.obj")).unwrap();
     assert!(g.positions.len() > 200 && g.positions.iter().all(|p| p.iter().all(|c| c.is_finite())));
+    // The animated preview: frames 0 and 2 of 3, at 15 per second, each a picture of the scene
+    // (not blank).
+    let bytes = std::fs::read(out.join("animation.png")).unwrap();
+    let decoder = png::Decoder::new(std::io::Cursor::new(&bytes[..])).read_info().unwrap();
+    assert_eq!(decoder.info().animation_control.map(|c| c.num_frames), Some(2));
+    let first = hood::io::png::decode(&bytes).unwrap();
+    assert!(first.rgb.chunks(3).filter(|px| px != &[245, 245, 240]).count() > first.rgb.len() / 30);
     // An unknown garment is a clear error, not a panic.
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
         .args(["simulate", "--random-model", "16", "--garment", "poncho", "--out"])

@@ -7,17 +7,19 @@
 //!
 //! Units: metres; one step is one frame at the model's 30 Hz (velocities are m/frame).
 
+mod body_query;
 mod clock;
 pub mod driver;
 mod effects;
 pub mod graph;
 pub mod network;
+mod outfit;
 mod projection;
 mod refine;
 mod saved;
 
 use crate::body::rigid::{best_rigid_motion, RigidMotion};
-use crate::body::{BodyMesh, BodySurvey, Nearest, PointGrid};
+use crate::body::{BodyMesh, BodySurvey, Nearest};
 use crate::error::{Error, Result};
 #[cfg(feature = "std")]
 pub use crate::exec::ThreadPool;
@@ -32,6 +34,7 @@ use crate::model::spec::EdgeKey;
 use alloc::boxed::Box;
 use alloc::vec;
 use alloc::vec::Vec;
+use body_query::{BodyNeeds, BodyQuery};
 pub use clock::Clock;
 #[cfg(feature = "std")]
 pub use clock::StdClock;
@@ -40,6 +43,7 @@ pub use effects::StepEffects;
 pub use graph::Graph;
 use network::{BodyEdges, Net, Workspace};
 pub use network::{Probe, Stage};
+pub use outfit::Outfit;
 use projection::Projection;
 pub use projection::{DEFAULT_PROJECTION_MARGIN, PROJECTION_REACH};
 use refine::{RefineBody, RefineInput, Refiner};
@@ -232,8 +236,6 @@ pub struct SimState {
 
 struct BodyState {
     mesh: BodyMesh,
-    grid: PointGrid,
-    normals: Vec<[f32; 3]>,
     nearest: Vec<Option<Nearest>>,
     /// Last step's nearest body vertex of every garment vertex (`u32::MAX`: none yet): the
     /// search starts from it, which only changes its speed.
@@ -263,6 +265,11 @@ pub struct Sim<'m> {
     pinned: Vec<bool>,
     pin_targets: Vec<[f32; 3]>,
     body: Option<BodyState>,
+    /// The body's grids and normals of the frames a step reads (`None` without a body, or
+    /// while an [`Outfit`] that shares its own holds the sim).
+    query: Option<BodyQuery>,
+    /// What a step reads of the body (for a query shared with other sims).
+    needs: BodyNeeds,
     /// Solver refinement's buffers (only with [`SimConfig::refine`]).
     refiner: Option<Refiner>,
     state: SimState,
@@ -372,8 +379,6 @@ impl<'m> Sim<'m> {
                 let nb = b.mesh.n_vertices();
                 Some(BodyState {
                     mesh: b.mesh.clone(),
-                    grid: PointGrid::new(nb, (8 * nb).max(64))?,
-                    normals: vec![[0.0; 3]; nb],
                     nearest: vec![None; n],
                     hints: vec![u32::MAX; n],
                     active_of: vec![u32::MAX; nb],
@@ -384,7 +389,7 @@ impl<'m> Sim<'m> {
                     carried_prev: if cfg.speed_limit.is_some() { vec![[0.0; 3]; nb] } else { Vec::new() },
                     carried_next: if cfg.speed_limit.is_some() { vec![[0.0; 3]; nb] } else { Vec::new() },
                     projection: match cfg.projection {
-                        Some(margin) => Some(Projection::new(b.mesh, n, margin)?),
+                        Some(margin) => Some(Projection::new(n, margin)?),
                         None => None,
                     },
                     survey,
@@ -412,6 +417,17 @@ impl<'m> Sim<'m> {
                 Some(Refiner::new(garment, body_state.as_ref().map(|b| &b.mesh), iterations, budget_ns)?)
             }
             None => None,
+        };
+        let needs = match &body_state {
+            Some(b) => BodyNeeds {
+                vertices: cfg.step == StepMode::Network,
+                faces: refiner.is_some() || b.projection.is_some(),
+            },
+            None => BodyNeeds::default(),
+        };
+        let query = match &body_state {
+            Some(b) if !needs.none() => Some(BodyQuery::new(&b.mesh, needs)?),
+            _ => None,
         };
         let max_active = body_state.as_ref().map_or(0, |b| b.active.len());
         let net = Net { model, kernels, bf16: cfg.precision == Precision::Bf16 };
@@ -442,6 +458,8 @@ impl<'m> Sim<'m> {
             garment: garment.clone(),
             graph,
             body: body_state,
+            query,
+            needs,
             refiner,
             before_startup: state.clone(),
             state,
@@ -571,9 +589,7 @@ impl<'m> Sim<'m> {
         self.last_carry = [0.0; 3];
         // No step has run from this state yet.
         self.report_no_step(StepEffects::default());
-        if self.cfg.normals {
-            vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
-        }
+        self.update_output_normals();
         Ok(())
     }
 
@@ -620,6 +636,20 @@ impl<'m> Sim<'m> {
         body_next: &[[f32; 3]],
         observer: &mut dyn FnMut(Probe<'_>),
     ) -> Result<&[[f32; 3]]> {
+        let mut query = self.query.take();
+        let stepped = self.step_with(query.as_mut(), body_next, observer);
+        self.query = query;
+        stepped.map(|()| &self.state.pos[..])
+    }
+
+    /// [`Sim::step_observed`] reading the body's grids and normals from `query` (the sim's own,
+    /// or one that an [`Outfit`] shares between the sims on its body).
+    fn step_with(
+        &mut self,
+        mut query: Option<&mut BodyQuery>,
+        body_next: &[[f32; 3]],
+        observer: &mut dyn FnMut(Probe<'_>),
+    ) -> Result<()> {
         if let Some(b) = &self.body {
             let nb = b.mesh.n_vertices();
             if body_next.len() != nb {
@@ -654,7 +684,7 @@ impl<'m> Sim<'m> {
                 let motion = best_rigid_motion(&self.state.body_pos, body_next);
                 // Reports itself in `last_effects`.
                 self.teleport(&motion, body_next)?;
-                return Ok(&self.state.pos);
+                return Ok(());
             }
         }
         // Frames at rest so far, counted in only when this step succeeds.
@@ -665,7 +695,7 @@ impl<'m> Sim<'m> {
                 if rest_frames > sl.frames {
                     self.rest_frames = rest_frames;
                     self.report_no_step(StepEffects { slept: true, ..StepEffects::default() });
-                    return Ok(&self.state.pos);
+                    return Ok(());
                 }
             } else {
                 rest_frames = 0;
@@ -676,24 +706,22 @@ impl<'m> Sim<'m> {
         // Whether the start-up pass's projection moved a vertex (the regular pass's is read last).
         let mut startup_projected = false;
         if self.state.started || self.cfg.step != StepMode::Network {
-            self.advance(next, carry, DT, observer)?;
+            self.advance(query, next, carry, DT, observer)?;
         } else {
             // Start-up: static body (next = current), dt = 1/3 s, no velocity; then the regular
             // step. Both or neither: a refusal of either restores the state from before.
             copy_state(&mut self.before_startup, &self.state);
             let last_carry = self.last_carry;
             self.state.velocity.iter_mut().for_each(|v| *v = [0.0; 3]);
-            let both = self.advance(None, [0.0; 3], DT_STARTUP, observer).and_then(|()| {
+            let both = self.advance(query.as_deref_mut(), None, [0.0; 3], DT_STARTUP, observer).and_then(|()| {
                 startup_projected = self.last_projected() > 0;
                 self.state.started = true;
-                self.advance(next, carry, DT, observer)
+                self.advance(query, next, carry, DT, observer)
             });
             if let Err(e) = both {
                 core::mem::swap(&mut self.state, &mut self.before_startup);
                 self.last_carry = last_carry;
-                if self.cfg.normals {
-                    vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
-                }
+                self.update_output_normals();
                 return Err(e);
             }
         }
@@ -705,7 +733,14 @@ impl<'m> Sim<'m> {
             projected: startup_projected || self.last_projected() > 0,
             ..StepEffects::default()
         };
-        Ok(&self.state.pos)
+        Ok(())
+    }
+
+    /// Recomputes the output normals at the current positions (with [`SimConfig::normals`]).
+    fn update_output_normals(&mut self) {
+        if self.cfg.normals {
+            vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
+        }
     }
 
     /// Reports a call that changed the state without stepping (a sleep, a teleport, a new
@@ -756,9 +791,7 @@ impl<'m> Sim<'m> {
         // The body is at rest from here: frames at rest are counted anew.
         self.rest_frames = 0;
         self.report_no_step(StepEffects { teleported: true, ..StepEffects::default() });
-        if self.cfg.normals {
-            vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
-        }
+        self.update_output_normals();
         Ok(())
     }
 
@@ -779,6 +812,7 @@ impl<'m> Sim<'m> {
     /// velocity is already relative to it, and its new positions are moved by `+carry`.
     fn advance(
         &mut self,
+        mut query: Option<&mut BodyQuery>,
         body_next: Option<&[[f32; 3]]>,
         carry: [f32; 3],
         dt: f32,
@@ -798,7 +832,7 @@ impl<'m> Sim<'m> {
             }
         }
         match self.cfg.step {
-            StepMode::Network => self.predict(body_next, carry, last, dt, observer)?,
+            StepMode::Network => self.predict(query.as_deref_mut(), body_next, carry, last, dt, observer)?,
             StepMode::Solver { .. } | StepMode::SolverBudget { .. } => {
                 // The coasting guess, which the solver below refines into the implicit step.
                 for i in 0..n {
@@ -822,22 +856,30 @@ impl<'m> Sim<'m> {
         let refined = self.refiner.is_some() && !first_step;
         if let (Some(r), true) = (&mut self.refiner, refined) {
             let now = &self.state.body_pos[..];
+            let body = match &self.body {
+                Some(b) => {
+                    let [now, next] =
+                        body_query(query.as_deref_mut())?.faces(&b.mesh, now, body_next.unwrap_or(now))?;
+                    Some(RefineBody { now, next })
+                }
+                None => None,
+            };
             let input = RefineInput {
                 pos: &self.state.pos,
                 velocity: &self.state.velocity,
                 carry,
                 dt,
                 pinned: &self.pinned,
-                body: self.body.as_ref().map(|b| RefineBody { mesh: &b.mesh, now, next: body_next.unwrap_or(now) }),
+                body,
             };
             r.apply(&*self.exec, &input, self.clock.as_deref(), &mut self.new_pos, &mut self.new_vel)?;
         }
         if let Some(b) = &mut self.body {
             if let Some(proj) = &mut b.projection {
-                let at = body_next.unwrap_or(&self.state.body_pos);
                 // A refined step has built the faces at the same frame.
-                let built = if refined { self.refiner.as_ref().and_then(Refiner::next_faces) } else { None };
-                proj.apply(&*self.exec, &b.mesh, at, built, &self.pinned, &mut self.new_pos, &mut self.new_vel)?;
+                let at = body_next.unwrap_or(&self.state.body_pos);
+                let faces = body_query(query)?.faces_at(&b.mesh, at)?;
+                proj.apply(&*self.exec, faces, &self.pinned, &mut self.new_pos, &mut self.new_vel)?;
             }
         }
         // Commit.
@@ -853,9 +895,7 @@ impl<'m> Sim<'m> {
             let (prev, cur) = (&mut self.state.body_prev, &self.state.body_pos);
             prev.copy_from_slice(cur);
         }
-        if self.cfg.normals {
-            vertex_normals(self.garment.faces(), &self.state.pos, &mut self.output_normals);
-        }
+        self.update_output_normals();
         self.last_carry = carry;
         Ok(())
     }
@@ -864,6 +904,7 @@ impl<'m> Sim<'m> {
     /// vertices are already at their targets in `new_pos`.
     fn predict(
         &mut self,
+        query: Option<&mut BodyQuery>,
         body_next: Option<&[[f32; 3]]>,
         carry: [f32; 3],
         last: [f32; 3],
@@ -887,10 +928,12 @@ impl<'m> Sim<'m> {
         // Body edges at the current frame.
         let mut prefix = [0usize; 4];
         let mut n_active = 0;
+        let mut body_normals: &[[f32; 3]] = &[];
         if let Some(b) = &mut self.body {
             let bpos = &self.state.body_pos;
-            b.grid.rebuild(bpos)?;
-            b.grid.nearest_within_on(&*self.exec, pos, BODY_EDGE_RADIUS, &b.hints, &mut b.nearest)?;
+            let (grid, normals) = body_query(query)?.vertices(&b.mesh, bpos)?;
+            body_normals = normals;
+            grid.nearest_within_on(&*self.exec, pos, BODY_EDGE_RADIUS, &b.hints, &mut b.nearest)?;
             for (h, near) in b.hints.iter_mut().zip(&b.nearest) {
                 if let Some(near) = near {
                     *h = near.index;
@@ -928,7 +971,6 @@ impl<'m> Sim<'m> {
             for &o in &b.active[..n_active] {
                 b.active_of[o as usize] = u32::MAX;
             }
-            vertex_normals(b.mesh.faces(), bpos, &mut b.normals);
         }
         // Node features.
         vertex_normals(self.garment.faces(), pos, &mut self.garment_normals);
@@ -954,7 +996,7 @@ impl<'m> Sim<'m> {
                 (false, true) => &b.carried_prev,
                 (false, false) => &self.state.body_prev,
             };
-            let bn = BodyNodes { pos: bpos, prev: bprev, normals: &b.normals, omitted: b.mesh.omitted(), dt };
+            let bn = BodyNodes { pos: bpos, prev: bprev, normals: body_normals, omitted: b.mesh.omitted(), dt };
             features::body_node_features(&bn, &b.active[..n_active], &emb, &mut bpart[..n_active * NODE_WIDTH])?;
             let bnext = match (shifted, body_next) {
                 (true, Some(_)) => &b.carried_next,
@@ -1019,6 +1061,12 @@ impl<'m> Sim<'m> {
         }
         Ok(())
     }
+}
+
+/// The body query a step with a body reads (present whenever the sim's configuration reads
+/// the body: [`Sim::with_graph`] sizes it, an [`Outfit`] lends its shared one).
+fn body_query(query: Option<&mut BodyQuery>) -> Result<&mut BodyQuery> {
+    query.ok_or(Error::UnsupportedEffect { effect: "a step without its body query" })
 }
 
 /// Copies `src` into `dst`, of the same lengths, without allocating (unlike `clone_from`, which

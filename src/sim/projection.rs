@@ -8,10 +8,11 @@
 //! face's normal to the margin, and its velocity takes the same move, so the next step sees the
 //! cloth where it was put.
 
-use crate::body::{BodyMesh, Nearest, PointGrid};
+use super::body_query::BodyFaces;
+use crate::body::Nearest;
 use crate::error::{Error, Result};
 use crate::exec::Executor;
-use crate::physics::{face_frames, push_out, FaceFrame};
+use crate::physics::push_out;
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -28,9 +29,6 @@ pub const DEFAULT_PROJECTION_MARGIN: f32 = 2e-3;
 #[derive(Clone, Debug)]
 pub(super) struct Projection {
     margin: f32,
-    centroids: Vec<[f32; 3]>,
-    normals: Vec<[f32; 3]>,
-    grid: PointGrid,
     nearest: Vec<Option<Nearest>>,
     /// Last step's nearest face of every garment vertex (`u32::MAX`: none): only a search hint.
     hints: Vec<u32>,
@@ -44,20 +42,11 @@ impl Projection {
     /// # Errors
     /// [`Error::OutOfRange`] for a margin that is negative, not finite, or not below
     /// [`PROJECTION_REACH`].
-    pub(super) fn new(mesh: &BodyMesh, n_garment: usize, margin: f32) -> Result<Projection> {
+    pub(super) fn new(n_garment: usize, margin: f32) -> Result<Projection> {
         if !(0.0..PROJECTION_REACH).contains(&margin) {
             return Err(Error::OutOfRange { what: "collision projection margin (0 <= m < reach)", index: 0 });
         }
-        let nf = mesh.n_faces();
-        Ok(Projection {
-            margin,
-            centroids: vec![[0.0; 3]; nf],
-            normals: vec![[0.0; 3]; nf],
-            grid: PointGrid::new(nf, (8 * nf).max(64))?,
-            nearest: vec![None; n_garment],
-            hints: vec![u32::MAX; n_garment],
-            moved: 0,
-        })
+        Ok(Projection { margin, nearest: vec![None; n_garment], hints: vec![u32::MAX; n_garment], moved: 0 })
     }
 
     /// Vertices moved by the last step.
@@ -71,32 +60,21 @@ impl Projection {
         self.moved = 0;
     }
 
-    /// Pushes every free vertex of `pos` (m) out of the body at `body` (its vertices at the frame
-    /// `pos` belongs to), adding each move to `velocity` too. Pinned vertices stay. `built`: the
-    /// body's faces and centroid grid at that frame when the step already has them (the
-    /// refinement's), else they are built here. Allocates nothing.
+    /// Pushes every free vertex of `pos` (m) out of the body, whose `faces` are those of the
+    /// frame `pos` belongs to, adding each move to `velocity` too. Pinned vertices stay.
+    /// Allocates nothing.
     ///
     /// # Errors
     /// Size mismatches of the grid query (none for the buffers of [`new`](Self::new)).
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn apply(
         &mut self,
         exec: &dyn Executor,
-        mesh: &BodyMesh,
-        body: &[[f32; 3]],
-        built: Option<(FaceFrame<'_, f32>, &PointGrid)>,
+        faces: BodyFaces<'_>,
         pinned: &[bool],
         pos: &mut [[f32; 3]],
         velocity: &mut [[f32; 3]],
     ) -> Result<()> {
-        let (frame, grid) = match built {
-            Some(b) => b,
-            None => {
-                face_frames(body, mesh.faces(), &mut self.centroids, &mut self.normals)?;
-                self.grid.rebuild(&self.centroids)?;
-                (FaceFrame { centroids: &self.centroids, normals: &self.normals }, &self.grid)
-            }
-        };
+        let BodyFaces { frame, grid } = faces;
         grid.nearest_within_on(exec, pos, PROJECTION_REACH, &self.hints, &mut self.nearest)?;
         let mut moved = 0;
         for (i, near) in self.nearest.iter().enumerate() {

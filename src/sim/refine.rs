@@ -8,13 +8,14 @@
 //! [`crate::solve`] over the free vertices; pinned vertices stay at their targets. The refined
 //! move is added to the velocity too, so the next step starts from the refined state.
 
+use super::body_query::BodyFaces;
 use super::clock::{Clock, Deadline};
-use crate::body::{BodyMesh, PointGrid};
+use crate::body::BodyMesh;
 use crate::error::{Error, Result};
 use crate::exec::Executor;
 use crate::math::finite3;
 use crate::mesh::Garment;
-use crate::physics::{face_frames, Cloth, FaceFrame, Objective};
+use crate::physics::{Cloth, Objective};
 use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, Query, StepBody, StepState};
 use alloc::vec;
 use alloc::vec::Vec;
@@ -32,36 +33,6 @@ pub const REFINE_COLLISION_WEIGHT: f64 = 5e5;
 
 /// L-BFGS correction pairs kept (at most the iteration count).
 const REFINE_MEMORY: usize = 10;
-
-/// One body frame as the objective's contact terms read it: face centroids and unit normals,
-/// and a nearest-centroid grid.
-#[derive(Clone, Debug)]
-struct BodyFaces {
-    centroids: Vec<[f32; 3]>,
-    normals: Vec<[f32; 3]>,
-    grid: PointGrid,
-}
-
-impl BodyFaces {
-    fn new(mesh: &BodyMesh) -> Result<BodyFaces> {
-        let nf = mesh.n_faces();
-        Ok(BodyFaces {
-            centroids: vec![[0.0; 3]; nf],
-            normals: vec![[0.0; 3]; nf],
-            grid: PointGrid::new(nf, (8 * nf).max(64))?,
-        })
-    }
-
-    /// Recomputes everything at `body` (m, one per body vertex).
-    fn update(&mut self, mesh: &BodyMesh, body: &[[f32; 3]]) -> Result<()> {
-        face_frames(body, mesh.faces(), &mut self.centroids, &mut self.normals)?;
-        self.grid.rebuild(&self.centroids)
-    }
-
-    fn frame(&self) -> FaceFrame<'_, f32> {
-        FaceFrame { centroids: &self.centroids, normals: &self.normals }
-    }
-}
 
 /// What a refined step starts from, in world coordinates.
 pub(super) struct RefineInput<'a> {
@@ -81,15 +52,13 @@ pub(super) struct RefineInput<'a> {
     pub body: Option<RefineBody<'a>>,
 }
 
-/// The body around a refined step.
+/// The body around a refined step: its faces at the current and the next frame.
 #[derive(Clone, Copy)]
 pub(super) struct RefineBody<'a> {
-    /// Topology.
-    pub mesh: &'a BodyMesh,
-    /// Positions at the current frame, m.
-    pub now: &'a [[f32; 3]],
-    /// Positions at the next frame, m.
-    pub next: &'a [[f32; 3]],
+    /// At the current frame.
+    pub now: BodyFaces<'a>,
+    /// At the next frame.
+    pub next: BodyFaces<'a>,
 }
 
 /// Buffers of the refinement, sized once for one garment (and body).
@@ -103,11 +72,6 @@ pub(super) struct Refiner {
     coast: Vec<[f32; 3]>,
     /// The network's prediction (pinned vertices at their targets).
     predicted: Vec<[f32; 3]>,
-    /// The body at the current and the next frame.
-    faces: Option<[BodyFaces; 2]>,
-    /// The body positions `faces[1]` was built at (m): when the next step's current frame is
-    /// this one (the common case), its faces are reused instead of rebuilt.
-    next_at: Vec<[f32; 3]>,
     last: Option<LbfgsReport>,
     /// The report of a refinement whose step has not been committed yet.
     pending: Option<LbfgsReport>,
@@ -138,11 +102,6 @@ impl Refiner {
             Some(_) => Objective::training(REFINE_COLLISION_WEIGHT),
             None => Objective::cloth_only(),
         };
-        let faces = match mesh {
-            Some(m) => Some([BodyFaces::new(m)?, BodyFaces::new(m)?]),
-            None => None,
-        };
-        let next_at = Vec::with_capacity(mesh.map_or(0, |m| m.n_vertices()));
         let params = LbfgsParams { max_iterations: iterations as usize, ..LbfgsParams::default() };
         let cloth = Cloth::new(garment);
         Ok(Refiner {
@@ -152,18 +111,10 @@ impl Refiner {
             params,
             coast: vec![[0.0; 3]; n],
             predicted: vec![[0.0; 3]; n],
-            faces,
-            next_at,
             last: None,
             pending: None,
             budget_ns,
         })
-    }
-
-    /// The body's faces and centroid grid at the next frame of the last refined step with a
-    /// body (for the projection, which needs the same).
-    pub(super) fn next_faces(&self) -> Option<(FaceFrame<'_, f32>, &PointGrid)> {
-        self.faces.as_ref().map(|[_, next]| (next.frame(), &next.grid))
     }
 
     /// The last refinement's report (iterations, objective before and after, J).
@@ -201,31 +152,14 @@ impl Refiner {
             *o = [v[0] + c[0], v[1] + c[1], v[2] + c[2]];
         }
         self.predicted.copy_from_slice(new_pos);
-        let body = match (&mut self.faces, input.body) {
-            (Some(faces), Some(b)) => {
-                if self.next_at.as_slice() == b.now {
-                    faces.swap(0, 1);
-                } else {
-                    faces[0].update(b.mesh, b.now)?;
-                }
-                // Marked stale until rebuilt, in case the rebuild fails.
-                self.next_at.clear();
-                faces[1].update(b.mesh, b.next)?;
-                if self.next_at.capacity() >= b.next.len() {
-                    self.next_at.extend_from_slice(b.next);
-                }
-                let [now, next] = &*faces;
-                Some(StepBody {
-                    prev: now.frame(), // not read: friction uses the current and next frames
-                    current: now.frame(),
-                    next: next.frame(),
-                    query_prev: &now.grid as &Query,
-                    query_current: &now.grid,
-                    query_next: &next.grid,
-                })
-            }
-            _ => None,
-        };
+        let body = input.body.map(|b| StepBody {
+            prev: b.now.frame, // not read: friction uses the current and next frames
+            current: b.now.frame,
+            next: b.next.frame,
+            query_prev: b.now.grid as &Query,
+            query_current: b.now.grid,
+            query_next: b.next.grid,
+        });
         let state = StepState {
             pos: input.pos,
             velocity: &self.coast,

@@ -48,7 +48,8 @@ pub struct SimulateArgs {
     /// Frames to simulate (30 per second).
     #[arg(long, default_value_t = 90)]
     frames: usize,
-    /// Output folder (`preview.png` and what --export names).
+    /// Output folder (`preview.png`, the strip; `animation.png`, an animated PNG of every
+    /// other frame at 15 frames per second; and what --export names).
     #[arg(long, short, default_value = "hood-out")]
     out: PathBuf,
     /// Threads of the step.
@@ -427,6 +428,9 @@ fn print_gap_by_term(label: &str, s: &Summary) {
     }
 }
 
+/// Frames per picture of `animation.png` (the model's 30 Hz shown at 15 frames a second).
+const ANIMATION_EVERY: usize = 2;
+
 /// Runs `hood simulate`.
 pub fn simulate(a: SimulateArgs) -> Result<()> {
     let bytes = match (&a.model, a.random_model) {
@@ -486,6 +490,8 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     if sequence {
         write_sequence(0, &initial)?;
     }
+    // Every other frame of the animated preview (15 frames per second).
+    let mut animated = vec![(0, initial.clone())];
     let mut garment_frames = if caches { vec![initial] } else { Vec::new() };
     let bar = crate::progress::Progress::new("simulate", "frames", frames as u64, std::time::Duration::from_secs(10));
     let r = rollout_observed(&model, &*anim, frames, cfg, &opts, &mut |rec, pos| {
@@ -496,6 +502,9 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         }
         if caches {
             garment_frames.push(pos.to_vec());
+        }
+        if rec.frame % ANIMATION_EVERY == 0 {
+            animated.push((rec.frame, pos.to_vec()));
         }
         Ok(())
     });
@@ -534,6 +543,9 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     }
     let strip = a.out.join("preview.png");
     hood::io::png::write_strip(&strip, &strip_images(&*anim, &r.kept, 240, 420))?;
+    let animation = a.out.join("animation.png");
+    let fps = (30 / ANIMATION_EVERY) as u16;
+    hood::io::png::write_animation(&animation, &strip_images(&*anim, &animated, 180, 315), fps)?;
     let s = &r.summary;
     if let Some((f, e)) = &r.failure {
         eprintln!("stopped at frame {f}: {e}");
@@ -596,6 +608,6 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     wrote.dedup();
     let also =
         if wrote.is_empty() { String::new() } else { format!(" and {} in {}", wrote.join(", "), a.out.display()) };
-    say!("wrote {}{also}", strip.display());
+    say!("wrote {}, {}{also}", strip.display(), animation.display());
     Ok(())
 }
