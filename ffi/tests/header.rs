@@ -1,8 +1,8 @@
 //! `include/hood.h` is hand-written; this test fails when it and the Rust exports disagree:
 //! the prototypes (names and C types) parsed from the header equal those derived from the
-//! `#[no_mangle] extern "C"` functions in `src/lib.rs`, which equal the symbols the shared library
-//! exports; a generated C++ file then checks every function's type, every constant's value and
-//! every struct's layout with the compiler. The linkage and calling-convention macros are checked
+//! `#[no_mangle] extern "C"` functions in the files of `src/`, which equal the symbols the shared
+//! library exports, and all of which `src/lib.rs` re-exports; a generated C++ file then checks
+//! every function's type, every constant's value and every struct's layout with the compiler. The linkage and calling-convention macros are checked
 //! by what they expand to and, on a 32-bit x86 build whose default convention is stdcall, by the
 //! compiler; every status code's `hood_status_string` against the header's comment on it.
 
@@ -13,7 +13,34 @@ use std::collections::BTreeMap;
 use std::process::Command;
 
 const HEADER: &str = include_str!("../include/hood.h");
-const SOURCE: &str = include_str!("../src/lib.rs");
+
+/// Every `.rs` file under `src/` with its text, in path order: the exports and constants are
+/// defined across its modules.
+fn sources() -> Vec<(std::path::PathBuf, String)> {
+    fn collect(dir: &std::path::Path, files: &mut Vec<std::path::PathBuf>) {
+        for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                collect(&path, files);
+            } else if path.extension().is_some_and(|x| x == "rs") {
+                files.push(path);
+            }
+        }
+    }
+    let mut files = Vec::new();
+    collect(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/src")), &mut files);
+    files.sort();
+    assert!(files.iter().any(|f| f.ends_with("src/lib.rs")), "src/lib.rs not found in {files:?}");
+    files.into_iter().map(|f| (f.clone(), std::fs::read_to_string(f).unwrap())).collect()
+}
+
+/// The text of all the files of [`sources`].
+fn source() -> String {
+    sources().into_iter().map(|(_, text)| text + "\n").collect()
+}
+
+/// The crate root, whose `pub use` lists re-export the items of the modules.
+const LIB: &str = include_str!("../src/lib.rs");
 
 /// A C type as tokens (`const float *` -> ["const", "float", "*"]).
 type CType = Vec<String>;
@@ -121,10 +148,12 @@ fn rust_to_c(ty: &str) -> CType {
     vec![base.to_string()]
 }
 
-/// Exported functions of `src/lib.rs`: name -> (return type, parameter types), in C spelling.
+/// Exported functions of the files of `src/`: name -> (return type, parameter types), in C
+/// spelling.
 fn rust_exports() -> BTreeMap<String, (CType, Vec<CType>)> {
     let mut out = BTreeMap::new();
-    let mut rest = SOURCE;
+    let source = source();
+    let mut rest = source.as_str();
     while let Some(i) = rest.find("#[no_mangle]") {
         rest = &rest[i + "#[no_mangle]".len()..];
         let f = rest.find("extern \"C\" fn ").expect("#[no_mangle] without an extern fn") + "extern \"C\" fn ".len();
@@ -169,6 +198,47 @@ fn header_prototypes_equal_rust_exports() {
             assert_eq!(a, b, "{name}: parameter {k} is `{}` in Rust, `{}` in the header", c_spelling(a), c_spelling(b));
         }
     }
+}
+
+/// The identifiers that `src/lib.rs` re-exports (its `pub use` lists).
+fn reexported() -> std::collections::BTreeSet<&'static str> {
+    let mut out = std::collections::BTreeSet::new();
+    let mut rest = LIB;
+    while let Some(i) = rest.find("pub use ") {
+        rest = &rest[i + "pub use ".len()..];
+        let end = rest.find(';').expect("a `pub use` without `;`");
+        out.extend(rest[..end].split(|c: char| !(c.is_alphanumeric() || c == '_')).filter(|w| !w.is_empty()));
+        rest = &rest[end..];
+    }
+    out
+}
+
+/// Every function, constant and type with a `hood_` or `HOOD_` name that a module of `src/`
+/// defines is re-exported by `src/lib.rs`, so that Rust callers of the rlib find it at the crate
+/// root.
+#[test]
+fn module_items_are_reexported_at_the_crate_root() {
+    let reexported = reexported();
+    let mut defined = Vec::new();
+    for (path, text) in sources().iter().filter(|(p, _)| !p.ends_with("src/lib.rs")) {
+        for line in text.lines() {
+            // Items at the top level of a module only (not indented).
+            let Some(item) = line.strip_prefix("pub ") else { continue };
+            let item = item.strip_prefix("unsafe ").unwrap_or(item);
+            let Some(rest) =
+                ["const ", "struct ", "type ", "extern \"C\" fn "].iter().find_map(|k| item.strip_prefix(k))
+            else {
+                continue;
+            };
+            let name = rest.split(|c: char| !(c.is_alphanumeric() || c == '_')).next().unwrap_or_default();
+            if name.starts_with("hood_") || name.starts_with("HOOD_") {
+                defined.push((name.to_string(), path.display().to_string()));
+            }
+        }
+    }
+    assert!(defined.len() > rust_exports().len(), "parsed only {} items", defined.len());
+    let missing: Vec<_> = defined.iter().filter(|(name, _)| !reexported.contains(name.as_str())).collect();
+    assert!(missing.is_empty(), "defined in a module but not re-exported by src/lib.rs: {missing:?}");
 }
 
 #[test]
@@ -282,7 +352,8 @@ fn compiler_checks_types_constants_and_layouts() {
     let consts = checked_constants();
     // Every HOOD_ constant of the Rust side and every numeric #define of the header is listed.
     let listed: std::collections::BTreeSet<&str> = consts.iter().map(|c| c.0).collect();
-    let rust_names: std::collections::BTreeSet<&str> = SOURCE
+    let source = source();
+    let rust_names: std::collections::BTreeSet<&str> = source
         .lines()
         .filter_map(|l| l.trim().strip_prefix("pub const "))
         .filter_map(|l| l.split(':').next())
