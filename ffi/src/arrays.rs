@@ -79,7 +79,7 @@ pub(crate) fn disjoint<T>(
 /// `n` points (3 floats each) at `p`.
 ///
 /// # Safety
-/// As [`slice`] for `3 * n` floats.
+/// As [`slice()`] for `3 * n` floats.
 pub(crate) unsafe fn points<'a>(p: *const f32, n: usize, what: &'static str) -> Result<&'a [[f32; 3]]> {
     // SAFETY: `[f32; 3]` has the alignment of f32 and no padding; caller guarantees 3n floats.
     unsafe { slice(p as *const [f32; 3], n, what) }
