@@ -227,6 +227,15 @@ fn eval_cli_simulate_writes_obj_sequence_strip_and_animation() {
         .unwrap();
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("unknown garment"), "{}", String::from_utf8_lossy(&o.stderr));
+    // A lead-in from the rest pose needs the MakeHuman body's rest; the mannequin has none.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+        .args(["simulate", "--random-model", "16", "--garment", "skirt", "--lead-in", "1", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--lead-in need a MakeHuman garment"), "{err}");
     let _ = std::fs::remove_dir_all(&out);
 }
 

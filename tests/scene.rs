@@ -114,6 +114,74 @@ fn scene_own_garment_on_makehuman_matches_the_fitted_piece() {
     }
 }
 
+/// A motion led in from the rest pose: frame 0 is the body and the garment as modelled, only
+/// moved along the floor under the clip's first root position; from the lead-in's end on the
+/// clip is its own, moved along the floor.
+#[test]
+fn scene_lead_in_starts_from_the_rest_pose_and_joins_the_clip() {
+    use hood::scene::{makehuman_wearing, BvhRest, MakeHumanGarment, MakeHumanMotion, Wearing};
+    let assets = common::shared_dir().join("assets");
+    if !assets.join("body/base.obj").exists() {
+        common::skip("scene_lead_in_starts_from_the_rest_pose_and_joins_the_clip", &assets);
+        return;
+    }
+    let clip = MakeHumanMotion::Bvh(assets.join("motions/amp_walk.bvh"), BvhRest::ZeroArmsDown);
+    let piece = Wearing::Piece(MakeHumanGarment::Tee);
+    let plain = makehuman_wearing(&assets, piece.clone(), clip.clone(), 50).unwrap();
+    let led = makehuman_wearing(&assets, piece, MakeHumanMotion::FromRest(Box::new(clip), 30), 50).unwrap();
+    assert_eq!(led.n_frames(), 50);
+    // From the lead-in's end the clip is its own, moved along the floor.
+    let (a, b) = (led.body_frame(30), plain.body_frame(30));
+    let moved_by = [a[0][0] - b[0][0], a[0][1] - b[0][1], a[0][2] - b[0][2]];
+    assert!(moved_by[1].abs() < 1e-5, "{moved_by:?}");
+    for f in 30..50 {
+        let (a, b) = (led.body_frame(f), plain.body_frame(f));
+        let off = a
+            .iter()
+            .zip(b)
+            .map(|(p, q)| (0..3).map(|k| (p[k] - q[k] - moved_by[k]).abs()).fold(0.0, f32::max))
+            .fold(0.0, f32::max);
+        assert!(off < 1e-4, "clip frame {f}: {off} m");
+    }
+    // Frame 0: the rest body and the garment as fitted, both moved by the same horizontal shift.
+    let mh = hood::io::makehuman::MakeHuman::load(assets.join("body")).unwrap();
+    let rest = &mh.body.rest;
+    let b0 = led.body_frame(0);
+    let shift = [b0[0][0] - rest[0][0], b0[0][1] - rest[0][1], b0[0][2] - rest[0][2]];
+    assert!(shift[1].abs() < 1e-6, "{shift:?}");
+    let moved = |a: &[[f32; 3]], b: &[[f32; 3]]| {
+        a.iter()
+            .zip(b)
+            .map(|(p, q)| (0..3).map(|k| (p[k] - q[k] - shift[k]).abs()).fold(0.0, f32::max))
+            .fold(0.0, f32::max)
+    };
+    assert!(moved(b0, rest) < 1e-5, "body {} m off the moved rest", moved(b0, rest));
+    // The garment too, but for the few vertices the start-up push-out lifts off the skin.
+    let g0 = led.initial_garment(0).unwrap();
+    let off = moved(&g0, led.garment.rest());
+    let lifted = g0.iter().zip(led.garment.rest()).filter(|(p, q)| moved(&[**p], &[**q]) > 1e-5).count();
+    assert!(
+        off <= hood::scene::INITIAL_CLEARANCE && lifted * 20 < g0.len(),
+        "garment {off} m off its moved rest shape, {lifted} vertices"
+    );
+    // It blends into the clip without a jolt: the largest change of a body vertex's motion from
+    // one frame to the next is never more than the clip's own over the same frames (its feet
+    // strike the floor), and the first frames start gently.
+    let jolt = |anim: &hood::scene::Scene, frames: core::ops::Range<usize>| {
+        frames
+            .flat_map(|f| (0..rest.len()).map(move |v| (f, v)))
+            .map(|(f, v)| {
+                let (a, b, c) = (anim.body_frame(f)[v], anim.body_frame(f + 1)[v], anim.body_frame(f + 2)[v]);
+                ((0..3).map(|k| (c[k] - 2.0 * b[k] + a[k]).powi(2)).sum::<f32>()).sqrt()
+            })
+            .fold(0.0, f32::max)
+    };
+    let (led_jolt, clip_jolt) = (jolt(&led, 0..34), jolt(&plain, 0..34));
+    assert!(led_jolt <= clip_jolt, "{led_jolt} m per frame per frame against the clip's {clip_jolt}");
+    let start = jolt(&led, 0..5);
+    assert!(start < 0.01, "{start} m per frame per frame in the first frames");
+}
+
 /// The initial garment states the trainer starts from: stretching energy per vertex and the
 /// largest edge strain over a few frames of every scene kind.
 #[test]

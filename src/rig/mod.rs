@@ -267,6 +267,55 @@ impl Pose {
     pub fn transform_point(&self, skeleton: &Skeleton, b: usize, x: Vec3) -> Vec3 {
         self.head[b] + self.rotation[b] * (x - skeleton.bones[b].head)
     }
+
+    /// Leads a motion in from the rest pose over its first `frames` poses: pose `k` becomes the
+    /// rest pose turned a smooth step (w = 3u² - 2u³ of the way, u = k / frames) towards the
+    /// motion's own pose `k`, bone by bone in local rotations, the root rising from the rest
+    /// height as far; along the floor the root moves w of the motion's own step each frame, so
+    /// the body starts from standing and reaches the motion's speed, not its place. Pose 0 is the
+    /// rest pose moved along the floor under the motion's first root (a garment modelled around
+    /// the rest shape fits it exactly, only moved); from pose `frames` on the motion is its own,
+    /// shifted along the floor by the distance the start-up did not cover.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] when a pose is not one of `skeleton`.
+    pub fn lead_in(skeleton: &Skeleton, poses: &mut [Pose], frames: usize) -> Result<()> {
+        let Some(root) = skeleton.bones.iter().position(|b| b.parent.is_none()) else { return Ok(()) };
+        let translation = |p: &Pose| p.head.get(root).map_or(Vec3::ZERO, |h| *h - skeleton.bones[root].head);
+        let smooth = |k: usize| {
+            let u = (k as f32 / frames.max(1) as f32).min(1.0);
+            u * u * (3.0 - 2.0 * u)
+        };
+        let floor = Vec3::new(1.0, 0.0, 1.0);
+        // The root's place along the floor, and the motion's own, at the pose before.
+        let (mut along, mut own) = match poses.first() {
+            Some(p) => (translation(p) * floor, translation(p) * floor),
+            None => return Ok(()),
+        };
+        let mut local = vec![Quat::IDENTITY; skeleton.len()];
+        for (k, pose) in poses.iter_mut().enumerate() {
+            let t = translation(pose);
+            if k > 0 {
+                along += smooth(k - 1) * (t * floor - own);
+            }
+            own = t * floor;
+            if k >= frames {
+                let shift = along - own;
+                pose.head.iter_mut().for_each(|h| *h += shift);
+                continue;
+            }
+            let w = smooth(k);
+            skeleton.local_from_pose(pose, &mut local)?;
+            // Pose 0 keeps the identity exactly: forward kinematics then gives the rest pose bit
+            // for bit (moved).
+            for q in local.iter_mut() {
+                *q = if k == 0 { Quat::IDENTITY } else { Quat::IDENTITY.slerp(*q, w) };
+            }
+            let root_at = along + Vec3::new(0.0, w * t.y, 0.0);
+            skeleton.forward_kinematics(&local, root_at.into(), pose)?;
+        }
+        Ok(())
+    }
 }
 
 /// Sparse per-vertex skinning weights: for vertex `v`, bones `bone[offsets[v]..offsets[v+1]]`

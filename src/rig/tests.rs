@@ -171,3 +171,54 @@ fn rig_rejects_bad_input() {
     assert_eq!(s.bones()[0].name, "root");
     assert_eq!(s.bones()[1].parent, Some(0));
 }
+
+/// A lead-in starts at the rest pose, only moved horizontally under the first pose's root, keeps
+/// every bone's length, turns monotonically towards the motion, and leaves the motion unchanged
+/// from its last frame on.
+#[test]
+fn rig_lead_in_blends_from_the_rest_pose_into_the_motion() {
+    let mut rng = Rng(11);
+    let skel = random_skeleton(&mut rng, 6);
+    let local: Vec<Quat> = (0..skel.len()).map(|_| rng.rotation()).collect();
+    // A motion that holds one pose while its root rises and travels along x.
+    let motion: Vec<Pose> = (0..16)
+        .map(|f| {
+            let mut pose = Pose::rest(&skel);
+            skel.forward_kinematics(&local, [0.4 + 0.05 * f as f32, 0.25, -1.5], &mut pose).unwrap();
+            pose
+        })
+        .collect();
+    let frames = 12;
+    let mut lead = motion.clone();
+    Pose::lead_in(&skel, &mut lead, frames).unwrap();
+    let rest = Pose::rest(&skel);
+    assert!(lead[0].rotation.iter().all(|q| *q == Quat::IDENTITY));
+    for (h, r) in lead[0].head.iter().zip(&rest.head) {
+        assert_eq!(*h, *r + Vec3::new(0.4, 0.0, -1.5));
+    }
+    let mut last_angle = f32::INFINITY;
+    for (k, pose) in lead.iter().enumerate().take(frames) {
+        for b in 0..skel.len() {
+            let len = (pose.tail(&skel, b) - pose.head[b]).length();
+            assert!((len - skel.bones()[b].length()).abs() < 1e-5, "frame {k}, bone {b}");
+        }
+        let angle = pose.rotation[0].angle_between(motion[k].rotation[0]);
+        assert!(angle <= last_angle + 1e-6, "frame {k}: {angle} after {last_angle}");
+        last_angle = angle;
+    }
+    // The root's speed along x grows from 0 to the motion's 5 cm per frame and stays there: from
+    // the lead-in's end the motion is its own, moved back by the distance the start-up lost.
+    let speed = |k: usize| lead[k + 1].head[0].x - lead[k].head[0].x;
+    assert!(speed(0) < 1e-6, "{}", speed(0));
+    for k in 1..15 {
+        assert!(speed(k) >= speed(k - 1) - 1e-6 && speed(k) <= 0.05 + 1e-6, "frame {k}: {}", speed(k));
+    }
+    let shift = lead[frames].head[0] - motion[frames].head[0];
+    assert!(shift.x < -0.1 && shift.y == 0.0 && shift.z == 0.0, "{shift:?}");
+    for (a, b) in lead[frames..].iter().zip(&motion[frames..]) {
+        assert_eq!(a.rotation, b.rotation);
+        assert!(a.head.iter().zip(&b.head).all(|(p, q)| (*p - *q - shift).length() < 1e-5));
+    }
+    let bad = Pose { rotation: vec![], head: vec![] };
+    assert!(matches!(Pose::lead_in(&skel, &mut [bad], 3), Err(Error::SizeMismatch { .. })));
+}

@@ -173,6 +173,11 @@ pub enum MakeHumanMotion {
     /// rig lacks are ignored, bones the clip lacks stay at rest relative to their parents), the
     /// root translation scaled by the ratio of leg lengths, each frame lifted onto the floor.
     Bvh(std::path::PathBuf, BvhRest),
+    /// A motion whose first frames blend in from the rest pose, in which the garments are
+    /// modelled ([`Pose::lead_in`] over this many frames): the garment then starts exactly as
+    /// modelled (only moved) and the cloth follows the body into the motion, instead of being
+    /// skinned into a first pose it was not made for.
+    FromRest(alloc::boxed::Box<MakeHumanMotion>, usize),
 }
 
 impl MakeHumanMotion {
@@ -196,6 +201,7 @@ impl MakeHumanMotion {
             MakeHumanMotion::Bvh(path, _) => {
                 path.file_stem().map_or_else(|| "a BVH clip".into(), |s| s.to_string_lossy().into_owned())
             }
+            MakeHumanMotion::FromRest(motion, _) => alloc::format!("{} from rest", motion.name()),
         }
     }
 }
@@ -296,6 +302,10 @@ fn outfit_piece(assets: &Path, mh: &MakeHuman, which: MakeHumanGarment) -> Resul
 fn makehuman_poses(assets: &Path, mh: &MakeHuman, motion: MakeHumanMotion, max_frames: usize) -> Result<Vec<Pose>> {
     let mut poses = Vec::new();
     match motion {
+        MakeHumanMotion::FromRest(motion, frames) => {
+            poses = makehuman_poses(assets, mh, *motion, max_frames)?;
+            Pose::lead_in(&mh.skeleton, &mut poses, frames)?;
+        }
         MakeHumanMotion::Procedural(kind) => {
             let frames = max_frames.max(1);
             let local = kind.local(&mh.skeleton, (frames - 1).max(1) as f32 / MODEL_FPS)?;

@@ -11,6 +11,7 @@ use hood::mesh::Material;
 use hood::model::ModelBytes;
 use hood::rig::procedural::Mannequin;
 use hood::scene::own::{garment_from_mesh, FaceAttachment, GarmentOptions, OwnGarment, Pins, UpAxis};
+use hood::scene::{makehuman_wearing, MakeHumanGarment, MakeHumanMotion, Wearing};
 use hood::scene::{procedural, GarmentKind, MotionKind};
 use hood::sim::{Precision, SimConfig, StepMode};
 use hood::{Error, Result};
@@ -106,6 +107,11 @@ pub struct SimulateArgs {
     /// rotations zero has the arms hanging down, as the AMP clips).
     #[arg(long, default_value = "zero-t-pose", requires = "bvh")]
     bvh_rest: String,
+    /// Seconds on the MakeHuman body that lead from the rest pose, in which the garments are
+    /// modelled, into the motion's first frame, so that the garment starts as modelled and
+    /// follows the body into the motion (counted in --frames). Default: 1 with --bvh, else 0.
+    #[arg(long)]
+    lead_in: Option<f32>,
     /// Also compute the relative objective gap to the converged implicit step every this many
     /// frames (slow; 0: never).
     #[arg(long, default_value_t = 0)]
@@ -289,28 +295,36 @@ fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
             let name = s.name.clone();
             return Ok((Box::new(s), name));
         }
-        use hood::scene::{makehuman_wearing, MakeHumanMotion, Wearing};
         let assets = hood::assets::locate(a.assets.as_deref())?;
-        let motion = match &a.bvh {
-            Some(bvh) => MakeHumanMotion::Bvh(bvh.clone(), bvh_rest(&a.bvh_rest)?),
-            None => MakeHumanMotion::named(&assets, Some(motion_kind(&a.motion)?).filter(|_| a.motion != "walk")),
-        };
-        let s = makehuman_wearing(&assets, Wearing::Own(own), motion, a.frames + 1)?;
+        let s = makehuman_wearing(&assets, Wearing::Own(own), makehuman_motion(a, &assets)?, a.frames + 1)?;
         let name = s.name.clone();
         return Ok((Box::new(s), name));
     }
-    if let Some(bvh) = &a.bvh {
-        use hood::scene::{makehuman_on_bvh, MakeHumanGarment};
+    if a.bvh.is_some() || a.lead_in.is_some_and(|s| s > 0.0) {
         let which = MakeHumanGarment::parse(&a.garment).ok_or_else(|| {
-            Error::parse("garment", 0, format!("--bvh needs a MakeHuman garment, not '{}'", a.garment))
+            Error::parse("garment", 0, format!("--bvh and --lead-in need a MakeHuman garment, not '{}'", a.garment))
         })?;
-        let rest = bvh_rest(&a.bvh_rest)?;
         let assets = hood::assets::locate(a.assets.as_deref())?;
-        let s = makehuman_on_bvh(&assets, which, bvh, rest, a.frames + 1)?;
+        let s = makehuman_wearing(&assets, Wearing::Piece(which), makehuman_motion(a, &assets)?, a.frames + 1)?;
         let name = s.name.clone();
         return Ok((Box::new(s), name));
     }
     named_scene(&a.garment, a.vertices, &a.motion, a.frames, a.assets.as_deref())
+}
+
+/// The motion on the MakeHuman body: `--bvh`, else `--motion`, after `--lead-in` (default: a
+/// second for a BVH clip, none otherwise).
+fn makehuman_motion(a: &SimulateArgs, assets: &Path) -> Result<MakeHumanMotion> {
+    let motion = match &a.bvh {
+        Some(bvh) => MakeHumanMotion::Bvh(bvh.clone(), bvh_rest(&a.bvh_rest)?),
+        None => MakeHumanMotion::named(assets, Some(motion_kind(&a.motion)?).filter(|_| a.motion != "walk")),
+    };
+    let seconds = a.lead_in.unwrap_or(if a.bvh.is_some() { 1.0 } else { 0.0 });
+    if !(0.0..=60.0).contains(&seconds) {
+        return Err(Error::parse("lead-in", 0, format!("--lead-in {seconds}: seconds from 0 to 60")));
+    }
+    let frames = (seconds * hood::rig::motion::MODEL_FPS).round() as usize;
+    Ok(if frames == 0 { motion } else { MakeHumanMotion::FromRest(Box::new(motion), frames) })
 }
 
 fn bvh_rest(name: &str) -> Result<hood::scene::BvhRest> {
