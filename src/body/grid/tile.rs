@@ -221,7 +221,7 @@ impl PointGrid {
 
 #[cfg(target_arch = "x86_64")]
 pub(super) mod x86 {
-    use super::super::x86::merge;
+    use super::super::scan::x86::merge;
     use super::{TileBest, NONE, TILE};
     use core::arch::x86_64::*;
 
