@@ -636,14 +636,13 @@ impl<'m> Sim<'m> {
         body_next: &[[f32; 3]],
         observer: &mut dyn FnMut(Probe<'_>),
     ) -> Result<&[[f32; 3]]> {
-        let mut query = self.query.take();
-        let stepped = self.step_with(query.as_mut(), body_next, observer);
-        self.query = query;
-        stepped.map(|()| &self.state.pos[..])
+        // The sim's own query stays in place (not taken out for the step): a panic unwinding
+        // through the step (an engine's executor, caught at the C ABI) leaves the sim usable.
+        self.step_with(None, body_next, observer).map(|()| &self.state.pos[..])
     }
 
-    /// [`Sim::step_observed`] reading the body's grids and normals from `query` (the sim's own,
-    /// or one that an [`Outfit`] shares between the sims on its body).
+    /// [`Sim::step_observed`] reading the body's grids and normals from `query`, one that an
+    /// [`Outfit`] shares between the sims on its body, or (`None`) the sim's own.
     fn step_with(
         &mut self,
         mut query: Option<&mut BodyQuery>,
@@ -858,8 +857,11 @@ impl<'m> Sim<'m> {
             let now = &self.state.body_pos[..];
             let body = match &self.body {
                 Some(b) => {
-                    let [now, next] =
-                        body_query(query.as_deref_mut())?.faces(&b.mesh, now, body_next.unwrap_or(now))?;
+                    let [now, next] = body_query(query.as_deref_mut(), &mut self.query)?.faces(
+                        &b.mesh,
+                        now,
+                        body_next.unwrap_or(now),
+                    )?;
                     Some(RefineBody { now, next })
                 }
                 None => None,
@@ -878,7 +880,7 @@ impl<'m> Sim<'m> {
             if let Some(proj) = &mut b.projection {
                 // A refined step has built the faces at the same frame.
                 let at = body_next.unwrap_or(&self.state.body_pos);
-                let faces = body_query(query)?.faces_at(&b.mesh, at)?;
+                let faces = body_query(query, &mut self.query)?.faces_at(&b.mesh, at)?;
                 proj.apply(&*self.exec, faces, &self.pinned, &mut self.new_pos, &mut self.new_vel)?;
             }
         }
@@ -931,7 +933,7 @@ impl<'m> Sim<'m> {
         let mut body_normals: &[[f32; 3]] = &[];
         if let Some(b) = &mut self.body {
             let bpos = &self.state.body_pos;
-            let (grid, normals) = body_query(query)?.vertices(&b.mesh, bpos)?;
+            let (grid, normals) = body_query(query, &mut self.query)?.vertices(&b.mesh, bpos)?;
             body_normals = normals;
             grid.nearest_within_on(&*self.exec, pos, BODY_EDGE_RADIUS, &b.hints, &mut b.nearest)?;
             for (h, near) in b.hints.iter_mut().zip(&b.nearest) {
@@ -1063,10 +1065,10 @@ impl<'m> Sim<'m> {
     }
 }
 
-/// The body query a step with a body reads (present whenever the sim's configuration reads
-/// the body: [`Sim::with_graph`] sizes it, an [`Outfit`] lends its shared one).
-fn body_query(query: Option<&mut BodyQuery>) -> Result<&mut BodyQuery> {
-    query.ok_or(Error::UnsupportedEffect { effect: "a step without its body query" })
+/// The body query a step with a body reads: `shared` (an [`Outfit`]'s), else the sim's `own`
+/// (present whenever the sim's configuration reads the body: [`Sim::with_graph`] sizes it).
+fn body_query<'q>(shared: Option<&'q mut BodyQuery>, own: &'q mut Option<BodyQuery>) -> Result<&'q mut BodyQuery> {
+    shared.or(own.as_mut()).ok_or(Error::UnsupportedEffect { effect: "a step without its body query" })
 }
 
 /// Copies `src` into `dst`, of the same lengths, without allocating (unlike `clone_from`, which
