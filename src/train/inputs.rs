@@ -1,6 +1,7 @@
-//! One step's network inputs for the trainer: the same features, body edges and orders as
-//! `Sim::advance` builds, kept un-normalised (the normalisers and embedding tables are applied
-//! by the differentiable forward, so that the embeddings can be trained).
+//! One step's network inputs for the trainer: the same features, body edges and orders as the
+//! runtime's prediction (`sim/predict.rs`) builds, kept un-normalised (the normalisers and
+//! embedding tables are applied by the differentiable forward, so that the embeddings can be
+//! trained).
 
 use crate::body::{BodyMesh, Nearest, PointGrid};
 use crate::error::{Error, Result};
@@ -101,7 +102,7 @@ impl Default for StepData {
 }
 
 impl StepData {
-    /// Builds the step's inputs as the runtime does (`Sim::advance`). A training loop should
+    /// Builds the step's inputs as the runtime does (`sim/predict.rs`). A training loop should
     /// keep an [`InputBuilder`] instead (same result, no fresh body grid and buffers per call).
     ///
     /// # Errors

@@ -1,0 +1,354 @@
+//! The network's prediction of a pass (HOOD, [`StepMode::Network`](super::StepMode::Network)),
+//! as stages: the body's frames as the network sees them under the speed limit, the body edges,
+//! the features, the edge encoders, the forward pass and the integration of its accelerations.
+//!
+//! Every stage works in the speed limit's frame of reference, translated to coincide with the
+//! world at the current frame (see [`Pass`]); positions are in metres, velocities in m/frame.
+
+use super::body_query::BodyQuery;
+use super::graph::Graph;
+use super::network::{BodyEdges, Net, Probe, Workspace};
+use super::stages::Pass;
+use super::{body_query, BodyState, Sim, SimState};
+use crate::body::{BodyMesh, Nearest, PointGrid};
+use crate::error::{Error, Result};
+use crate::exec::Executor;
+use crate::features::{self, BodyNodes, Embeddings, GarmentNodes, BODY_EDGE_WIDTH, EDGE_WIDTH, NODE_WIDTH};
+use crate::math::finite3;
+use crate::mesh::vertex_normals;
+use crate::model::spec::EdgeKey;
+use alloc::vec;
+use alloc::vec::Vec;
+
+/// Body-edge radius (MODEL.md section 1), metres.
+pub const BODY_EDGE_RADIUS: f32 = 0.03;
+
+/// What the network's prediction keeps of the body between passes, sized at creation: the
+/// buffers of the body edges and the body's frames in the speed limit's frame of reference.
+pub(super) struct NetBody {
+    nearest: Vec<Option<Nearest>>,
+    /// Last pass's nearest body vertex of every garment vertex (`u32::MAX`: none yet): the
+    /// search starts from it, which only changes its speed.
+    hints: Vec<u32>,
+    /// Each body vertex's row among the active body nodes (`u32::MAX` between passes).
+    active_of: Vec<u32>,
+    /// The active body nodes, ascending.
+    active: Vec<u32>,
+    edge_garment: Vec<u32>,
+    /// Each body edge's body vertex, then its active row.
+    edge_body: Vec<u32>,
+    edge_pairs: Vec<[u32; 2]>,
+    /// The body's previous and next frames as the network sees them under the speed limit, in
+    /// the frame of reference that follows the carried motion, m (empty without the limit).
+    carried_prev: Vec<[f32; 3]>,
+    carried_next: Vec<[f32; 3]>,
+}
+
+impl NetBody {
+    /// Buffers for `n` garment vertices on a body of `nb` vertices (`carried`: with the speed
+    /// limit).
+    pub(super) fn new(n: usize, nb: usize, carried: bool) -> NetBody {
+        NetBody {
+            nearest: vec![None; n],
+            hints: vec![u32::MAX; n],
+            active_of: vec![u32::MAX; nb],
+            active: vec![0; nb.min(n)],
+            edge_garment: vec![0; n],
+            edge_body: vec![0; n],
+            edge_pairs: vec![[0; 2]; n],
+            carried_prev: if carried { vec![[0.0; 3]; nb] } else { Vec::new() },
+            carried_next: if carried { vec![[0.0; 3]; nb] } else { Vec::new() },
+        }
+    }
+
+    /// Most active body nodes of a pass.
+    pub(super) fn max_active(&self) -> usize {
+        self.active.len()
+    }
+}
+
+impl Sim<'_> {
+    /// The network's prediction of the pass into `new_pos` / `new_vel`: pinned vertices are
+    /// already at their targets in `new_pos`, free ones at their current positions.
+    pub(super) fn predict(
+        &mut self,
+        query: Option<&mut BodyQuery>,
+        pass: &Pass<'_>,
+        observer: &mut dyn FnMut(Probe<'_>),
+    ) -> Result<()> {
+        let Sim {
+            net,
+            garment,
+            graph,
+            material_in,
+            pinned,
+            body,
+            state,
+            garment_normals,
+            new_pos,
+            new_vel,
+            ws,
+            query: own,
+            ..
+        } = self;
+        let exec = &*self.exec;
+        // The body: its frames as the network sees them, its edges to the garment.
+        let seen = match body {
+            Some(b) => {
+                carry_frames(&mut b.net, &state.body_prev, pass);
+                let (grid, normals) = body_query(query, own)?.vertices(&b.mesh, &state.body_pos)?;
+                let counts = body_edges(&mut b.net, &b.mesh, grid, exec, graph, new_pos)?;
+                Some(SeenBody::new(b, state, normals, counts, pass))
+            }
+            None => None,
+        };
+        // Features and edge encoders at the pass's start, the forward pass, the integration.
+        vertex_normals(garment.faces(), new_pos, garment_normals);
+        let nodes = GarmentNodes {
+            velocity: &state.velocity,
+            normals: garment_normals,
+            mass: garment.vertex_mass(),
+            pinned,
+            level: &graph.vertex_level,
+            material: material_in,
+            dt: pass.dt,
+        };
+        let model = net.model;
+        let emb = Embeddings { node_type: model.node_type_embedding, level: model.level_embedding };
+        features(&nodes, seen.as_ref(), new_pos, &emb, ws)?;
+        let edges = GarmentEdges { graph, pos: new_pos, rest: garment.rest(), material: material_in, dt: pass.dt };
+        encode(&edges, net, exec, ws)?;
+        let body_edges = seen.map_or(NO_BODY_EDGES, |s| s.edges);
+        ws.forward(net, exec, graph, &body_edges, observer)?;
+        self.last_body = (body_edges.prefix[0], body_edges.n_active);
+        integrate(model.output_stats(), &ws.decoded, &state.velocity, pinned, new_pos, new_vel)
+    }
+}
+
+/// The body edges of a pass without a body.
+const NO_BODY_EDGES: BodyEdges<'static> = BodyEdges { garment: &[], body: &[], n_active: 0, prefix: [0; 4] };
+
+/// The body's frames in the speed limit's frame of reference: the previous one (`prev`) moved
+/// by the last step's carry, the next one moved back by this pass's (only when either carry is
+/// not zero, and with a next frame).
+fn carry_frames(net: &mut NetBody, prev: &[[f32; 3]], pass: &Pass<'_>) {
+    let (Some(next), true) = (pass.body_next, pass.shifted()) else { return };
+    let shift = |out: &mut [[f32; 3]], src: &[[f32; 3]], by: [f32; 3]| {
+        for (o, p) in out.iter_mut().zip(src) {
+            *o = [p[0] + by[0], p[1] + by[1], p[2] + by[2]];
+        }
+    };
+    shift(&mut net.carried_prev, prev, pass.last_carry);
+    shift(&mut net.carried_next, next, pass.carry.map(|c| -c));
+}
+
+/// How many body edges and active body nodes a pass has.
+#[derive(Clone, Copy)]
+struct EdgeCounts {
+    /// How many leading edges stay at each level of descending depth: `[all, c0, c1, c2]`.
+    prefix: [usize; 4],
+    /// Active body nodes.
+    n_active: usize,
+}
+
+/// Body edges at the current frame: each garment vertex (at `pos`, m) within
+/// [`BODY_EDGE_RADIUS`] of a body vertex that is not omitted (nearest by `grid`) is linked to
+/// it, the edges listed in the graph's body order; the body vertices they reach become the
+/// active body nodes, ascending, and each edge's body end its row among them.
+fn body_edges(
+    net: &mut NetBody,
+    mesh: &BodyMesh,
+    grid: &PointGrid,
+    exec: &dyn Executor,
+    graph: &Graph,
+    pos: &[[f32; 3]],
+) -> Result<EdgeCounts> {
+    grid.nearest_within_on(exec, pos, BODY_EDGE_RADIUS, &net.hints, &mut net.nearest)?;
+    for (h, near) in net.hints.iter_mut().zip(&net.nearest) {
+        if let Some(near) = near {
+            *h = near.index;
+        }
+    }
+    mesh.keep_not_omitted(&mut net.nearest);
+    let mut prefix = [0usize; 4];
+    let mut nb = 0;
+    for &g in &graph.body_order {
+        if let Some(near) = net.nearest[g as usize] {
+            net.edge_garment[nb] = g;
+            net.edge_body[nb] = near.index;
+            nb += 1;
+            let lvl = graph.vertex_level[g as usize] as usize;
+            for p in prefix.iter_mut().take(lvl + 1) {
+                *p += 1;
+            }
+        }
+    }
+    // Active body nodes, ascending; edge_body becomes the active row.
+    let mut n_active = 0;
+    for &o in &net.edge_body[..nb] {
+        net.active_of[o as usize] = 0;
+    }
+    for (o, a) in net.active_of.iter_mut().enumerate() {
+        if *a == 0 {
+            *a = n_active as u32;
+            net.active[n_active] = o as u32;
+            n_active += 1;
+        }
+    }
+    for k in 0..nb {
+        let o = net.edge_body[k];
+        net.edge_pairs[k] = [net.edge_garment[k], o];
+        net.edge_body[k] = net.active_of[o as usize];
+    }
+    for &o in &net.active[..n_active] {
+        net.active_of[o as usize] = u32::MAX;
+    }
+    Ok(EdgeCounts { prefix, n_active })
+}
+
+/// The body as one pass of the network sees it.
+struct SeenBody<'a> {
+    /// The active body nodes' inputs: the current frame, the previous one in the speed limit's
+    /// frame (the current one in the start-up pass: a static body), normals, omitted flags.
+    nodes: BodyNodes<'a>,
+    /// The next frame in the speed limit's frame (the current one for a static body), m.
+    next: &'a [[f32; 3]],
+    /// The active body nodes, ascending.
+    active: &'a [u32],
+    /// Each body edge's garment and body vertex.
+    pairs: &'a [[u32; 2]],
+    /// The body edges as the forward pass reads them.
+    edges: BodyEdges<'a>,
+}
+
+impl<'a> SeenBody<'a> {
+    fn new(
+        b: &'a BodyState,
+        state: &'a SimState,
+        normals: &'a [[f32; 3]],
+        counts: EdgeCounts,
+        pass: &Pass<'a>,
+    ) -> SeenBody<'a> {
+        let (net, pos) = (&b.net, &state.body_pos[..]);
+        let prev = match (pass.startup(), pass.shifted()) {
+            (true, _) => pos,
+            (false, true) => &net.carried_prev,
+            (false, false) => &state.body_prev,
+        };
+        let next = match (pass.shifted(), pass.body_next) {
+            (true, Some(_)) => &net.carried_next,
+            _ => pass.body_next.unwrap_or(pos),
+        };
+        let (nb, n_active) = (counts.prefix[0], counts.n_active);
+        SeenBody {
+            nodes: BodyNodes { pos, prev, normals, omitted: b.mesh.omitted(), dt: pass.dt },
+            next,
+            active: &net.active[..n_active],
+            pairs: &net.edge_pairs[..nb],
+            edges: BodyEdges {
+                garment: &net.edge_garment[..nb],
+                body: &net.edge_body[..nb],
+                n_active,
+                prefix: counts.prefix,
+            },
+        }
+    }
+}
+
+/// Features into the workspace: a row per garment node (`garment`) then per active body node,
+/// and, with a body, both directions of the body edges between the garment at `pos` (m) and
+/// the body.
+fn features(
+    garment: &GarmentNodes<'_>,
+    body: Option<&SeenBody<'_>>,
+    pos: &[[f32; 3]],
+    emb: &Embeddings<'_>,
+    ws: &mut Workspace,
+) -> Result<()> {
+    let (gpart, bpart) = ws.node_features.split_at_mut(pos.len() * NODE_WIDTH);
+    features::garment_node_features(garment, emb, gpart)?;
+    if let Some(b) = body {
+        features::body_node_features(&b.nodes, b.active, emb, &mut bpart[..b.active.len() * NODE_WIDTH])?;
+        let rows = b.pairs.len() * BODY_EDGE_WIDTH;
+        let (g2b, b2g) = (&mut ws.g2b_features[..rows], &mut ws.b2g_features[..rows]);
+        features::body_edge_features(b.pairs, pos, b.nodes.pos, b.next, garment.dt, g2b, b2g)?;
+    }
+    Ok(())
+}
+
+/// The garment's mesh and coarse edges at the pass's start, as their features read them.
+struct GarmentEdges<'a> {
+    graph: &'a Graph,
+    /// Positions, m (pinned vertices at their targets).
+    pos: &'a [[f32; 3]],
+    /// Rest positions, m.
+    rest: &'a [[f32; 3]],
+    /// Each vertex's material as the network reads it.
+    material: &'a [[f32; 3]],
+    /// Time step, s.
+    dt: f32,
+}
+
+/// The edge encoders: the features of each edge set the model uses (mesh, then coarse levels),
+/// normalised and encoded into the workspace's latents. The network's work starts here: the
+/// workspace's count of floating-point operations restarts at zero.
+fn encode(edges: &GarmentEdges<'_>, net: &Net<'_>, exec: &dyn Executor, ws: &mut Workspace) -> Result<()> {
+    ws.flops = 0;
+    let (graph, pos, rest, material, dt) = (edges.graph, edges.pos, edges.rest, edges.material, edges.dt);
+    if ws.uses(EdgeKey::Mesh) {
+        let e = &graph.mesh.global;
+        features::edge_features(e, pos, rest, material, dt, ws.edge_feature_rows(e.len()))?;
+        ws.encode_edges(net, exec, EdgeKey::Mesh, e.len())?;
+    }
+    for l in 0..graph.coarse.len().min(3) {
+        let key = EdgeKey::coarse(l).unwrap_or(EdgeKey::Mesh);
+        if !ws.uses(key) {
+            continue;
+        }
+        let e = &graph.coarse[l].edges.global;
+        let rows = ws.edge_feature_rows(e.len());
+        debug_assert_eq!(rows.len(), e.len() * EDGE_WIDTH);
+        features::edge_features(e, pos, rest, material, dt, rows)?;
+        ws.encode_edges(net, exec, key, e.len())?;
+    }
+    Ok(())
+}
+
+/// Integration of the decoded accelerations (`decoded`, normalised; `stats`: the output
+/// normaliser's mean and standard deviation): for each free vertex, `a = decoded · std + mean`
+/// (m/frame²), `v' = v + a` into `new_vel`, `x' = x + v + a` into `new_pos` (which holds `x`);
+/// pinned vertices stay at their targets with no velocity.
+///
+/// # Errors
+/// [`Error::NonFinite`] for the first vertex whose new position or velocity is not finite.
+fn integrate(
+    stats: (&[f32], &[f32]),
+    decoded: &[f32],
+    velocity: &[[f32; 3]],
+    pinned: &[bool],
+    new_pos: &mut [[f32; 3]],
+    new_vel: &mut [[f32; 3]],
+) -> Result<()> {
+    let (mean, std) = stats;
+    for i in 0..new_pos.len() {
+        if pinned[i] {
+            new_vel[i] = [0.0; 3];
+            continue;
+        }
+        let d = &decoded[3 * i..3 * i + 3];
+        let v = velocity[i];
+        let mut nv = [0.0; 3];
+        let mut np = [0.0; 3];
+        for k in 0..3 {
+            let acc = d[k] * std[k] + mean[k];
+            nv[k] = v[k] + acc;
+            np[k] = new_pos[i][k] + v[k] + acc;
+        }
+        if !finite3(np) || !finite3(nv) {
+            return Err(Error::NonFinite { what: "network output for garment vertex", index: i });
+        }
+        new_vel[i] = nv;
+        new_pos[i] = np;
+    }
+    Ok(())
+}
