@@ -476,13 +476,7 @@ impl<'m> Sim<'m> {
         body_next: &[[f32; 3]],
         observer: &mut dyn FnMut(Probe<'_>),
     ) -> Result<()> {
-        if let Some(b) = &self.body {
-            let nb = b.mesh.n_vertices();
-            if body_next.len() != nb {
-                return Err(Error::SizeMismatch { what: "body vertices", expected: nb, got: body_next.len() });
-            }
-            check_finite("body vertex", body_next)?;
-        }
+        self.check_body_frame(body_next)?;
         let next = if self.body.is_some() { Some(body_next) } else { None };
         // The speed limit's carry over this frame; a jump teleports instead (and reports itself).
         let (teleport, limit) = (self.cfg.teleport, self.cfg.speed_limit);
@@ -539,6 +533,12 @@ impl<'m> Sim<'m> {
         Ok(())
     }
 
+    /// Refuses a body frame of the wrong length or with a non-finite vertex (any frame passes
+    /// without a body).
+    fn check_body_frame(&self, body: &[[f32; 3]]) -> Result<()> {
+        self.body.as_ref().map_or(Ok(()), |b| b.mesh.check_positions(body))
+    }
+
     /// Recomputes the output normals at the current positions (with [`SimConfig::normals`]).
     fn update_output_normals(&mut self) {
         if self.cfg.normals {
@@ -567,16 +567,7 @@ impl<'m> Sim<'m> {
     /// # Errors
     /// [`Error::SizeMismatch`], [`Error::NonFinite`] for bad body input (state unchanged).
     pub fn teleport(&mut self, motion: &RigidMotion, body_now: &[[f32; 3]]) -> Result<()> {
-        if let Some(b) = &self.body {
-            if body_now.len() != b.mesh.n_vertices() {
-                return Err(Error::SizeMismatch {
-                    what: "body vertices",
-                    expected: b.mesh.n_vertices(),
-                    got: body_now.len(),
-                });
-            }
-            check_finite("body vertex", body_now)?;
-        }
+        self.check_body_frame(body_now)?;
         if !motion.rotation.is_finite() || !motion.translation.is_finite() {
             return Err(Error::NonFinite { what: "teleport motion", index: 0 });
         }

@@ -38,7 +38,7 @@
 //! ```
 
 use super::body_query::{BodyNeeds, BodyQuery};
-use super::{check_finite, copy_state, Sim, SimState, StepEffects};
+use super::{copy_state, Sim, SimState, StepEffects};
 use crate::error::{Error, Result};
 use alloc::vec::Vec;
 
@@ -126,13 +126,8 @@ impl<'m> Outfit<'m> {
     /// find it). On error every garment is as before the call: those that had stepped are put
     /// back, with [`Sim::last_effects`] reading all false, as after [`Sim::set_state`].
     pub fn step(&mut self, body_next: &[[f32; 3]]) -> Result<()> {
-        if let Some(b) = self.sims[0].body.as_ref() {
-            let nb = b.mesh.n_vertices();
-            if body_next.len() != nb {
-                return Err(Error::SizeMismatch { what: "body vertices", expected: nb, got: body_next.len() });
-            }
-            check_finite("body vertex", body_next)?;
-        }
+        // Once for all garments (they share the body), before any steps.
+        self.sims[0].check_body_frame(body_next)?;
         for (k, sim) in self.sims.iter_mut().enumerate() {
             let before = &mut self.before[k];
             copy_state(&mut before.state, &sim.state);
