@@ -37,7 +37,7 @@ use alloc::vec::Vec;
 mod common;
 mod off_body;
 pub use common::{common_state_gaps, Method, Reference};
-pub use off_body::{OffBody, OffBodyFrame, LOST_PERCENT, OFF_DISTANCE, WORN_DISTANCE};
+pub use off_body::{kept_rule, OffBody, OffBodyFrame, LOST_PERCENT, LOST_SHIFT, OFF_DISTANCE, WORN_DISTANCE};
 
 /// What a rollout plays: a garment, the body's frames (30 Hz), the pinned vertices' targets per
 /// frame and the garment's initial positions.
@@ -60,6 +60,12 @@ pub trait Animation {
     /// # Errors
     /// Implementation-specific (body queries, ...).
     fn initial_garment(&self) -> Result<Vec<[f32; 3]>>;
+    /// Whether [`Animation::pin_targets`] gives every vertex where the body carries it (the
+    /// garment skinned with the body), not only fixed targets for the pinned ones: then the
+    /// off-body metric measures the garment's shift ([`OffBodyFrame::shift`]). Default: no.
+    fn skins_garment(&self) -> bool {
+        false
+    }
     /// Garment velocities at frame 0, m per frame (the displacement since the frame before):
     /// the motion the body carries the garment with when the animation starts in mid-motion.
     /// Default: at rest.
@@ -90,6 +96,9 @@ impl Animation for Scene {
     fn initial_garment(&self) -> Result<Vec<[f32; 3]>> {
         Scene::initial_garment(self, 0)
     }
+    fn skins_garment(&self) -> bool {
+        true
+    }
     fn initial_velocity(&self) -> Result<Vec<[f32; 3]>> {
         Scene::initial_velocity(self, 0)
     }
@@ -105,7 +114,10 @@ pub struct Playback {
     pub body: Option<BodyMesh>,
     /// Body positions per frame, m (ignored without a body; clamped to the last frame).
     pub body_frames: Vec<Vec<[f32; 3]>>,
-    /// Pinned targets per frame, m (clamped to the last; empty: the initial positions).
+    /// Targets per frame, one per garment vertex, m (clamped to the last): where the body
+    /// carries each vertex, which the pinned ones follow and the off-body metric measures drift
+    /// and shift from ([`Animation::skins_garment`]). Empty: the initial positions, held (no
+    /// shift is measured).
     pub pin_targets: Vec<Vec<[f32; 3]>>,
     /// Garment positions at frame 0, m.
     pub initial: Vec<[f32; 3]>,
@@ -189,6 +201,9 @@ impl Animation for Playback {
     }
     fn initial_garment(&self) -> Result<Vec<[f32; 3]>> {
         Ok(self.initial.clone())
+    }
+    fn skins_garment(&self) -> bool {
+        !self.pin_targets.is_empty()
     }
     fn initial_velocity(&self) -> Result<Vec<[f32; 3]>> {
         match self.initial_velocity.len() {
@@ -369,8 +384,9 @@ pub struct Summary {
     pub off_body_max: Option<f64>,
     /// Mean of the same.
     pub off_body_mean: Option<f64>,
-    /// The first frame at which [`LOST_PERCENT`] or more of the worn vertices were off the
-    /// body: the garment was lost, a failure whatever the other figures.
+    /// The first frame at which the garment was lost ([`OffBodyFrame::lost`]: [`LOST_PERCENT`]
+    /// or more of the worn vertices off the body, or the worn part shifted [`LOST_SHIFT`] or
+    /// more): a failure whatever the other figures.
     pub lost_at: Option<usize>,
     /// Largest drift of a vertex from its skinned position over the frames, m (garments with
     /// pins).
@@ -381,8 +397,8 @@ pub struct Summary {
 }
 
 impl Summary {
-    /// Whether the garment stayed on the body (and the rollout finite): under [`LOST_PERCENT`]
-    /// of its worn vertices off the body at every frame.
+    /// Whether the garment stayed on the body (and the rollout finite): not lost at any frame
+    /// ([`OffBodyFrame::lost`]).
     pub fn garment_kept(&self) -> bool {
         self.finite && self.lost_at.is_none()
     }
@@ -981,9 +997,9 @@ fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
     if !off.is_empty() {
         s.off_body_max = Some(off.iter().map(|o| o.1.off_percent).fold(0.0, f64::max));
         s.off_body_mean = Some(off.iter().map(|o| o.1.off_percent).sum::<f64>() / off.len() as f64);
-        s.lost_at = off.iter().find(|o| o.1.off_percent >= LOST_PERCENT).map(|o| o.0);
+        s.lost_at = off.iter().find(|o| o.1.lost()).map(|o| o.0);
         s.max_drift = off.iter().filter_map(|o| o.1.max_drift).reduce(f64::max);
-        s.max_shift = Some(off.iter().map(|o| o.1.shift).fold(0.0, f64::max));
+        s.max_shift = off.iter().filter_map(|o| o.1.shift).reduce(f64::max);
     }
     s
 }

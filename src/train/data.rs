@@ -100,8 +100,8 @@ impl Dataset {
     /// frame one implicit step of the training objective at the final collision weight (f64
     /// L-BFGS, [`REFERENCE_ITERATIONS`] iterations at most), default material, pinned vertices at
     /// their targets; a rollout that turns non-finite keeps its frames up to there, and one that
-    /// loses the garment ([`crate::eval::OffBody`]: [`crate::eval::LOST_PERCENT`] or more of its
-    /// worn vertices off the body) keeps its frames before that one, so that no sample starts
+    /// loses the garment ([`crate::eval::OffBodyFrame::lost`]: worn vertices off the body or
+    /// ridden up) keeps its frames before that one, so that no sample starts
     /// from a garment the solver has thrown off (on fast arm swings and inversions the implicit
     /// step of the objective can lose a loose top). With
     /// `cache`, each scene's states are read from `cache/<scene>.bin` when there (and of the
@@ -181,10 +181,10 @@ pub type Positions = Vec<[f32; 3]>;
 /// Drops the states of `scene`'s reference rollout from the first frame whose garment is lost
 /// (the cache keeps the whole rollout: the rule may change, the solve need not be redone).
 fn truncate_at_loss(scene: &Scene, states: &mut Vec<Positions>) -> Result<()> {
-    use crate::eval::{OffBody, LOST_PERCENT};
+    use crate::eval::OffBody;
     let Some(mut metric) = OffBody::new(scene)? else { return Ok(()) };
     let lost = (0..states.len()).find_map(|t| match metric.measure(scene, t, &states[t]) {
-        Ok(f) if f.off_percent < LOST_PERCENT => None,
+        Ok(f) if !f.lost() => None,
         Ok(_) => Some(Ok(t)),
         Err(e) => Some(Err(e)),
     });

@@ -409,11 +409,10 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
     }
     let _ = writeln!(
         s,
-        "◆ marks the Pareto front of each workload: the variants that keep the garment on the body (under {} % of \
-         its worn vertices over {} cm from the body at every frame) and that no other such variant beats in both \
-         ms/step and gap mean. A garment lost is a failure whatever its gap.\n",
-        hood::eval::LOST_PERCENT,
-        100.0 * hood::eval::OFF_DISTANCE
+        "◆ marks the Pareto front of each workload: the variants that keep the garment on the body ({} at every \
+         frame) and that no other such variant beats in both ms/step and gap mean. A garment lost is a failure \
+         whatever its gap.\n",
+        hood::eval::kept_rule()
     );
     if a.objective == ObjectiveArg::Evaluation {
         let _ = writeln!(

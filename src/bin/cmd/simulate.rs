@@ -402,7 +402,9 @@ fn print_frame(r: &FrameRecord, frames: usize) {
         if let Some(d) = o.max_drift {
             optional.push_str(&format!("  drift {:.1} cm", 100.0 * d));
         }
-        optional.push_str(&format!("  shift {:.1} cm", 100.0 * o.shift));
+        if let Some(d) = o.shift {
+            optional.push_str(&format!("  shift {:.1} cm", 100.0 * d));
+        }
     }
     say!(
         "frame {:>4}/{frames}  {:>7.2} ms  objective {:>10.4} J (stretch {:.4}, bend {:.2e}, inertia {:.4}, gravity {:.4}, collision {:.2e}, friction {:.2e})  penetrating {:>5.2}%  strain {:.3}  speed {:.2} m/s{optional}{}",

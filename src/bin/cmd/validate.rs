@@ -356,11 +356,8 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         .map(|(m, k)| format!("{} {} of {}", stem(m), k.iter().filter(|&&x| x).count(), k.len()))
         .collect();
     if !verdicts.is_empty() {
-        table += &format!(
-            "\nGarment on the body (under {} % of worn vertices over 10 cm off at every frame): {}.\n",
-            hood::eval::LOST_PERCENT,
-            verdicts.join(", ")
-        );
+        table +=
+            &format!("\nGarment on the body ({} at every frame): {}.\n", hood::eval::kept_rule(), verdicts.join(", "));
     }
     let path = a.out.join("validation.md");
     std::fs::write(&path, &table).map_err(|e| hood::Error::io(&path, e))?;
