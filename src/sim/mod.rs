@@ -12,6 +12,7 @@
 //!
 //! Units: metres; one step is one frame at the model's 30 Hz (velocities are m/frame).
 
+pub(crate) mod body_edges;
 mod body_query;
 mod clock;
 mod config;
@@ -42,6 +43,7 @@ use crate::model::file::Model;
 use alloc::boxed::Box;
 use alloc::vec;
 use alloc::vec::Vec;
+pub use body_edges::BODY_EDGE_RADIUS;
 use body_query::{BodyNeeds, BodyQuery};
 pub use clock::Clock;
 #[cfg(feature = "std")]
@@ -58,7 +60,6 @@ use network::{Net, Workspace};
 pub use network::{Probe, Stage};
 pub use outfit::Outfit;
 use predict::NetBody;
-pub use predict::BODY_EDGE_RADIUS;
 use projection::Projection;
 pub use projection::{DEFAULT_PROJECTION_MARGIN, PROJECTION_REACH};
 use refine::Refiner;

@@ -5,6 +5,7 @@
 //! Every stage works in the speed limit's frame of reference, translated to coincide with the
 //! world at the current frame (see [`Pass`]); positions are in metres, velocities in m/frame.
 
+use super::body_edges::{link_body_edges, BodyEdgeCounts, BodyEdgeLists, BODY_EDGE_RADIUS};
 use super::body_query::BodyQuery;
 use super::graph::Graph;
 use super::network::{BodyEdges, Net, Probe, Workspace};
@@ -20,9 +21,6 @@ use crate::model::spec::EdgeKey;
 use alloc::vec;
 use alloc::vec::Vec;
 
-/// Body-edge radius (MODEL.md section 1), metres.
-pub const BODY_EDGE_RADIUS: f32 = 0.03;
-
 /// What the network's prediction keeps of the body between passes, sized at creation: the
 /// buffers of the body edges and the body's frames in the speed limit's frame of reference.
 pub(super) struct NetBody {
@@ -35,7 +33,7 @@ pub(super) struct NetBody {
     /// The active body nodes, ascending.
     active: Vec<u32>,
     edge_garment: Vec<u32>,
-    /// Each body edge's body vertex, then its active row.
+    /// Each body edge's active row.
     edge_body: Vec<u32>,
     edge_pairs: Vec<[u32; 2]>,
     /// The body's previous and next frames as the network sees them under the speed limit, in
@@ -142,19 +140,9 @@ fn carry_frames(net: &mut NetBody, prev: &[[f32; 3]], pass: &Pass<'_>) {
     shift(&mut net.carried_next, next, pass.carry.map(|c| -c));
 }
 
-/// How many body edges and active body nodes a pass has.
-#[derive(Clone, Copy)]
-struct EdgeCounts {
-    /// How many leading edges stay at each level of descending depth: `[all, c0, c1, c2]`.
-    prefix: [usize; 4],
-    /// Active body nodes.
-    n_active: usize,
-}
-
-/// Body edges at the current frame: each garment vertex (at `pos`, m) within
-/// [`BODY_EDGE_RADIUS`] of a body vertex that is not omitted (nearest by `grid`) is linked to
-/// it, the edges listed in the graph's body order; the body vertices they reach become the
-/// active body nodes, ascending, and each edge's body end its row among them.
+/// Body edges at the current frame ([`link_body_edges`]): each garment vertex (at `pos`, m)
+/// within [`BODY_EDGE_RADIUS`] of a body vertex that is not omitted (nearest by `grid`) is
+/// linked to it.
 fn body_edges(
     net: &mut NetBody,
     mesh: &BodyMesh,
@@ -162,48 +150,21 @@ fn body_edges(
     exec: &dyn Executor,
     graph: &Graph,
     pos: &[[f32; 3]],
-) -> Result<EdgeCounts> {
+) -> Result<BodyEdgeCounts> {
     grid.nearest_within_on(exec, pos, BODY_EDGE_RADIUS, &net.hints, &mut net.nearest)?;
     for (h, near) in net.hints.iter_mut().zip(&net.nearest) {
         if let Some(near) = near {
             *h = near.index;
         }
     }
-    mesh.keep_not_omitted(&mut net.nearest);
-    let mut prefix = [0usize; 4];
-    let mut nb = 0;
-    for &g in &graph.body_order {
-        if let Some(near) = net.nearest[g as usize] {
-            net.edge_garment[nb] = g;
-            net.edge_body[nb] = near.index;
-            nb += 1;
-            let lvl = graph.vertex_level[g as usize] as usize;
-            for p in prefix.iter_mut().take(lvl + 1) {
-                *p += 1;
-            }
-        }
-    }
-    // Active body nodes, ascending; edge_body becomes the active row.
-    let mut n_active = 0;
-    for &o in &net.edge_body[..nb] {
-        net.active_of[o as usize] = 0;
-    }
-    for (o, a) in net.active_of.iter_mut().enumerate() {
-        if *a == 0 {
-            *a = n_active as u32;
-            net.active[n_active] = o as u32;
-            n_active += 1;
-        }
-    }
-    for k in 0..nb {
-        let o = net.edge_body[k];
-        net.edge_pairs[k] = [net.edge_garment[k], o];
-        net.edge_body[k] = net.active_of[o as usize];
-    }
-    for &o in &net.active[..n_active] {
-        net.active_of[o as usize] = u32::MAX;
-    }
-    Ok(EdgeCounts { prefix, n_active })
+    let lists = BodyEdgeLists {
+        garment: &mut net.edge_garment,
+        active_row: &mut net.edge_body,
+        pairs: &mut net.edge_pairs,
+        active: &mut net.active,
+        active_of: &mut net.active_of,
+    };
+    Ok(link_body_edges(graph, mesh, &mut net.nearest, lists))
 }
 
 /// The body as one pass of the network sees it.
@@ -226,7 +187,7 @@ impl<'a> SeenBody<'a> {
         b: &'a BodyState,
         state: &'a SimState,
         normals: &'a [[f32; 3]],
-        counts: EdgeCounts,
+        counts: BodyEdgeCounts,
         pass: &Pass<'a>,
     ) -> SeenBody<'a> {
         let (net, pos) = (&b.net, &state.body_pos[..]);

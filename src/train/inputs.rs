@@ -10,6 +10,7 @@ use crate::features::{
 };
 use crate::mesh::{vertex_normals, Garment};
 use crate::model::{EdgeKey, ModelSpec};
+use crate::sim::body_edges::{link_body_edges, BodyEdgeLists};
 use crate::sim::{Graph, BODY_EDGE_RADIUS};
 use alloc::vec::Vec;
 
@@ -130,7 +131,6 @@ pub struct InputBuilder {
     normals: Vec<[f32; 3]>,
     body_normals: Vec<[f32; 3]>,
     material: Vec<[f32; 3]>,
-    body_vertex: Vec<u32>,
     active_of: Vec<u32>,
     pairs: Vec<[u32; 2]>,
 }
@@ -213,31 +213,27 @@ impl InputBuilder {
             self.nearest.clear();
             self.nearest.resize(n, None);
             grid.nearest_within(&d.pos, BODY_EDGE_RADIUS, &mut self.nearest)?;
-            b.mesh.keep_not_omitted(&mut self.nearest);
-            self.body_vertex.clear();
-            for &g in &graph.body_order {
-                if let Some(near) = self.nearest[g as usize] {
-                    d.body_garment.push(g);
-                    self.body_vertex.push(near.index);
-                    let lvl = graph.vertex_level[g as usize] as usize;
-                    for p in d.prefix.iter_mut().take(lvl + 1) {
-                        *p += 1;
-                    }
-                }
-            }
-            // Active body rows in ascending body vertex order.
+            d.body_garment.resize(n, 0);
+            d.body_active.resize(n, 0);
+            d.active.resize(n.min(nb), 0);
+            self.pairs.clear();
+            self.pairs.resize(n, [0; 2]);
             self.active_of.clear();
             self.active_of.resize(nb, u32::MAX);
-            for &o in &self.body_vertex {
-                self.active_of[o as usize] = 0;
-            }
-            for (o, a) in self.active_of.iter_mut().enumerate() {
-                if *a == 0 {
-                    *a = d.active.len() as u32;
-                    d.active.push(o as u32);
-                }
-            }
-            d.body_active.extend(self.body_vertex.iter().map(|&o| self.active_of[o as usize]));
+            let lists = BodyEdgeLists {
+                garment: &mut d.body_garment,
+                active_row: &mut d.body_active,
+                pairs: &mut self.pairs,
+                active: &mut d.active,
+                active_of: &mut self.active_of,
+            };
+            let counts = link_body_edges(graph, b.mesh, &mut self.nearest, lists);
+            let ne = counts.prefix[0];
+            d.prefix = counts.prefix;
+            d.body_garment.truncate(ne);
+            d.body_active.truncate(ne);
+            d.active.truncate(counts.n_active);
+            self.pairs.truncate(ne);
             d.n_active = d.active.len();
             self.body_normals.clear();
             self.body_normals.resize(nb, [0.0; 3]);
@@ -250,9 +246,6 @@ impl InputBuilder {
                 d.node_type.push(if omitted { NodeType::BodyOmitted } else { NodeType::Body } as u8);
                 d.node_level.push(0);
             }
-            self.pairs.clear();
-            self.pairs.extend(d.body_garment.iter().zip(&self.body_vertex).map(|(&g, &o)| [g, o]));
-            let ne = self.pairs.len();
             d.g2b_features.resize(ne * BODY_EDGE_WIDTH, 0.0);
             d.b2g_features.resize(ne * BODY_EDGE_WIDTH, 0.0);
             features::body_edge_features(
