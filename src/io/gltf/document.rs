@@ -42,8 +42,9 @@ fn glb(bytes: &[u8]) -> Result<gltf::Glb<'_>> {
 
 /// Readies a document for validation: drops what this reader ignores but the `gltf` crate's
 /// validation would refuse (application-specific `_NAME` vertex attributes, animation channels
-/// with an unknown target path), and refuses a `POSITION` naming a missing accessor (which that
-/// validation would index without checking).
+/// with an unknown target path), and refuses a `POSITION` naming a missing accessor and an
+/// animation channel naming a missing node or sampler, or a sampler a missing accessor (which
+/// the crate would index without checking).
 fn prepare(root: &mut gltf::json::Root) -> Result<()> {
     use gltf::json::validation::Checked;
     use gltf::mesh::Semantic;
@@ -61,8 +62,27 @@ fn prepare(root: &mut gltf::json::Root) -> Result<()> {
             }
         }
     }
-    for anim in &mut root.animations {
+    let n_nodes = root.nodes.len();
+    for (a, anim) in root.animations.iter_mut().enumerate() {
         anim.channels.retain(|c| matches!(c.target.path, Checked::Valid(_)));
+        let n_samplers = anim.samplers.len();
+        for (c, ch) in anim.channels.iter().enumerate() {
+            let (node, sampler) = (ch.target.node.value(), ch.sampler.value());
+            if node >= n_nodes || sampler >= n_samplers {
+                return Err(err(format!(
+                    "animation {a} channel {c}: targets node {node} with sampler {sampler}, but the file has \
+                     {n_nodes} node(s) and the animation {n_samplers} sampler(s)"
+                )));
+            }
+        }
+        for (k, smp) in anim.samplers.iter().enumerate() {
+            let (input, output) = (smp.input.value(), smp.output.value());
+            if input >= n_accessors || output >= n_accessors {
+                return Err(err(format!(
+                    "animation {a} sampler {k}: reads accessors {input} and {output}, but the file has {n_accessors}"
+                )));
+            }
+        }
     }
     Ok(())
 }

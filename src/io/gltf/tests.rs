@@ -572,6 +572,18 @@ fn gltf_out_of_range_indices_are_refused() {
     let mut d = build(&raw());
     d.json["skins"][0]["joints"] = json!([2, 1, 40]);
     parse_message(&d.gltf());
+    // An animation channel on a missing node or sampler, a sampler on a missing accessor (the
+    // first a crash the glTF fuzz target found: the crate's validation lets it through and its
+    // reader indexes without checking).
+    let mut d = build(&raw());
+    d.json["animations"][0]["channels"][0]["target"]["node"] = json!(5);
+    assert!(parse_message(&d.gltf()).contains("targets node 5"));
+    let mut d = build(&raw());
+    d.json["animations"][0]["channels"][0]["sampler"] = json!(9);
+    assert!(parse_message(&d.gltf()).contains("sampler 9"));
+    let mut d = build(&raw());
+    d.json["animations"][0]["samplers"][0]["output"] = json!(999);
+    assert!(parse_message(&d.gltf()).contains("accessors"));
     // Absurd counts are refused before anything is allocated.
     let mut d = build(&raw());
     d.json["accessors"][0]["count"] = json!(1u64 << 40);
