@@ -5,7 +5,7 @@
 use crate::error::Result;
 use crate::kernels::{peak, Kernels, Tier};
 use crate::model::file::Model;
-use crate::sim::{BodyDesc, Precision, Sim, SimConfig};
+use crate::sim::{BodyDesc, Precision, Sim, SimConfig, StepMode};
 use crate::workloads::Workload;
 use std::string::String;
 use std::time::Instant;
@@ -16,6 +16,9 @@ use std::vec::Vec;
 pub struct BenchRow {
     /// Workload name.
     pub workload: String,
+    /// What computed the step: the network, or the solver alone (then the model's figures,
+    /// `latent`, `blocks` and the FLOPs, are those of a network the row does not run).
+    pub step: StepMode,
     /// Garment vertices.
     pub vertices: usize,
     /// Body edges in the timed step.
@@ -103,20 +106,23 @@ pub fn core_to_core_ns() -> Option<f64> {
     Some(rounds[ROUNDS / 2])
 }
 
-/// Steps `w` with `model` `steps` times after `warmup` untimed steps and reports the median.
+/// Steps `w` with `model` (or, with `step` the solver, by the solver alone) `steps` times after
+/// `warmup` untimed steps and reports the median.
 ///
 /// # Errors
 /// Errors of [`Sim::new`] and [`Sim::step`].
+#[allow(clippy::too_many_arguments)]
 pub fn bench_step(
     w: &Workload,
     model: &Model<'_>,
+    step: StepMode,
     precision: Precision,
     threads: usize,
     warmup: usize,
     steps: usize,
     peak: &peak::Peak,
 ) -> Result<BenchRow> {
-    let cfg = SimConfig { precision, threads, startup: w.startup(), ..SimConfig::network() };
+    let cfg = SimConfig { precision, threads, startup: w.startup(), step, ..SimConfig::network() };
     let body = w.body.as_ref().map(|(mesh, frames)| BodyDesc { mesh, positions: &frames[0] });
     let mut sim = match &w.graph {
         Some(g) => Sim::with_graph(model, &w.garment, g.clone(), body, cfg)?,
@@ -143,6 +149,7 @@ pub fn bench_step(
     let peak_gflops = per_core * threads as f64;
     Ok(BenchRow {
         workload: w.name.clone(),
+        step,
         vertices: w.garment.n_vertices(),
         body_edges: sim.last_body_counts().0,
         latent: model.spec().latent,

@@ -3,7 +3,7 @@
 use clap::{Args, Parser, Subcommand};
 use hood::bench::{bench_step, core_to_core_ns, machine_peak, BenchRow};
 use hood::model::{write_model, ModelBytes, ModelSpec, Params};
-use hood::sim::Precision;
+use hood::sim::{Precision, StepMode};
 use hood::workloads::{workload, NAMES};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -185,6 +185,18 @@ struct BenchArgs {
     /// A model file to time instead of random models.
     #[arg(long)]
     model: Option<PathBuf>,
+    /// The random models' block schedule instead of HOOD's (the form `TrainConfig`'s
+    /// `schedule` takes, e.g. `f,c0 | d:c0,c1 | d:c1 | c1 | u:c0,c1 | u:f,c0`), to time a
+    /// cheaper network before training it.
+    #[arg(long)]
+    schedule: Option<String>,
+    /// Coarse levels of the random models with `--schedule`.
+    #[arg(long, default_value_t = 3)]
+    levels: usize,
+    /// Also time the solver step mode (no network) at these L-BFGS iteration counts, on the
+    /// same workloads and threads (f32), for the network's cost against the solver's in one run.
+    #[arg(long, value_delimiter = ',')]
+    solver: Vec<u32>,
     /// Precisions: f32, bf16.
     #[arg(long, value_delimiter = ',', default_value = "f32,bf16")]
     precision: Vec<String>,
@@ -229,8 +241,8 @@ fn main() -> ExitCode {
     }
 }
 
-fn random_model(h: usize) -> hood::Result<ModelBytes> {
-    let mut p = Params::init(&ModelSpec::hood(h), 0)?;
+fn random_model(spec: &ModelSpec) -> hood::Result<ModelBytes> {
+    let mut p = Params::init(spec, 0)?;
     p.normalisers = hood::model::Normalisers::unit_scale(1);
     Ok(ModelBytes::new(&write_model(&p, true, &[("kind", "random, for timing")])?))
 }
@@ -263,7 +275,14 @@ fn bench(a: BenchArgs) -> hood::Result<()> {
         .collect::<hood::Result<_>>()?;
     let models: Vec<ModelBytes> = match &a.model {
         Some(p) => vec![ModelBytes::read(p)?],
-        None => a.latent.iter().map(|&h| random_model(h)).collect::<hood::Result<_>>()?,
+        None => a
+            .latent
+            .iter()
+            .map(|&h| match &a.schedule {
+                Some(s) => random_model(&ModelSpec::with_schedule(h, 2, a.levels, s)?),
+                None => random_model(&ModelSpec::hood(h)),
+            })
+            .collect::<hood::Result<_>>()?,
     };
     let peak = machine_peak();
     eprintln!(
@@ -281,16 +300,27 @@ fn bench(a: BenchArgs) -> hood::Result<()> {
         }
     }
     let mut rows: Vec<BenchRow> = Vec::new();
+    let mut push = |r: BenchRow| {
+        if !a.json {
+            print_row(&r, rows.is_empty());
+        }
+        rows.push(r);
+    };
     for w in &workloads {
         for mb in &models {
             let model = mb.model()?;
             for &p in &precisions {
                 for &t in &a.threads {
-                    let r = bench_step(w, &model, p, t, a.warmup, a.steps, &peak)?;
-                    if !a.json {
-                        print_row(&r, rows.is_empty());
-                    }
-                    rows.push(r);
+                    push(bench_step(w, &model, StepMode::Network, p, t, a.warmup, a.steps, &peak)?);
+                }
+            }
+        }
+        if let Some(mb) = models.first() {
+            let model = mb.model()?;
+            for &iterations in &a.solver {
+                for &t in &a.threads {
+                    let solver = StepMode::Solver { iterations };
+                    push(bench_step(w, &model, solver, Precision::F32, t, a.warmup, a.steps, &peak)?);
                 }
             }
         }
@@ -301,13 +331,22 @@ fn bench(a: BenchArgs) -> hood::Result<()> {
     Ok(())
 }
 
+/// A row's step in words: `network`, or `solver K` for the solver step mode.
+fn step_name(step: StepMode) -> String {
+    match step {
+        StepMode::Solver { iterations } => format!("solver {iterations}"),
+        _ => "network".into(),
+    }
+}
+
 fn print_row(r: &BenchRow, header: bool) {
     if header {
         say!(
-            "{:<9} {:>6} {:>6} {:>4} {:>5} {:>10} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6}",
+            "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6}",
             "workload",
             "verts",
             "bodyE",
+            "step",
             "h",
             "prec",
             "tier",
@@ -319,20 +358,33 @@ fn print_row(r: &BenchRow, header: bool) {
             "eff"
         );
     }
+    let network = r.step == StepMode::Network;
+    let (h, flops, gflops, peak, eff) = if network {
+        (
+            r.latent.to_string(),
+            format!("{:.3}", r.flops as f64 / 1e9),
+            format!("{:.1}", r.gflops),
+            format!("{:.1}", r.peak_gflops),
+            format!("{:.0}%", 100.0 * r.efficiency),
+        )
+    } else {
+        ("-".into(), "-".into(), "-".into(), "-".into(), "-".into())
+    };
     say!(
-        "{:<9} {:>6} {:>6} {:>4} {:>5} {:>10} {:>3} {:>10.2} {:>10.3} {:>9.1} {:>8.1} {:>5.0}%",
+        "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10.2} {:>10} {:>9} {:>8} {:>6}",
         r.workload,
         r.vertices,
         r.body_edges,
-        r.latent,
+        step_name(r.step),
+        h,
         if r.precision == Precision::Bf16 { "bf16" } else { "f32" },
-        r.tier.name(),
+        if network { r.tier.name() } else { "-" },
         r.threads,
         r.median_ms,
-        r.flops as f64 / 1e9,
-        r.gflops,
-        r.peak_gflops,
-        100.0 * r.efficiency
+        flops,
+        gflops,
+        peak,
+        eff
     );
 }
 
@@ -347,6 +399,7 @@ fn to_json(rows: &[BenchRow], peak: &hood::kernels::peak::Peak) -> String {
     #[derive(serde::Serialize)]
     struct Row<'a> {
         workload: &'a str,
+        step: String,
         vertices: usize,
         body_edges: usize,
         latent: usize,
@@ -370,6 +423,7 @@ fn to_json(rows: &[BenchRow], peak: &hood::kernels::peak::Peak) -> String {
         .iter()
         .map(|r| Row {
             workload: &r.workload,
+            step: step_name(r.step),
             vertices: r.vertices,
             body_edges: r.body_edges,
             latent: r.latent,
