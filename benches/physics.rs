@@ -99,9 +99,9 @@ fn implicit_4k(c: &mut Criterion) {
         let mut x = vec![[0.0f64; 3]; n];
         let mut step = ImplicitStep::<f64>::new(n, 10);
         let params = if tol > 0.0 {
-            LbfgsParams { max_iterations: 2000, grad_tol: tol, rel_decrease_tol: 1e-12, ..Default::default() }
+            LbfgsParams::default().with_max_iterations(2000).with_grad_tol(tol).with_rel_decrease_tol(1e-12)
         } else {
-            LbfgsParams { max_iterations: 50, grad_tol: 0.0, rel_decrease_tol: 0.0, ..Default::default() }
+            LbfgsParams::default().with_max_iterations(50).with_grad_tol(0.0).with_rel_decrease_tol(0.0)
         };
         let state = StepState { pos: &pos, velocity: &vel, dt: 1.0 / 30.0, pinned: &pinned, targets: &pos };
         let mut group = c.benchmark_group("implicit");

@@ -18,7 +18,7 @@ fn random_model(h: usize) -> ModelBytes {
 /// A sim for `w` and the state every timed step restarts from (if the workload fixes one).
 fn sim<'m>(w: &Workload, model: &'m hood::model::Model<'m>, cfg: SimConfig) -> (Sim<'m>, Option<SimState>) {
     let body = w.body.as_ref().map(|(mesh, frames)| BodyDesc { mesh, positions: &frames[0] });
-    let cfg = SimConfig { startup: w.startup(), ..cfg };
+    let cfg = cfg.with_startup(w.startup());
     let mut s = match &w.graph {
         Some(g) => Sim::with_graph(model, &w.garment, g.clone(), body, cfg).unwrap(),
         None => Sim::new(model, &w.garment, body, cfg).unwrap(),
@@ -114,13 +114,13 @@ fn bench_step(c: &mut Criterion) {
             let model = bytes.model().unwrap();
             let p = if precision == Precision::Bf16 { "bf16" } else { "f32" };
             let id = BenchmarkId::new(format!("{name}/h{h}/{p}"), format!("{threads}t"));
-            time_steps(&mut g, id, &w, &model, SimConfig { precision, threads, ..SimConfig::network() });
+            time_steps(&mut g, id, &w, &model, SimConfig::network().with_precision(precision).with_threads(threads));
         }
         // The default step mode, the solver (the model is not run), on one and two threads.
         let model = bytes.model().unwrap();
         for threads in [1, 2] {
             let id = BenchmarkId::new(format!("{name}/solver{DEFAULT_SOLVER_ITERATIONS}"), format!("{threads}t"));
-            time_steps(&mut g, id, &w, &model, SimConfig { threads, ..SimConfig::default() });
+            time_steps(&mut g, id, &w, &model, SimConfig::default().with_threads(threads));
         }
     }
     g.finish();
@@ -137,13 +137,13 @@ fn bench_effects(c: &mut Criterion) {
     g.sample_size(10).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(4));
     let base = SimConfig::network();
     for (label, cfg) in [
-        ("all-off", SimConfig { body_collision: false, pinning: false, ..base }),
+        ("all-off", base.with_body_collision(false).with_pinning(false)),
         ("body", base),
-        ("body+normals", SimConfig { normals: true, ..base }),
-        ("body+sleeping", SimConfig { sleeping: Some(Default::default()), ..base }),
-        ("body+projection", SimConfig { projection: Some(hood::sim::DEFAULT_PROJECTION_MARGIN), ..base }),
-        ("body+refine 3", SimConfig { refine: Some(3), ..base }),
-        ("body+refine 10", SimConfig { refine: Some(10), ..base }),
+        ("body+normals", base.with_normals(true)),
+        ("body+sleeping", base.with_sleeping(Some(Default::default()))),
+        ("body+projection", base.with_projection(Some(hood::sim::DEFAULT_PROJECTION_MARGIN))),
+        ("body+refine 3", base.with_refine(Some(3))),
+        ("body+refine 10", base.with_refine(Some(10))),
     ] {
         let (mut s, st) = sim(&w, &model, cfg);
         let mut t = 0;

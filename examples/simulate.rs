@@ -24,7 +24,7 @@ fn main() -> hood::Result<()> {
     let model = bytes.model()?;
     let frames = 60;
     let scene = procedural(&Mannequin::new(), GarmentKind::Dress, 2000, MotionKind::Walk, 2.1)?;
-    let options = RolloutOptions { keep: vec![0, 12, 24, 36, 48, 60], ..RolloutOptions::default() };
+    let options = RolloutOptions::default().with_keep(vec![0, 12, 24, 36, 48, 60]);
     let faces = scene.garment.faces();
     let rollout = rollout_observed(&model, &scene, frames, SimConfig::default(), &options, &mut |rec, pos| {
         let total = rec.terms.map_or(f64::NAN, |t| t.total());

@@ -90,12 +90,10 @@ fn main() -> hood::Result<()> {
     }
     let mh = hood::io::makehuman::MakeHuman::load(assets.join("body"))?;
     let clip = hood::io::bvh::read(assets.join("motions/cmu_12_03_walk.bvh"))?.resample(MODEL_FPS)?;
-    let opts = RetargetOptions {
-        clip_rest: ClipRest::Frame(0),
-        rig_initial: Some(&mh.t_pose),
-        aliases: &[("LeftHandFinger1", "LeftHandIndex1"), ("RightHandFinger1", "RightHandIndex1")],
-        ..Default::default()
-    };
+    let opts = RetargetOptions::default()
+        .with_clip_rest(ClipRest::Frame(0))
+        .with_rig_initial(Some(&mh.t_pose))
+        .with_aliases(&[("LeftHandFinger1", "LeftHandIndex1"), ("RightHandFinger1", "RightHandIndex1")]);
     let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
     let motion = animate(&mh.skeleton, &mh.body_weights, &mh.body.rest, &clip, &mut rt)?;
     let frames: Vec<Image> =

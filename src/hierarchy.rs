@@ -35,7 +35,11 @@ pub enum CentreChoice {
 }
 
 /// How to build a [`Hierarchy`].
+///
+/// Built from [`Default`] and the `with_` methods (new fields may come, so it has no struct
+/// literal outside this crate).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[non_exhaustive]
 pub struct HierarchyConfig {
     /// Number of coarse levels (the reference builds 3 and the network reads c0 and c1).
     pub levels: usize,
@@ -46,6 +50,15 @@ pub struct HierarchyConfig {
 impl Default for HierarchyConfig {
     fn default() -> Self {
         HierarchyConfig { levels: DEFAULT_LEVELS, centre: CentreChoice::First }
+    }
+}
+
+impl HierarchyConfig {
+    with_fields! {
+        /// Sets [`levels`](Self::levels): the number of coarse levels.
+        with_levels => levels: usize;
+        /// Sets [`centre`](Self::centre): how each component's centre is chosen.
+        with_centre => centre: CentreChoice;
     }
 }
 

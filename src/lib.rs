@@ -35,6 +35,21 @@ extern crate std;
 #[doc = include_str!("../README.md")]
 pub struct ReadmeDoctests;
 
+/// The chainable setters of a `#[non_exhaustive]` config struct, inside its `impl` block: one
+/// `with_<field>(self, value: <field's type>) -> Self` per `doc, with_name => field: Type;`.
+macro_rules! with_fields {
+    ($($(#[$doc:meta])* $with:ident => $field:ident: $ty:ty;)*) => {
+        $(
+            $(#[$doc])*
+            #[must_use]
+            pub fn $with(mut self, value: $ty) -> Self {
+                self.$field = value;
+                self
+            }
+        )*
+    };
+}
+
 #[cfg(feature = "std")]
 pub mod assets;
 #[cfg(feature = "std")]

@@ -59,10 +59,10 @@ fn outfit_step() {
     let bytes = random_model(16, 2, false);
     let model = bytes.model().unwrap();
     let configs = [
-        SimConfig { refine: Some(2), projection: Some(0.004), normals: true, ..SimConfig::network() },
-        SimConfig { step: StepMode::Solver { iterations: 4 }, threads: 2, ..SimConfig::network() },
-        SimConfig { step: StepMode::SolverBudget { micros: 1_000_000, max_iterations: 4 }, ..SimConfig::network() },
-        SimConfig { threads: 2, ..SimConfig::network() },
+        SimConfig::network().with_refine(Some(2)).with_projection(Some(0.004)).with_normals(true),
+        SimConfig::network().with_step(StepMode::Solver { iterations: 4 }).with_threads(2),
+        SimConfig::network().with_step(StepMode::SolverBudget { micros: 1_000_000, max_iterations: 4 }),
+        SimConfig::network().with_threads(2),
     ];
     let sims = configs.iter().map(|&cfg| scene.sim(&model, cfg).unwrap()).collect();
     let mut outfit = Outfit::new(sims).unwrap();
@@ -97,21 +97,19 @@ fn step_every_effect_precision_and_thread_count() {
                             (1, StepMode::SolverBudget { micros: 1_000_000, max_iterations: 4 }),
                         ] {
                             let network = step == StepMode::Network;
-                            let cfg = SimConfig {
-                                body_collision: body,
-                                pinning,
-                                normals,
-                                sleeping,
-                                precision,
-                                threads,
+                            let cfg = SimConfig::network()
+                                .with_body_collision(body)
+                                .with_pinning(pinning)
+                                .with_normals(normals)
+                                .with_sleeping(sleeping)
+                                .with_precision(precision)
+                                .with_threads(threads)
                                 // Collision projection (needs the body) rides with the normals,
                                 // solver refinement with the sleeping, which keeps the
                                 // combinations few.
-                                projection: (body && normals).then_some(0.004),
-                                refine: sleeping.filter(|_| network).map(|_| 3),
-                                step,
-                                ..SimConfig::network()
-                            };
+                                .with_projection((body && normals).then_some(0.004))
+                                .with_refine(sleeping.filter(|_| network).map(|_| 3))
+                                .with_step(step);
                             let b0 = scene.body_at(0);
                             let desc = BodyDesc { mesh: &scene.body, positions: &b0 };
                             let mut sim = Sim::new(&model, &scene.garment, body.then_some(desc), cfg).unwrap();

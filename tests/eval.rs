@@ -16,7 +16,7 @@ fn eval_rollout_records_every_frame_and_orders_the_gap() {
     let bytes = random_model(16, 7, false);
     let model = bytes.model().unwrap();
     let frames = 8;
-    let opts = RolloutOptions { gap_every: 3, keep: vec![0, 4, 8, 99], ..RolloutOptions::default() };
+    let opts = RolloutOptions::default().with_gap_every(3).with_keep(vec![0, 4, 8, 99]);
     let mut seen = Vec::new();
     let r = rollout_observed(&model, &scene, frames, SimConfig::network(), &opts, &mut |rec, pos| {
         assert_eq!(pos.len(), scene.garment.n_vertices());
@@ -87,7 +87,7 @@ fn eval_frame_objective_matches_the_physics_rollout_score() {
     scene.garment.set_pinned(&vec![false; n]).unwrap();
     let bytes = random_model(16, 11, false);
     let model = bytes.model().unwrap();
-    let opts = RolloutOptions { keep: (0..=frames).collect(), ..RolloutOptions::default() };
+    let opts = RolloutOptions::default().with_keep((0..=frames).collect());
     let r = rollout(&model, &scene, frames, SimConfig::network(), &opts).unwrap();
     assert!(r.failure.is_none(), "{:?}", r.failure);
     let garment: Vec<Vec<[f32; 3]>> = r.kept.iter().map(|k| k.1.clone()).collect();
@@ -122,7 +122,7 @@ fn eval_cloth_without_body_and_bad_requests() {
     let anim = Playback::cloth_only(g, 10);
     let bytes = random_model(16, 3, false);
     let model = bytes.model().unwrap();
-    let opts = RolloutOptions { gap_every: 2, ..RolloutOptions::default() };
+    let opts = RolloutOptions::default().with_gap_every(2);
     let r = rollout(&model, &anim, 5, SimConfig::network(), &opts).unwrap();
     assert!(r.frames.iter().all(|f| f.penetrating_percent == 0.0));
     assert!(r.frames.iter().all(|f| f.terms.unwrap().collision == 0.0 && f.terms.unwrap().friction == 0.0));
@@ -142,10 +142,9 @@ fn eval_cloth_without_body_and_bad_requests() {
 #[test]
 fn eval_implicit_rollout_gap_is_zero_when_converged_and_below_one_when_truncated() {
     use hood::eval::{converged_solver, implicit_rollout};
-    use hood::solve::LbfgsParams;
     let m = Mannequin::with_spacing(0.04).unwrap();
     let scene = procedural(&m, GarmentKind::Skirt, 300, MotionKind::Walk, 0.5).unwrap();
-    let opts = RolloutOptions { gap_every: 2, ..RolloutOptions::default() };
+    let opts = RolloutOptions::default().with_gap_every(2);
     let frames = 6;
     // Converged solves from the same states are the optimum itself.
     let r = implicit_rollout(&scene, frames, &converged_solver(), &opts, &mut |_, _| Ok(())).unwrap();
@@ -154,7 +153,7 @@ fn eval_implicit_rollout_gap_is_zero_when_converged_and_below_one_when_truncated
         assert!(g.relative.unwrap().abs() < 1e-9, "{g:?}");
     }
     // Two L-BFGS iterations descend (gap ≤ 1) without reaching the optimum (gap > 0).
-    let two = LbfgsParams { max_iterations: 2, ..converged_solver() };
+    let two = converged_solver().with_max_iterations(2);
     let r = implicit_rollout(&scene, frames, &two, &opts, &mut |_, _| Ok(())).unwrap();
     assert_eq!(r.summary.gap_frames, 3);
     for g in r.frames.iter().filter_map(|f| f.gap) {
@@ -179,12 +178,9 @@ fn eval_runtime_refinement_closes_the_gap() {
     let model = bytes.model().unwrap();
     let frames = 6;
     let run = |refine: Option<u32>| {
-        let opts = RolloutOptions {
-            gap_every: 2,
-            objective: Objective::training(REFINE_COLLISION_WEIGHT),
-            ..RolloutOptions::default()
-        };
-        let r = rollout(&model, &scene, frames, SimConfig { refine, ..SimConfig::network() }, &opts).unwrap();
+        let opts =
+            RolloutOptions::default().with_gap_every(2).with_objective(Objective::training(REFINE_COLLISION_WEIGHT));
+        let r = rollout(&model, &scene, frames, SimConfig::network().with_refine(refine), &opts).unwrap();
         assert!(r.failure.is_none(), "{:?}", r.failure);
         r.summary.gap_mean.unwrap()
     };
@@ -384,7 +380,7 @@ fn eval_counts_vertices_inside_the_body_on_the_picked_frames() {
     }
     let bytes = random_model(16, 5, false);
     let model = bytes.model().unwrap();
-    let opts = RolloutOptions { inside_every: 2, keep: (0..=frames).collect(), ..RolloutOptions::default() };
+    let opts = RolloutOptions::default().with_inside_every(2).with_keep((0..=frames).collect());
     let r = rollout(&model, &scene, frames, SimConfig::network(), &opts).unwrap();
     let mut counted = 0;
     for f in &r.frames {
@@ -417,18 +413,17 @@ fn eval_counts_vertices_inside_the_body_on_the_picked_frames() {
 fn eval_common_states_score_every_method_from_the_reference_states() {
     use hood::eval::{common_state_gaps, converged_solver, implicit_rollout, Method, Reference};
     use hood::sim::REFINE_COLLISION_WEIGHT;
-    use hood::solve::LbfgsParams;
     let m = Mannequin::with_spacing(0.04).unwrap();
     let scene = procedural(&m, GarmentKind::Skirt, 300, MotionKind::Walk, 0.5).unwrap();
     let bytes = random_model(16, 5, false);
     let model = bytes.model().unwrap();
     let frames = 6;
     let training = Objective::training(REFINE_COLLISION_WEIGHT);
-    let opts = RolloutOptions { gap_every: 2, objective: training, ..RolloutOptions::default() };
-    let two = LbfgsParams { max_iterations: 2, ..converged_solver() };
+    let opts = RolloutOptions::default().with_gap_every(2).with_objective(training);
+    let two = converged_solver().with_max_iterations(2);
     let methods = [
         Method::Network { model: &model, cfg: SimConfig::network() },
-        Method::Network { model: &model, cfg: SimConfig { refine: Some(200), ..SimConfig::network() } },
+        Method::Network { model: &model, cfg: SimConfig::network().with_refine(Some(200)) },
         Method::Implicit(converged_solver()),
         Method::Implicit(two),
     ];
@@ -469,7 +464,7 @@ fn eval_common_states_score_every_method_from_the_reference_states() {
         assert_eq!((a.terms, a.gap, a.max_edge_strain), (b.terms, b.gap, b.max_edge_strain));
     }
     // Scored under another objective than the reference's: the optimum is that objective's.
-    let eval_opts = RolloutOptions { objective: Objective::evaluation(), ..opts.clone() };
+    let eval_opts = opts.clone().with_objective(Objective::evaluation());
     let other = common_state_gaps(&scene, frames, &methods[2..], Reference::Converged(training), &eval_opts).unwrap();
     let g = other[0].summary.gap_mean.unwrap();
     assert!(g.abs() < 1e-9, "converged under the scoring objective: {g}");
@@ -538,7 +533,7 @@ fn eval_a_clip_starting_at_speed_starts_its_garment_moving() {
     bad.initial_velocity.pop();
     assert!(matches!(bad.initial_velocity(), Err(hood::Error::SizeMismatch { .. })));
 
-    let opts = RolloutOptions { keep: vec![1], ..RolloutOptions::default() };
+    let opts = RolloutOptions::default().with_keep(vec![1]);
     let first_dx = |anim: &Playback| {
         let r = implicit_rollout(anim, 1, &converged_solver(), &opts, &mut |_, _| Ok(())).unwrap();
         mean_x(&r.kept[0].1) - mean_x(&anim.initial)

@@ -43,7 +43,8 @@ fn hierarchy_parity_with_reference_fixture() {
     assert_eq!(cand[0][0], centre, "First should pick the reference's centre (its lowest candidate)");
 
     // Levels around the reference's centre.
-    let h = Hierarchy::build(&garment, &HierarchyConfig { levels: 3, centre: CentreChoice::First }).unwrap();
+    let h = Hierarchy::build(&garment, &HierarchyConfig::default().with_levels(3).with_centre(CentreChoice::First))
+        .unwrap();
     assert_eq!(h.centres(), &[centre]);
     let from_graph = Hierarchy::from_graph(garment.n_vertices(), garment.edges(), &HierarchyConfig::default()).unwrap();
     assert_eq!(h, from_graph);

@@ -57,12 +57,10 @@ fn motion_cmu_walk_bone_lengths_constant() {
     let mh = makehuman();
     let clip30 = clip.resample(MODEL_FPS).unwrap();
     assert_eq!(clip30.n_frames(), 142);
-    let opts = RetargetOptions {
-        clip_rest: ClipRest::Frame(0),
-        rig_initial: Some(&mh.t_pose),
-        aliases: CMU_ALIASES,
-        ..Default::default()
-    };
+    let opts = RetargetOptions::default()
+        .with_clip_rest(ClipRest::Frame(0))
+        .with_rig_initial(Some(&mh.t_pose))
+        .with_aliases(CMU_ALIASES);
     let mut rt = Retarget::new(&mh.skeleton, &clip30, &opts).unwrap();
     let skel = &mh.skeleton;
     let mut pose = Pose::rest(skel);
@@ -86,12 +84,10 @@ fn motion_cmu_walk_retargeted_stays_on_the_floor_and_moves_forward() {
     let mh = makehuman();
     let t = Instant::now();
     let clip = bvh::read(dir.join("motions/cmu_12_03_walk.bvh")).unwrap().resample(MODEL_FPS).unwrap();
-    let opts = RetargetOptions {
-        clip_rest: ClipRest::Frame(0),
-        rig_initial: Some(&mh.t_pose),
-        aliases: CMU_ALIASES,
-        ..Default::default()
-    };
+    let opts = RetargetOptions::default()
+        .with_clip_rest(ClipRest::Frame(0))
+        .with_rig_initial(Some(&mh.t_pose))
+        .with_aliases(CMU_ALIASES);
     let mut rt = Retarget::new(&mh.skeleton, &clip, &opts).unwrap();
     let motion = animate(&mh.skeleton, &mh.body_weights, &mh.body.rest, &clip, &mut rt).unwrap();
     println!(

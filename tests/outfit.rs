@@ -12,9 +12,9 @@ use hood::Error;
 /// grids), the network alone (vertex grid).
 fn configs() -> [SimConfig; 3] {
     [
-        SimConfig { refine: Some(2), projection: Some(0.003), normals: true, ..SimConfig::network() },
-        SimConfig { step: StepMode::Solver { iterations: 5 }, ..SimConfig::network() },
-        SimConfig { threads: 2, ..SimConfig::network() },
+        SimConfig::network().with_refine(Some(2)).with_projection(Some(0.003)).with_normals(true),
+        SimConfig::network().with_step(StepMode::Solver { iterations: 5 }),
+        SimConfig::network().with_threads(2),
     ]
 }
 
@@ -60,10 +60,10 @@ fn outfit_refused_step_leaves_every_garment_unchanged() {
     let scenes = [Scene::new(8, 8), Scene::new(7, 9)];
     let bytes = random_model(16, 5, false);
     let model = bytes.model().unwrap();
-    let plain = SimConfig { teleport: None, speed_limit: None, ..SimConfig::network() };
+    let plain = SimConfig::network().with_teleport(None).with_speed_limit(None);
     // The second garment's refinement cannot place a body that moved 3e38 m in its grid; the
     // first garment alone steps there.
-    let refined = SimConfig { refine: Some(3), ..plain };
+    let refined = plain.with_refine(Some(3));
     let far =
         |t: usize| -> Vec<[f32; 3]> { scenes[0].body_at(t).iter().map(|p| [p[0] + 3.0e38, p[1], p[2]]).collect() };
     let mut outfit =

@@ -8,7 +8,7 @@ use hood::sim::{BodyDesc, Precision, Sim, SimConfig};
 use hood::Error;
 
 fn rollout(threads: usize, precision: Precision, steps: usize) -> Vec<[f32; 3]> {
-    rollout_with(16, SimConfig { threads, precision, ..SimConfig::network() }, steps)
+    rollout_with(16, SimConfig::network().with_threads(threads).with_precision(precision), steps)
 }
 
 /// The cloth of an `n x n` grid after `steps` steps with `cfg`.
@@ -35,7 +35,7 @@ fn runtime_threads_give_bitwise_identical_results() {
     for (step, refine) in
         [(hood::sim::StepMode::Solver { iterations: 8 }, None), (hood::sim::StepMode::Network, Some(4))]
     {
-        let cfg = |threads| SimConfig { threads, step, refine, ..SimConfig::network() };
+        let cfg = |threads| SimConfig::network().with_threads(threads).with_step(step).with_refine(refine);
         let one = rollout_with(30, cfg(1), 3);
         for threads in [2, 3] {
             assert_eq!(one, rollout_with(30, cfg(threads), 3), "{threads} threads, {step:?}, refine {refine:?}");
@@ -76,7 +76,7 @@ fn runtime_refused_first_step_restores_the_state() {
     // A body that moves 3e38 m in a frame (no teleport): the start-up pass (static body)
     // succeeds, and the regular pass's refinement, which the start-up pass skips, cannot place
     // the body's faces in its grid.
-    let cfg = SimConfig { teleport: None, normals: true, refine: Some(3), ..SimConfig::network() };
+    let cfg = SimConfig::network().with_teleport(None).with_normals(true).with_refine(Some(3));
     let far = |t: usize| -> Vec<[f32; 3]> { scene.body_at(t).iter().map(|p| [p[0] + 3.0e38, p[1], p[2]]).collect() };
     let mut sim = scene.sim(&model, cfg).unwrap();
     let (state0, normals0) = (sim.state().clone(), sim.normals().to_vec());
@@ -103,7 +103,7 @@ fn runtime_refused_first_step_restores_the_state() {
 
     // A refusal in the start-up pass itself (a body frame whose extent overflows the body's
     // grid) keeps the velocities the start-up would have zeroed.
-    let cfg = SimConfig { teleport: None, speed_limit: None, ..SimConfig::network() };
+    let cfg = SimConfig::network().with_teleport(None).with_speed_limit(None);
     let mut sim = scene.sim(&model, cfg).unwrap();
     let mut state = sim.state().clone();
     state.velocity.iter_mut().enumerate().for_each(|(i, v)| *v = [0.001 * i as f32, 0.0, 0.0]);
@@ -128,7 +128,7 @@ fn runtime_normals_follow_the_state_from_creation_and_reset() {
     let scene = Scene::new(8, 8);
     let bytes = random_model(16, 6, false);
     let model = bytes.model().unwrap();
-    let mut sim = scene.sim(&model, SimConfig { normals: true, ..SimConfig::network() }).unwrap();
+    let mut sim = scene.sim(&model, SimConfig::network().with_normals(true)).unwrap();
     let expected = |pos: &[[f32; 3]]| {
         let mut out = vec![[0.0f32; 3]; pos.len()];
         hood::mesh::vertex_normals(scene.garment.faces(), pos, &mut out);
@@ -152,10 +152,10 @@ fn runtime_refuses_absurd_thread_counts() {
     let scene = Scene::new(6, 6);
     let bytes = random_model(16, 7, false);
     let model = bytes.model().unwrap();
-    let cfg = SimConfig { threads: hood::sim::MAX_THREADS + 1, ..SimConfig::network() };
+    let cfg = SimConfig::network().with_threads(hood::sim::MAX_THREADS + 1);
     let refused = scene.sim(&model, cfg).err();
     assert!(matches!(refused, Some(Error::OutOfRange { what, .. }) if what.starts_with("threads")), "{refused:?}");
-    let cfg = SimConfig { threads: 3, ..SimConfig::network() };
+    let cfg = SimConfig::network().with_threads(3);
     assert!(scene.sim(&model, cfg).is_ok());
 }
 
@@ -182,7 +182,7 @@ fn runtime_refuses_effects_the_model_lacks() {
     let scene = Scene::new(6, 6);
     let bytes = random_model(16, 5, false);
     let model = bytes.model().unwrap();
-    let cfg = SimConfig { precision: Precision::Bf16, ..SimConfig::network() };
+    let cfg = SimConfig::network().with_precision(Precision::Bf16);
     assert!(matches!(Sim::new(&model, &scene.garment, None, cfg).err(), Some(Error::UnsupportedEffect { .. })));
 }
 
@@ -279,7 +279,7 @@ fn runtime_speed_limit_follows_the_excess_motion() {
     };
     let b0 = body_a[0].clone();
     let new = |limit: Option<f32>| {
-        let cfg = SimConfig { speed_limit: limit, ..SimConfig::network() };
+        let cfg = SimConfig::network().with_speed_limit(limit);
         Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap()
     };
     let (mut a, mut b, mut plain) = (new(Some(limit)), new(None), new(None));
@@ -326,7 +326,7 @@ fn runtime_collision_projection_pushes_cloth_out_of_the_body() {
     let b0 = scene.body_at(0);
     let margin = 0.004;
     let new_with = |projection: Option<f32>, refine: Option<u32>| {
-        let cfg = SimConfig { projection, refine, startup: false, ..SimConfig::network() };
+        let cfg = SimConfig::network().with_projection(projection).with_refine(refine).with_startup(false);
         Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg)
     };
     let new = |projection: Option<f32>| new_with(projection, None);
@@ -396,7 +396,7 @@ fn runtime_collision_projection_pushes_cloth_out_of_the_body() {
     for bad in [-1e-3, f32::NAN, PROJECTION_REACH] {
         assert!(matches!(new(Some(bad)).err(), Some(Error::OutOfRange { .. })), "margin {bad}");
     }
-    let cfg = SimConfig { projection: Some(margin), ..SimConfig::network() };
+    let cfg = SimConfig::network().with_projection(Some(margin));
     assert!(matches!(Sim::new(&model, &scene.garment, None, cfg).err(), Some(Error::UnsupportedEffect { .. })));
 }
 
@@ -413,7 +413,7 @@ fn runtime_refinement_lowers_the_objective_and_keeps_the_state_consistent() {
     let b0 = scene.body_at(0);
     let body = || Some(BodyDesc { mesh: &scene.body, positions: &b0 });
     let new = |refine: Option<u32>, with_body: bool| {
-        let cfg = SimConfig { refine, ..SimConfig::network() };
+        let cfg = SimConfig::network().with_refine(refine);
         Sim::new(&model, &scene.garment, if with_body { body() } else { None }, cfg)
     };
     let mut plain = new(None, true).unwrap();
@@ -464,7 +464,7 @@ fn runtime_refinement_coasts_in_the_carried_frame() {
     let bytes = random_model(16, 13, false);
     let model = bytes.model().unwrap();
     let limit = 0.05;
-    let cfg = SimConfig { refine: Some(300), speed_limit: Some(limit), teleport: None, ..SimConfig::network() };
+    let cfg = SimConfig::network().with_refine(Some(300)).with_speed_limit(Some(limit)).with_teleport(None);
     let mut sim = scene.sim(&model, cfg).unwrap();
     // The body slides by 0.08 m a frame along x: the limit carries 0.03 m of it.
     let body =
@@ -510,14 +510,7 @@ fn runtime_refinement_coasts_in_the_carried_frame() {
         let e_coast = solver.evaluate(&cloth, &objective, &state, Some(&sb), &coasted).unwrap().total();
         let mut y = x.clone();
         let r = solver
-            .refine(
-                &cloth,
-                &objective,
-                &state,
-                Some(&sb),
-                &LbfgsParams { max_iterations: 50, ..LbfgsParams::default() },
-                &mut y,
-            )
+            .refine(&cloth, &objective, &state, Some(&sb), &LbfgsParams::default().with_max_iterations(50), &mut y)
             .unwrap();
         let (gained, left) = (e_coast as f64 - r.f_start, r.f_start - r.f);
         println!("frame {t}: the step gained {gained:.3e} J from coasting; {left:.3e} J left");
@@ -536,7 +529,7 @@ fn runtime_solver_step_mode_is_the_implicit_step_without_the_network() {
     let b0 = scene.body_at(0);
     let new = |seed: u64, iterations: u32| {
         let bytes = random_model(16, seed, false);
-        let cfg = SimConfig { step: StepMode::Solver { iterations }, ..SimConfig::network() };
+        let cfg = SimConfig::network().with_step(StepMode::Solver { iterations });
         let model = bytes.model().unwrap();
         let mut sim =
             Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap();
@@ -557,7 +550,7 @@ fn runtime_solver_step_mode_is_the_implicit_step_without_the_network() {
     assert!(many[0] < few[0], "first step: {} with 100 iterations against {} with 5", many[0], few[0]);
     let bytes = random_model(16, 1, false);
     let model = bytes.model().unwrap();
-    let cfg = SimConfig { step: StepMode::Solver { iterations: 5 }, refine: Some(3), ..SimConfig::network() };
+    let cfg = SimConfig::network().with_step(StepMode::Solver { iterations: 5 }).with_refine(Some(3));
     let err = Sim::new(&model, &scene.garment, None, cfg).err();
     assert!(matches!(err, Some(Error::UnsupportedEffect { .. })), "{err:?}");
 }
@@ -582,7 +575,7 @@ fn runtime_solver_budget_ends_each_solve_on_the_clock() {
     let bytes = random_model(16, 1, false);
     let model = bytes.model().unwrap();
     let run = |step: StepMode, tick_ns: Option<u64>| {
-        let cfg = SimConfig { step, ..SimConfig::network() };
+        let cfg = SimConfig::network().with_step(step);
         let mut sim =
             Sim::new(&model, &scene.garment, Some(BodyDesc { mesh: &scene.body, positions: &b0 }), cfg).unwrap();
         if let Some(tick) = tick_ns {
@@ -604,7 +597,7 @@ fn runtime_solver_budget_ends_each_solve_on_the_clock() {
     let (its, x) = run(budget, Some(0));
     assert!(its.iter().all(|&k| k > 3 && k <= 50), "{its:?}");
     assert_eq!(x, run(StepMode::Solver { iterations: 50 }, None).1, "a stopped clock differs from the cap");
-    let cfg = SimConfig { step: StepMode::SolverBudget { micros: 0, max_iterations: 5 }, ..SimConfig::network() };
+    let cfg = SimConfig::network().with_step(StepMode::SolverBudget { micros: 0, max_iterations: 5 });
     let err = Sim::new(&model, &scene.garment, None, cfg).err();
     assert!(matches!(err, Some(Error::OutOfRange { .. })), "{err:?}");
 }
@@ -664,13 +657,11 @@ fn runtime_saved_state_continues_bitwise_and_bad_bytes_change_nothing() {
     let scene = Scene::new(8, 8);
     let bytes = random_model(16, 7, false);
     let model = bytes.model().unwrap();
-    let cfg = SimConfig {
-        normals: true,
+    let cfg = SimConfig::network()
+        .with_normals(true)
         // A generous "at rest" (10 m/frame) so that sleeping counts frames in both cases.
-        sleeping: Some(hood::sim::Sleeping { frames: 4, threshold: 10.0 }),
-        speed_limit: Some(0.001),
-        ..SimConfig::network()
-    };
+        .with_sleeping(Some(hood::sim::Sleeping::new(10.0, 4)))
+        .with_speed_limit(Some(0.001));
     let pin_targets = |t: usize| -> Vec<[f32; 3]> {
         scene.garment.rest().iter().map(|p| [p[0] + 0.002 * t as f32, p[1], p[2]]).collect()
     };

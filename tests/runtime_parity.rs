@@ -35,7 +35,7 @@ fn run(f: &Fixture, bytes: &ModelBytes, precision: Precision, tier: Option<Tier>
     let body_faces = faces(&f.scene, "body_faces");
     let bpos = rows3(&f.scene, "body_pos");
     let mesh = BodyMesh::new(bpos.len(), &body_faces).unwrap();
-    let cfg = SimConfig { startup: false, precision, tier, ..SimConfig::network() };
+    let cfg = SimConfig::network().with_startup(false).with_precision(precision).with_tier(tier);
     let body = BodyDesc { mesh: &mesh, positions: &bpos };
     let mut sim = Sim::with_graph(&model, &garment, graph, Some(body), cfg).unwrap();
     let state = SimState {

@@ -97,7 +97,7 @@ fn scene_own_garment_on_makehuman_matches_the_fitted_piece() {
         let shift = hood::io::makehuman::MakeHuman::load(assets.join("body")).unwrap().floor_shift;
         let file: Vec<[f32; 3]> =
             piece.garment.rest().iter().map(|p| [p[0] * 100.0, -p[2] * 100.0, (p[1] - shift) * 100.0]).collect();
-        let options = GarmentOptions { scale: 0.1, up: UpAxis::Z, pins: Pins::Auto, ..Default::default() };
+        let options = GarmentOptions::default().with_scale(0.1).with_up(UpAxis::Z).with_pins(Pins::Auto);
         let own = Wearing::Own(OwnGarment {
             name: "mine",
             positions: &file,

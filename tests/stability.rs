@@ -138,9 +138,9 @@ impl Animation for Looped<'_> {
 fn run(model: &ModelBytes, anim: &dyn Animation, frames: usize, cfg: SimConfig, keep: Vec<usize>) -> Rollout {
     let refine =
         std::env::var("HOOD_STABILITY_REFINE").ok().map(|k| k.parse().expect("HOOD_STABILITY_REFINE: a count"));
-    let cfg = SimConfig { refine: cfg.refine.or(refine), ..cfg };
+    let cfg = cfg.with_refine(cfg.refine.or(refine));
     let model = model.model().unwrap();
-    let opts = RolloutOptions { keep, ..RolloutOptions::default() };
+    let opts = RolloutOptions::default().with_keep(keep);
     rollout(&model, anim, frames, cfg, &opts).unwrap()
 }
 
@@ -256,7 +256,7 @@ fn stability_ten_metres_per_second() {
     // refinement that ignored the carry would hold the garment back by 0.2 m a frame).
     for refine in [None, Some(10)] {
         let what = format!("10 m/s, refine {refine:?}");
-        let r = run(&model, &anim, frames, SimConfig { refine, ..SimConfig::network() }, vec![frames]);
+        let r = run(&model, &anim, frames, SimConfig::network().with_refine(refine), vec![frames]);
         assert_finite_and_bounded(&what, &r, frames, Some(strain_bound(&anim)));
         let not_stepped: Vec<(usize, StepKind)> = r
             .frames
@@ -524,7 +524,7 @@ fn stability_bf16_follows_f32() {
     let anim = Looped { scene: skirt_turn(), period: 120, frames: BF16_FRAMES + 1, source: repeat };
     let keep: Vec<usize> = (1..=BF16_FRAMES).collect();
     let f32_run = run(&model, &anim, BF16_FRAMES, SimConfig::network(), keep.clone());
-    let cfg = SimConfig { precision: Precision::Bf16, ..SimConfig::network() };
+    let cfg = SimConfig::network().with_precision(Precision::Bf16);
     let bf16_run = run(&model, &anim, BF16_FRAMES, cfg, keep);
     assert_finite_and_bounded("f32", &f32_run, BF16_FRAMES, Some(strain_bound(&anim)));
     assert_finite_and_bounded("bf16", &bf16_run, BF16_FRAMES, Some(strain_bound(&anim)));

@@ -15,7 +15,7 @@ use hood::sim::{BodyDesc, Graph, Sim, SimConfig, SimState};
 use hood::train::{BodyFrames, GarmentState, Network, Stats, StepData};
 
 fn graph_of(garment: &Garment, levels: usize) -> Graph {
-    let h = Hierarchy::build(garment, &HierarchyConfig { levels, ..HierarchyConfig::default() }).unwrap();
+    let h = Hierarchy::build(garment, &HierarchyConfig::default().with_levels(levels)).unwrap();
     Graph::new(garment, &h).unwrap()
 }
 
@@ -36,7 +36,7 @@ fn train_forward_matches_runtime() {
     let mut rng = Rng::new(7);
     let (pos, vel) = jittered(scene.garment.rest(), &mut rng);
     let (b0, b1, b2) = (scene.body_at(0), scene.body_at(1), scene.body_at(2));
-    let cfg = SimConfig { startup: false, ..SimConfig::network() };
+    let cfg = SimConfig::network().with_startup(false);
     let mut sim = Sim::with_graph(
         &model,
         &scene.garment,

@@ -8,22 +8,20 @@ use std::path::Path;
 
 /// A run small enough for debug-mode tests: h = 8, a two-level schedule, a 64-vertex cape.
 fn tiny_config() -> TrainConfig {
-    TrainConfig {
-        latent: 8,
-        levels: 2,
-        schedule: "f,c0 | d:c0,c1 | u:f,c0".into(),
-        warmup_iterations: 2,
-        rollout_every: 2,
-        rollout_max: 3,
-        validation: (1, 4),
-        scenes: vec![SceneSource::Procedural {
+    TrainConfig::default()
+        .with_latent(8)
+        .with_levels(2)
+        .with_schedule("f,c0 | d:c0,c1 | u:f,c0".into())
+        .with_warmup_iterations(2)
+        .with_rollout_every(2)
+        .with_rollout_max(3)
+        .with_validation((1, 4))
+        .with_scenes(vec![SceneSource::Procedural {
             garment: GarmentKind::Cape,
             vertices: 64,
             motion: MotionKind::ArmSwings,
             seconds: 1.0,
-        }],
-        ..TrainConfig::default()
-    }
+        }])
 }
 
 fn data(cfg: &TrainConfig) -> Dataset {
@@ -107,9 +105,9 @@ fn train_schedules_follow_the_recipe() {
 fn train_resume_is_exact() {
     resume_is_exact(tiny_config());
     // With carried rollouts the checkpoint holds the tracks' states too.
-    resume_is_exact(TrainConfig { carry: (2, 0.0), ..tiny_config() });
+    resume_is_exact(tiny_config().with_carry((2, 0.0)));
     // With a weight average the checkpoint holds the average too.
-    resume_is_exact(TrainConfig { ema: 0.9, ..tiny_config() });
+    resume_is_exact(tiny_config().with_ema(0.9));
 }
 
 fn resume_is_exact(cfg: TrainConfig) {
@@ -162,8 +160,8 @@ fn weights(p: &hood::model::Params) -> Vec<f32> {
 fn train_weight_average_follows_the_weights() {
     let decay = 0.75;
     // Rollouts of one step: one optimiser step per iteration after the warm-up.
-    let plain_cfg = TrainConfig { rollout_every: 1_000_000, ..tiny_config() };
-    let cfg = TrainConfig { ema: decay, ..plain_cfg.clone() };
+    let plain_cfg = tiny_config().with_rollout_every(1_000_000);
+    let cfg = plain_cfg.clone().with_ema(decay);
     let mut plain = Trainer::new(plain_cfg.clone(), data(&plain_cfg)).unwrap();
     let mut t = Trainer::new(cfg.clone(), data(&cfg)).unwrap();
     let mut expected: Option<Vec<f32>> = None;
@@ -214,7 +212,7 @@ fn end_frame(r: &hood::train::IterationReport) -> usize {
 /// when the draw restarts it.
 #[test]
 fn train_carried_rollouts_continue_where_they_ended() {
-    let cfg = TrainConfig { carry: (1, 0.0), rollout_every: 1, ..tiny_config() };
+    let cfg = tiny_config().with_carry((1, 0.0)).with_rollout_every(1);
     let mut t = Trainer::new(cfg.clone(), data(&cfg)).unwrap();
     let reports: Vec<_> = (0..14).map(|_| t.iteration().unwrap()).collect();
     let n_frames = t.data.scenes[0].n_frames();
@@ -240,7 +238,7 @@ fn train_carried_rollouts_continue_where_they_ended() {
     // The state is carried, not just the frame: a track moved by 1 cm changes the next step's
     // loss, unless the draw restarts the track.
     for (reset, carries) in [(0.0, true), (1.0, false)] {
-        let cfg = TrainConfig { carry: (1, reset), ..cfg.clone() };
+        let cfg = cfg.clone().with_carry((1, reset));
         let (mut a, mut b) =
             (Trainer::new(cfg.clone(), data(&cfg)).unwrap(), Trainer::new(cfg.clone(), data(&cfg)).unwrap());
         for _ in 0..4 {
@@ -314,13 +312,13 @@ fn train_supervised_pull_toward_the_optimum() {
     let e_coast = loss.eval(&objective, &body, &pos, &velocity, dt, &coast).unwrap().0.total();
     let state = StepState { pos: &pos, velocity: &velocity, dt, pinned: g.pinned(), targets: &targets };
     let mut x_star = vec![[0.0f32; 3]; n];
-    let params = LbfgsParams { max_iterations: 30, ..LbfgsParams::default() };
+    let params = LbfgsParams::default().with_max_iterations(30);
     loss.optimum(&mut ImplicitStep::new(n, 10), &objective, &state, &params, false, &mut x_star).unwrap();
     let e_star = loss.eval(&objective, &body, &pos, &velocity, dt, &x_star).unwrap().0.total();
     assert!(e_star < e_coast, "optimum {e_star} against coasting {e_coast}");
     // Started from a prediction (`supervised_start: prediction`), a few iterations refine that
     // prediction: from the optimum they stay by it, where three from coasting end far from it.
-    let few = LbfgsParams { max_iterations: 3, ..LbfgsParams::default() };
+    let few = LbfgsParams::default().with_max_iterations(3);
     let farthest = |x: &[[f32; 3]]| {
         x.iter()
             .zip(&x_star)
@@ -364,7 +362,7 @@ fn train_supervised_pull_toward_the_optimum() {
         assert!((fd - an).abs() <= 1e-2 * an.abs().max(1e-3), "vertex {i} axis {c}: fd {fd} analytic {an}");
     }
     // A run with the pull records it and ends with other weights than one without.
-    let on = TrainConfig { supervised: (1.0, 100, 10), ..cfg.clone() };
+    let on = cfg.clone().with_supervised((1.0, 100, 10));
     let (mut a, mut b) = (Trainer::new(on.clone(), data(&on)).unwrap(), Trainer::new(cfg.clone(), data(&cfg)).unwrap());
     let mut pulled = 0;
     for _ in 0..4 {
@@ -376,7 +374,7 @@ fn train_supervised_pull_toward_the_optimum() {
     assert_ne!(a.params().mlps(), b.params().mlps());
     assert_eq!(TrainConfig::from_json(&on.to_json()).unwrap(), on);
     // The pull toward the network's own refined prediction: recorded, and another training.
-    let own = TrainConfig { supervised_start: PullStart::Prediction, ..on.clone() };
+    let own = on.clone().with_supervised_start(PullStart::Prediction);
     let mut c = Trainer::new(own.clone(), data(&own)).unwrap();
     let mut pulled = 0;
     for _ in 0..4 {
@@ -473,7 +471,7 @@ fn train_cli_resume_with_other_scenes() {
 /// step) with the configured probability; without them attached, from the skinned garment.
 #[test]
 fn train_reference_states_start_fresh_samples_from_the_reference_rollout() {
-    let cfg = TrainConfig { reference_states: 1.0, ..tiny_config() };
+    let cfg = tiny_config().with_reference_states(1.0);
     let dir = std::env::temp_dir().join(format!("hood-reference-{}", std::process::id()));
     let mut d = data(&cfg);
     let mut computed = 0;

@@ -137,7 +137,7 @@ pub(crate) fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
         if !(c.sleep_threshold.is_finite() && c.sleep_threshold >= 0.0) {
             return Err(Error::OutOfRange { what: "config sleep threshold", index: 0 }.into());
         }
-        Some(Sleeping { threshold: c.sleep_threshold, frames: c.sleep_frames })
+        Some(Sleeping::new(c.sleep_threshold, c.sleep_frames))
     } else {
         None
     };
@@ -166,21 +166,21 @@ pub(crate) fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
         (iterations, 0) => StepMode::Solver { iterations },
         (max_iterations, micros) => StepMode::SolverBudget { micros, max_iterations },
     };
-    Ok(SimConfig {
-        step,
-        teleport,
-        speed_limit,
-        projection,
-        refine,
-        body_collision: c.effects & HOOD_EFFECT_BODY_COLLISION != 0,
-        pinning: c.effects & HOOD_EFFECT_PINNING != 0,
-        normals: c.effects & HOOD_EFFECT_NORMALS != 0,
-        sleeping,
-        precision,
-        startup: c.effects & HOOD_EFFECT_STARTUP != 0,
-        tier: None,
-        threads: threads(c.threads)?,
-    })
+    // Every field the C struct carries; one it does not (a later addition) keeps its default.
+    Ok(SimConfig::default()
+        .with_step(step)
+        .with_teleport(teleport)
+        .with_speed_limit(speed_limit)
+        .with_projection(projection)
+        .with_refine(refine)
+        .with_body_collision(c.effects & HOOD_EFFECT_BODY_COLLISION != 0)
+        .with_pinning(c.effects & HOOD_EFFECT_PINNING != 0)
+        .with_normals(c.effects & HOOD_EFFECT_NORMALS != 0)
+        .with_sleeping(sleeping)
+        .with_precision(precision)
+        .with_startup(c.effects & HOOD_EFFECT_STARTUP != 0)
+        .with_tier(None)
+        .with_threads(threads(c.threads)?))
 }
 
 /// The pool size for `config.threads`: a garbage count (beyond `hood::sim::MAX_THREADS`) is

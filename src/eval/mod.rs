@@ -215,7 +215,11 @@ impl Animation for Playback {
 }
 
 /// What a rollout measures besides the per-frame figures.
+///
+/// Built from [`Default`] and the `with_` methods (new fields may come, so it has no struct
+/// literal outside this crate).
 #[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct RolloutOptions {
     /// The objective the frames are scored with (default: [`Objective::evaluation`]); contact
     /// terms are dropped when the animation has no body.
@@ -241,6 +245,21 @@ impl Default for RolloutOptions {
             inside_every: 0,
             keep: Vec::new(),
         }
+    }
+}
+
+impl RolloutOptions {
+    with_fields! {
+        /// Sets [`objective`](Self::objective): the objective the frames are scored with.
+        with_objective => objective: Objective;
+        /// Sets [`gap_every`](Self::gap_every): frames between objective gaps (0: never).
+        with_gap_every => gap_every: usize;
+        /// Sets [`gap_solver`](Self::gap_solver): stopping rules of the gap's implicit step.
+        with_gap_solver => gap_solver: LbfgsParams;
+        /// Sets [`inside_every`](Self::inside_every): frames between inside counts (0: never).
+        with_inside_every => inside_every: usize;
+        /// Sets [`keep`](Self::keep): the frames whose garment positions are kept.
+        with_keep => keep: Vec<usize>;
     }
 }
 

@@ -197,7 +197,11 @@ pub enum ClipRest {
 }
 
 /// How to retarget a clip onto a rig.
+///
+/// Built from [`Default`] and the `with_` methods (new fields may come, so it has no struct
+/// literal outside this crate).
 #[derive(Clone, Debug)]
+#[non_exhaustive]
 pub struct RetargetOptions<'a> {
     /// The clip's rest.
     pub clip_rest: ClipRest,
@@ -228,6 +232,23 @@ impl Default for RetargetOptions<'_> {
             hips: ["LeftUpLeg", "RightUpLeg"],
             keep_direction: &["LHipJoint", "RHipJoint"],
         }
+    }
+}
+
+impl<'a> RetargetOptions<'a> {
+    with_fields! {
+        /// Sets [`clip_rest`](Self::clip_rest): the clip's rest.
+        with_clip_rest => clip_rest: ClipRest;
+        /// Sets [`rig_initial`](Self::rig_initial): the rig's initial local rotations (`None`: its rest).
+        with_rig_initial => rig_initial: Option<&'a [Quat]>;
+        /// Sets [`aliases`](Self::aliases): `(rig bone, clip joint)` overrides.
+        with_aliases => aliases: &'a [(&'a str, &'a str)];
+        /// Sets [`leg`](Self::leg): the leg chain (thigh, shin, foot).
+        with_leg => leg: [&'a str; 3];
+        /// Sets [`hips`](Self::hips): the left and right thigh names.
+        with_hips => hips: [&'a str; 2];
+        /// Sets [`keep_direction`](Self::keep_direction): bones whose rest direction is kept.
+        with_keep_direction => keep_direction: &'a [&'a str];
     }
 }
 

@@ -59,7 +59,11 @@ pub enum Pins {
 }
 
 /// How to make a garment of a user's mesh.
+///
+/// Built from [`Default`] and the `with_` methods (new fields may come, so it has no struct
+/// literal outside this crate).
 #[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct GarmentOptions {
     /// Metres per unit of the file (0.01 for centimetres).
     pub scale: f32,
@@ -76,6 +80,21 @@ pub struct GarmentOptions {
 impl Default for GarmentOptions {
     fn default() -> Self {
         GarmentOptions { scale: 1.0, up: UpAxis::Y, offset: [0.0; 3], pins: Pins::Auto, material: None }
+    }
+}
+
+impl GarmentOptions {
+    with_fields! {
+        /// Sets [`scale`](Self::scale): metres per unit of the file.
+        with_scale => scale: f32;
+        /// Sets [`up`](Self::up): the file's up axis.
+        with_up => up: UpAxis;
+        /// Sets [`offset`](Self::offset): the offset in the body's frame, metres.
+        with_offset => offset: [f32; 3];
+        /// Sets [`pins`](Self::pins): the pinned vertices.
+        with_pins => pins: Pins;
+        /// Sets [`material`](Self::material): every vertex's material (`None`: the default).
+        with_material => material: Option<Material>;
     }
 }
 

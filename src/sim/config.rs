@@ -68,7 +68,11 @@ pub enum Precision {
 }
 
 /// When to skip steps because nothing moves.
+///
+/// Built with [`Sleeping::new`], or from [`Sleeping::default`] and the `with_` methods (new
+/// fields may come, so it has no struct literal outside this crate).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct Sleeping {
     /// Largest body vertex displacement per frame (m) and largest garment speed (m/frame)
     /// that count as "at rest".
@@ -78,13 +82,51 @@ pub struct Sleeping {
 }
 
 impl Default for Sleeping {
+    /// A threshold of 1e-5 m, 3 frames.
     fn default() -> Self {
         Sleeping { threshold: 1e-5, frames: 3 }
     }
 }
 
+impl Sleeping {
+    /// Sleeping after `frames` consecutive frames at rest, at most `threshold` m (body vertex
+    /// displacement and garment speed per frame) counting as rest.
+    pub fn new(threshold: f32, frames: u32) -> Self {
+        Sleeping { threshold, frames }
+    }
+
+    with_fields! {
+        /// Sets [`threshold`](Self::threshold): the largest motion at rest, m per frame.
+        with_threshold => threshold: f32;
+        /// Sets [`frames`](Self::frames): consecutive frames at rest before the garment sleeps.
+        with_frames => frames: u32;
+    }
+}
+
 /// The effects a scene uses; what is off costs nothing.
+///
+/// Start from [`SimConfig::default`] (the solver's step) or [`SimConfig::network`] (HOOD's) and
+/// change what differs with the `with_` methods; new fields may come, so there is no struct
+/// literal outside this crate. The fields stay public to read and to assign.
+///
+/// ```
+/// use hood::sim::{SimConfig, Sleeping};
+///
+/// let cfg = SimConfig::network()
+///     .with_refine(Some(3))
+///     .with_projection(Some(hood::sim::DEFAULT_PROJECTION_MARGIN))
+///     .with_sleeping(Some(Sleeping::new(1e-5, 4)))
+///     .with_threads(2);
+/// assert_eq!(cfg.refine, Some(3));
+/// assert_eq!(cfg.threads, 2);
+///
+/// // A field can also be assigned.
+/// let mut cfg = cfg;
+/// cfg.normals = true;
+/// assert!(cfg.normals && cfg.startup);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct SimConfig {
     /// Body nodes and body edges (collision with the body). Off: no grid, no body work.
     pub body_collision: bool,
@@ -164,6 +206,35 @@ impl SimConfig {
     /// teleport and speed limit on; refinement, projection and sleeping off.
     pub fn network() -> Self {
         SimConfig { step: StepMode::Network, ..SimConfig::default() }
+    }
+
+    with_fields! {
+        /// Sets [`body_collision`](Self::body_collision): collision with the body.
+        with_body_collision => body_collision: bool;
+        /// Sets [`pinning`](Self::pinning): pinned vertices driven to their targets.
+        with_pinning => pinning: bool;
+        /// Sets [`normals`](Self::normals): output vertex normals after every step.
+        with_normals => normals: bool;
+        /// Sets [`sleeping`](Self::sleeping): skipping steps at rest (`None`: never).
+        with_sleeping => sleeping: Option<Sleeping>;
+        /// Sets [`precision`](Self::precision): the network's arithmetic.
+        with_precision => precision: Precision;
+        /// Sets [`startup`](Self::startup): the start-up step before the first regular one.
+        with_startup => startup: bool;
+        /// Sets [`tier`](Self::tier): the kernel path cap (`None`: the best this CPU has).
+        with_tier => tier: Option<Tier>;
+        /// Sets [`teleport`](Self::teleport): the threshold, metres per frame (`None`: never).
+        with_teleport => teleport: Option<f32>;
+        /// Sets [`speed_limit`](Self::speed_limit): metres per frame (`None`: never).
+        with_speed_limit => speed_limit: Option<f32>;
+        /// Sets [`projection`](Self::projection): the margin, metres (`None`: off).
+        with_projection => projection: Option<f32>;
+        /// Sets [`refine`](Self::refine): L-BFGS refinement iterations per step (`None`: off).
+        with_refine => refine: Option<u32>;
+        /// Sets [`step`](Self::step): what computes the step.
+        with_step => step: StepMode;
+        /// Sets [`threads`](Self::threads): threads for the step's parallel parts (1: serial).
+        with_threads => threads: usize;
     }
 }
 

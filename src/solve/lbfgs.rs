@@ -8,7 +8,11 @@ use alloc::vec;
 use alloc::vec::Vec;
 
 /// Stopping rules and line-search constants.
+///
+/// Built from [`Default`] and the `with_` methods (new fields may come, so it has no struct
+/// literal outside this crate).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct LbfgsParams {
     /// Iteration cap (an iteration = one accepted step).
     pub max_iterations: usize,
@@ -38,6 +42,23 @@ impl Default for LbfgsParams {
             max_line_search: 30,
             first_step: 1e-3,
         }
+    }
+}
+
+impl LbfgsParams {
+    with_fields! {
+        /// Sets [`max_iterations`](Self::max_iterations): the iteration cap.
+        with_max_iterations => max_iterations: usize;
+        /// Sets [`grad_tol`](Self::grad_tol): the gradient tolerance, objective units per metre.
+        with_grad_tol => grad_tol: f64;
+        /// Sets [`rel_decrease_tol`](Self::rel_decrease_tol): the relative decrease tolerance.
+        with_rel_decrease_tol => rel_decrease_tol: f64;
+        /// Sets [`armijo`](Self::armijo): the Armijo sufficient-decrease constant.
+        with_armijo => armijo: f64;
+        /// Sets [`max_line_search`](Self::max_line_search): evaluations per line search.
+        with_max_line_search => max_line_search: usize;
+        /// Sets [`first_step`](Self::first_step): the longest first step, metres.
+        with_first_step => first_step: f64;
     }
 }
 

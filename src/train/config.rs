@@ -54,7 +54,12 @@ impl SceneSource {
 }
 
 /// A training run's settings.
+///
+/// Built from [`Default`] (the recipe's) and the `with_` methods, or read from JSON
+/// ([`TrainConfig::from_json`]); new fields may come, so it has no struct literal outside this
+/// crate.
 #[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct TrainConfig {
     /// Latent width h.
     pub latent: usize,
@@ -178,6 +183,67 @@ impl Default for TrainConfig {
             threads: 2,
             seed: 1,
         }
+    }
+}
+
+impl TrainConfig {
+    with_fields! {
+        /// Sets [`latent`](Self::latent): the latent width.
+        with_latent => latent: usize;
+        /// Sets [`hidden_layers`](Self::hidden_layers): hidden layers per MLP.
+        with_hidden_layers => hidden_layers: usize;
+        /// Sets [`levels`](Self::levels): coarse levels built per garment.
+        with_levels => levels: usize;
+        /// Sets [`schedule`](Self::schedule): the block schedule.
+        with_schedule => schedule: String;
+        /// Sets [`iterations`](Self::iterations): iterations (samples) in total.
+        with_iterations => iterations: u64;
+        /// Sets [`warmup_iterations`](Self::warmup_iterations): statistics-only iterations.
+        with_warmup_iterations => warmup_iterations: u64;
+        /// Sets [`learning_rate`](Self::learning_rate): the base learning rate.
+        with_learning_rate => learning_rate: f64;
+        /// Sets [`lr_halving_steps`](Self::lr_halving_steps): optimiser steps per halving.
+        with_lr_halving_steps => lr_halving_steps: u64;
+        /// Sets [`clip`](Self::clip): the global gradient-norm clip.
+        with_clip => clip: f64;
+        /// Sets [`rollout_max`](Self::rollout_max): optimiser steps per sample at most.
+        with_rollout_max => rollout_max: usize;
+        /// Sets [`rollout_every`](Self::rollout_every): iterations per rollout increase.
+        with_rollout_every => rollout_every: u64;
+        /// Sets [`noise`](Self::noise): the standard deviation of the position noise, metres.
+        with_noise => noise: f32;
+        /// Sets [`collision_weight`](Self::collision_weight): the ramp's first and last weight.
+        with_collision_weight => collision_weight: (f64, f64);
+        /// Sets [`collision_ramp`](Self::collision_ramp): iterations of the weight's ramp.
+        with_collision_ramp => collision_ramp: u64;
+        /// Sets [`decoder_init_scale`](Self::decoder_init_scale): the decoder's initial scale.
+        with_decoder_init_scale => decoder_init_scale: f32;
+        /// Sets [`random_materials`](Self::random_materials): a random material per sample.
+        with_random_materials => random_materials: bool;
+        /// Sets [`random_centres`](Self::random_centres): a random hierarchy centre per sample.
+        with_random_centres => random_centres: bool;
+        /// Sets [`scenes`](Self::scenes): the scenes to sample from.
+        with_scenes => scenes: Vec<SceneSource>;
+        /// Sets [`checkpoint_every`](Self::checkpoint_every): iterations between checkpoints.
+        with_checkpoint_every => checkpoint_every: u64;
+        /// Sets [`validate_every`](Self::validate_every): iterations between validations.
+        with_validate_every => validate_every: u64;
+        /// Sets [`validation`](Self::validation): validation samples and frames each.
+        with_validation => validation: (usize, usize);
+        /// Sets [`supervised`](Self::supervised): the pull's weight, last iteration, L-BFGS iterations.
+        with_supervised => supervised: (f64, u64, usize);
+        /// Sets [`supervised_start`](Self::supervised_start): where the pull's L-BFGS starts.
+        with_supervised_start => supervised_start: PullStart;
+        /// Sets [`carry`](Self::carry): carried rollout tracks and their restart probability.
+        with_carry => carry: (usize, f64);
+        /// Sets [`reference_states`](Self::reference_states): the chance of a reference start (0-1).
+        with_reference_states => reference_states: f64;
+        /// Sets [`ema`](Self::ema): the decay of the weights' moving average (0: off).
+        with_ema => ema: f64;
+        /// Sets [`threads`](Self::threads): worker threads for the network passes.
+        with_threads => threads: usize;
+        /// Sets [`seed`](Self::seed): the seed of the initialisation and the sample stream.
+        with_seed => seed: u64;
     }
 }
 

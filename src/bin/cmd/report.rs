@@ -15,7 +15,6 @@ use hood::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
 use hood::rig::procedural::Mannequin;
 use hood::scene::{procedural, GarmentKind, MotionKind, Scene};
 use hood::sim::{Precision, SimConfig, StepMode, MAX_REFINE_ITERATIONS};
-use hood::solve::LbfgsParams;
 use hood::{Error, Result};
 use std::cmp::Ordering;
 use std::fmt::Write as _;
@@ -211,12 +210,10 @@ fn scene_of(a: &ReportArgs, name: &str, vertices: usize, seconds: f32, m: &Manne
 pub fn report(a: ReportArgs) -> Result<()> {
     let models = candidates(&a)?;
     let mannequin = Mannequin::new();
-    let opts = RolloutOptions {
-        gap_every: a.gap_every.max(1),
-        inside_every: a.gap_every.max(1),
-        objective: a.objective.objective(),
-        ..RolloutOptions::default()
-    };
+    let opts = RolloutOptions::default()
+        .with_gap_every(a.gap_every.max(1))
+        .with_inside_every(a.gap_every.max(1))
+        .with_objective(a.objective.objective());
     let mut rows = Vec::new();
     // The total grows as each workload's variants are known.
     let bar = Progress::new("report", "rollouts", 0, Duration::from_secs(10));
@@ -245,12 +242,12 @@ pub fn report(a: ReportArgs) -> Result<()> {
             let precisions: &[Precision] =
                 if model.has_bf16() { &[Precision::F32, Precision::Bf16] } else { &[Precision::F32] };
             for &p in precisions {
-                let cfg = SimConfig { precision: p, threads: a.threads.max(1), ..SimConfig::network() };
+                let cfg = SimConfig::network().with_precision(p).with_threads(a.threads.max(1));
                 let prec = if p == Precision::Bf16 { "bf16" } else { "f32" };
                 variants.push((format!("{} {prec}", c.label), Method::Network { model, cfg }));
             }
             for &k in &a.refine {
-                let cfg = SimConfig { threads: a.threads.max(1), refine: Some(k.max(1)), ..SimConfig::network() };
+                let cfg = SimConfig::network().with_threads(a.threads.max(1)).with_refine(Some(k.max(1)));
                 variants.push((format!("{} f32 + refine {k} it.", c.label), Method::Network { model, cfg }));
             }
         }
@@ -258,18 +255,18 @@ pub fn report(a: ReportArgs) -> Result<()> {
         if let Some(model) = loaded.first() {
             for &k in &a.solver {
                 let step = StepMode::Solver { iterations: k.max(1) };
-                let cfg = SimConfig { threads: a.threads.max(1), step, ..SimConfig::default() };
+                let cfg = SimConfig::default().with_threads(a.threads.max(1)).with_step(step);
                 variants.push((format!("solver step f32 {k} it."), Method::Network { model, cfg }));
             }
             for &ms in &a.solver_budget {
                 let micros = (ms * 1e3).round().clamp(1.0, u32::MAX as f64) as u32;
                 let step = StepMode::SolverBudget { micros, max_iterations: MAX_REFINE_ITERATIONS };
-                let cfg = SimConfig { threads: a.threads.max(1), step, ..SimConfig::default() };
+                let cfg = SimConfig::default().with_threads(a.threads.max(1)).with_step(step);
                 variants.push((format!("solver step f32 within {ms} ms"), Method::Network { model, cfg }));
             }
         }
         for &k in &a.iterations {
-            let solver = LbfgsParams { max_iterations: k.max(1), ..converged_solver() };
+            let solver = converged_solver().with_max_iterations(k.max(1));
             variants.push((format!("implicit L-BFGS {k} it. (f64)"), Method::Implicit(solver)));
         }
         bar.inc_length(variants.len() as u64 * if a.common_states { 2 } else { 1 });

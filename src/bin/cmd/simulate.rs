@@ -225,7 +225,11 @@ fn garment_options(a: &SimulateArgs, obj: &Obj) -> Result<GarmentOptions> {
             None => Pins::Vertices(read_vertex_list(Path::new(spec))?),
         },
     };
-    Ok(GarmentOptions { scale: a.scale, up, pins, material: Some(Material::parse(&a.material)?), ..Default::default() })
+    Ok(GarmentOptions::default()
+        .with_scale(a.scale)
+        .with_up(up)
+        .with_pins(pins)
+        .with_material(Some(Material::parse(&a.material)?)))
 }
 
 /// 0-based vertex indices from a text file: separated by whitespace or commas, `#` comments.
@@ -468,21 +472,17 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out).map_err(|e| hood::Error::io(&a.out, e))?;
     let k = a.strip.max(1);
     let keep: Vec<usize> = if k == 1 { vec![frames] } else { (0..k).map(|i| i * frames / (k - 1)).collect() };
-    let opts = RolloutOptions {
-        gap_every: a.gap_every,
-        inside_every: a.inside_every,
-        keep,
-        objective: a.objective.objective(),
-        ..RolloutOptions::default()
-    };
-    let cfg = SimConfig {
-        threads: a.threads.max(1),
-        precision,
-        projection: a.projection,
-        refine: (a.refine > 0).then_some(a.refine),
-        step: step_mode(solver_iterations(a.solver, a.refine), a.solver_budget_us),
-        ..SimConfig::default()
-    };
+    let opts = RolloutOptions::default()
+        .with_gap_every(a.gap_every)
+        .with_inside_every(a.inside_every)
+        .with_keep(keep)
+        .with_objective(a.objective.objective());
+    let cfg = SimConfig::default()
+        .with_threads(a.threads.max(1))
+        .with_precision(precision)
+        .with_projection(a.projection)
+        .with_refine((a.refine > 0).then_some(a.refine))
+        .with_step(step_mode(solver_iterations(a.solver, a.refine), a.solver_budget_us));
     let faces = anim.garment().faces().to_vec();
     let body_faces = if a.no_body { None } else { anim.body_mesh().map(|b| b.faces().to_vec()) };
     // A garment from a file is written as that file with new positions.

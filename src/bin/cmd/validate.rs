@@ -200,21 +200,17 @@ fn validate_one(model: &Model<'_>, scene: &SceneSpec, a: &ValidateArgs, strip: &
     let clock = Instant::now();
     let (anim, _) = named_scene(&scene.garment, scene.vertices, &scene.motion, a.frames, a.assets.as_deref())?;
     let frames = a.frames.min(anim.n_frames().saturating_sub(1));
-    let opts = RolloutOptions {
-        gap_every: a.gap_every,
-        inside_every: a.gap_every,
-        keep: (0..8).map(|i| i * frames / 7).collect(),
-        objective: ObjectiveArg::Training.objective(),
-        ..RolloutOptions::default()
-    };
-    let cfg = SimConfig {
-        threads: 1,
-        precision: parse_precision(&a.precision)?,
-        projection: a.projection,
-        refine: (a.refine > 0).then_some(a.refine),
-        step: step_mode(a.solver, 0),
-        ..SimConfig::default()
-    };
+    let opts = RolloutOptions::default()
+        .with_gap_every(a.gap_every)
+        .with_inside_every(a.gap_every)
+        .with_keep((0..8).map(|i| i * frames / 7).collect())
+        .with_objective(ObjectiveArg::Training.objective());
+    let cfg = SimConfig::default()
+        .with_threads(1)
+        .with_precision(parse_precision(&a.precision)?)
+        .with_projection(a.projection)
+        .with_refine((a.refine > 0).then_some(a.refine))
+        .with_step(step_mode(a.solver, 0));
     let own = rollout(model, &*anim, frames, cfg, &opts)?;
     hood::io::png::write_strip(strip, &strip_images(&*anim, &own.kept, 240, 420))?;
     let common = if a.no_common_states || a.gap_every == 0 {
