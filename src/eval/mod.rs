@@ -37,7 +37,7 @@ use alloc::vec::Vec;
 mod common;
 mod off_body;
 pub use common::{common_state_gaps, Method, Reference};
-pub use off_body::{kept_rule, OffBody, OffBodyFrame, LOST_PERCENT, LOST_SHIFT, OFF_DISTANCE, WORN_DISTANCE};
+pub use off_body::{kept_rule, OffBody, OffBodyFrame, LOST_PERCENT, OFF_DISTANCE, WORN_DISTANCE};
 
 /// What a rollout plays: a garment, the body's frames (30 Hz), the pinned vertices' targets per
 /// frame and the garment's initial positions.
@@ -404,8 +404,7 @@ pub struct Summary {
     /// Mean of the same.
     pub off_body_mean: Option<f64>,
     /// The first frame at which the garment was lost ([`OffBodyFrame::lost`]: [`LOST_PERCENT`]
-    /// or more of the worn vertices off the body, or the worn part shifted [`LOST_SHIFT`] or
-    /// more): a failure whatever the other figures.
+    /// or more of the worn vertices off the body): a failure whatever the other figures.
     pub lost_at: Option<usize>,
     /// Largest drift of a vertex from its skinned position over the frames, m (garments with
     /// pins).
