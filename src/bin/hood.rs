@@ -39,6 +39,8 @@ mod simulate;
 mod train_cmd;
 #[path = "cmd/validate.rs"]
 mod validate;
+#[path = "cmd/verdict.rs"]
+mod verdict;
 
 #[derive(Parser)]
 #[command(name = "hood", version, about = "HOOD-style neural cloth: simulate, measure, train")]

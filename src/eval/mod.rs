@@ -37,7 +37,10 @@ use alloc::vec::Vec;
 mod common;
 mod off_body;
 pub use common::{common_state_gaps, Method, Reference};
-pub use off_body::{kept_rule, OffBody, OffBodyFrame, LOST_PERCENT, OFF_DISTANCE, WORN_DISTANCE};
+pub use off_body::{
+    kept_rule, Loss, LossWatch, OffBody, OffBodyFrame, LOST_PERCENT, OFF_DISTANCE, RIDE_UP_FRAMES, RIDE_UP_SHIFT,
+    RIDE_UP_WINDOW, WORN_DISTANCE,
+};
 
 /// What a rollout plays: a garment, the body's frames (30 Hz), the pinned vertices' targets per
 /// frame and the garment's initial positions.
@@ -403,9 +406,9 @@ pub struct Summary {
     pub off_body_max: Option<f64>,
     /// Mean of the same.
     pub off_body_mean: Option<f64>,
-    /// The first frame at which the garment was lost ([`OffBodyFrame::lost`]: [`LOST_PERCENT`]
-    /// or more of the worn vertices off the body): a failure whatever the other figures.
-    pub lost_at: Option<usize>,
+    /// The first frame at which the garment was lost, and how ([`LossWatch`]: off the body, or
+    /// ridden up): a failure whatever the other figures.
+    pub lost: Option<(usize, Loss)>,
     /// Largest drift of a vertex from its skinned position over the frames, m (garments with
     /// pins).
     pub max_drift: Option<f64>,
@@ -416,17 +419,17 @@ pub struct Summary {
 
 impl Summary {
     /// Whether the garment stayed on the body (and the rollout finite): not lost at any frame
-    /// ([`OffBodyFrame::lost`]).
+    /// ([`LossWatch`]).
     pub fn garment_kept(&self) -> bool {
-        self.finite && self.lost_at.is_none()
+        self.finite && self.lost.is_none()
     }
 
     /// The off-body verdict in words: `garment on the body (worn vertices off: max 0.4 %, mean
-    /// 0.1 %; drift max 4.2 cm)` or `garment LOST from frame 140 (...)`; `None` without a body.
+    /// 0.1 %; drift max 4.2 cm)` or `garment LOST from frame 140, off the body (...)`; `None` without a body.
     pub fn off_body_text(&self) -> Option<alloc::string::String> {
         let (max, mean) = (self.off_body_max?, self.off_body_mean?);
-        let verdict = match self.lost_at {
-            Some(f) => alloc::format!("garment LOST from frame {f}"),
+        let verdict = match self.lost {
+            Some((f, why)) => alloc::format!("garment LOST from frame {f}, {}", why.describe()),
             None => "garment on the body".into(),
         };
         let mut drift =
@@ -1015,7 +1018,7 @@ fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
     if !off.is_empty() {
         s.off_body_max = Some(off.iter().map(|o| o.1.off_percent).fold(0.0, f64::max));
         s.off_body_mean = Some(off.iter().map(|o| o.1.off_percent).sum::<f64>() / off.len() as f64);
-        s.lost_at = off.iter().find(|o| o.1.lost()).map(|o| o.0);
+        s.lost = LossWatch::first(off.iter().map(|o| &o.1)).map(|(i, why)| (off[i].0, why));
         s.max_drift = off.iter().filter_map(|o| o.1.max_drift).reduce(f64::max);
         s.max_shift = off.iter().filter_map(|o| o.1.shift).reduce(f64::max);
     }

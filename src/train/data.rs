@@ -179,17 +179,21 @@ impl Dataset {
 pub type Positions = Vec<[f32; 3]>;
 
 /// Drops the states of `scene`'s reference rollout from the first frame whose garment is lost
-/// (the cache keeps the whole rollout: the rule may change, the solve need not be redone).
+/// ([`LossWatch`](crate::eval::LossWatch); the cache keeps the whole rollout: the rule may
+/// change, the solve need not be redone).
 fn truncate_at_loss(scene: &Scene, states: &mut Vec<Positions>) -> Result<()> {
-    use crate::eval::OffBody;
+    use crate::eval::{LossWatch, OffBody};
     let Some(mut metric) = OffBody::new(scene)? else { return Ok(()) };
-    let lost = (0..states.len()).find_map(|t| match metric.measure(scene, t, &states[t]) {
-        Ok(f) if !f.lost() => None,
-        Ok(_) => Some(Ok(t)),
-        Err(e) => Some(Err(e)),
-    });
+    let mut watch = LossWatch::default();
+    let mut lost = None;
+    for (t, x) in states.iter().enumerate() {
+        if watch.observe(&metric.measure(scene, t, x)?).is_some() {
+            lost = Some(t);
+            break;
+        }
+    }
     if let Some(t) = lost {
-        states.truncate(t?);
+        states.truncate(t);
     }
     Ok(())
 }

@@ -406,8 +406,8 @@ fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], trained: bool) -
     }
     let _ = writeln!(
         s,
-        "◆ marks the Pareto front of each workload: the variants that keep the garment on the body ({} at every \
-         frame) and that no other such variant beats in both ms/step and gap mean. A garment lost is a failure \
+        "◆ marks the Pareto front of each workload: the variants that keep the garment on the body ({}) and \
+         that no other such variant beats in both ms/step and gap mean. A garment lost is a failure \
          whatever its gap.\n",
         hood::eval::kept_rule()
     );
@@ -569,11 +569,7 @@ fn table<'a>(s: &mut String, rows: impl Iterator<Item = &'a Row>) {
         let _ = writeln!(s, "|---|:-:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---|");
         for (r, on_front) in cell.iter().zip(front) {
             let m = &r.summary;
-            let on_body = match (m.lost_at, m.off_body_max) {
-                (Some(f), _) => format!("**lost at {f}**"),
-                (None, Some(_)) => "kept".to_string(),
-                (None, None) => "-".to_string(),
-            };
+            let on_body = crate::verdict::on_body_cell(m, "kept");
             let _ = writeln!(
                 s,
                 "| {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {:.2} | {} | {:.3} | {} |",

@@ -311,11 +311,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
             stem(m),
             scenes[s].label,
             row.vertices,
-            match (o.lost_at, o.off_body_max) {
-                (Some(f), _) => format!("**lost at {f}**"),
-                (None, Some(_)) => "yes".into(),
-                (None, None) => "-".into(),
-            },
+            crate::verdict::on_body_cell(o, "yes"),
             match (o.off_body_max, o.off_body_mean) {
                 (Some(x), Some(mean)) => format!("{x:.1} ({mean:.1})"),
                 _ => "-".into(),
@@ -352,8 +348,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         .map(|(m, k)| format!("{} {} of {}", stem(m), k.iter().filter(|&&x| x).count(), k.len()))
         .collect();
     if !verdicts.is_empty() {
-        table +=
-            &format!("\nGarment on the body ({} at every frame): {}.\n", hood::eval::kept_rule(), verdicts.join(", "));
+        table += &format!("\nGarment on the body ({}): {}.\n", hood::eval::kept_rule(), verdicts.join(", "));
     }
     let path = a.out.join("validation.md");
     std::fs::write(&path, &table).map_err(|e| hood::Error::io(&path, e))?;
