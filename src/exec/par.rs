@@ -132,3 +132,100 @@ pub fn first_error(errors: &mut [Option<Error>]) -> Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::exec::Executor;
+    use alloc::vec;
+    use alloc::vec::Vec;
+    use core::sync::atomic::AtomicUsize;
+
+    /// The executors the primitives run under: serial, and a pool when `std` is on.
+    fn executors() -> Vec<alloc::boxed::Box<dyn Executor>> {
+        #[allow(unused_mut)]
+        let mut e: Vec<alloc::boxed::Box<dyn Executor>> = vec![alloc::boxed::Box::new(crate::exec::Serial)];
+        #[cfg(feature = "std")]
+        e.push(alloc::boxed::Box::new(crate::exec::ThreadPool::new(3)));
+        e
+    }
+
+    #[test]
+    fn exec_disjoint_ranges_are_written_from_parallel_tasks() {
+        for exec in executors() {
+            for (total, n) in [(0usize, 3usize), (1, 4), (10, 3), (37, 5)] {
+                let mut out = vec![usize::MAX; total];
+                let parts = Disjoint::new(&mut out);
+                exec.run(n, &|t| {
+                    // SAFETY: `split` gives the tasks disjoint ranges.
+                    let mine = unsafe { parts.range(split(total, n, t)) };
+                    for (k, x) in mine.iter_mut().enumerate() {
+                        *x = split(total, n, t).start + k;
+                    }
+                });
+                assert_eq!(out, (0..total).collect::<Vec<_>>());
+            }
+        }
+        // Outside the slice, or reversed: empty, never out of bounds.
+        let mut v = [1u8, 2, 3];
+        let d = Disjoint::new(&mut v);
+        // SAFETY: one range in use at a time.
+        unsafe {
+            assert!(d.range(2..5).is_empty());
+            assert!(d.range(4..4).is_empty());
+            #[allow(clippy::reversed_empty_ranges)]
+            let reversed = d.range(2..1);
+            assert!(reversed.is_empty());
+            assert_eq!(d.range(1..3), &[2, 3]);
+        }
+    }
+
+    #[test]
+    fn exec_build_once_builds_once_and_shares_the_value_or_error() {
+        for exec in executors() {
+            let builds = AtomicUsize::new(0);
+            let mut value = Vec::new();
+            let once = BuildOnce::new(&mut value);
+            let seen = AtomicUsize::new(0);
+            exec.run(8, &|_| {
+                let v = once
+                    .get(|v| {
+                        builds.fetch_add(1, Ordering::Relaxed);
+                        v.extend_from_slice(&[1u32, 2, 3]);
+                        Ok(())
+                    })
+                    .unwrap();
+                seen.fetch_add(v.iter().sum::<u32>() as usize, Ordering::Relaxed);
+            });
+            assert_eq!(builds.load(Ordering::Relaxed), 1);
+            assert_eq!(seen.load(Ordering::Relaxed), 8 * 6);
+
+            let mut failing = 0u32;
+            let once = BuildOnce::new(&mut failing);
+            let errors = AtomicUsize::new(0);
+            exec.run(5, &|_| {
+                let r = once.get(|_| Err(Error::Empty { what: "test build" }));
+                if matches!(r, Err(Error::Empty { what: "test build" })) {
+                    errors.fetch_add(1, Ordering::Relaxed);
+                }
+            });
+            assert_eq!(errors.load(Ordering::Relaxed), 5);
+        }
+    }
+
+    #[test]
+    fn exec_target_bounds_never_split_a_target() {
+        let target = [0u32, 0, 0, 1, 2, 2, 2, 2, 3, 5, 5];
+        for n in 1..=6 {
+            let mut b = vec![0usize; n + 1];
+            target_bounds(&target, n, &mut b);
+            assert_eq!((b[0], b[n]), (0, target.len()));
+            for t in 1..n {
+                assert!(b[t - 1] <= b[t], "{b:?}");
+                assert!(b[t] == 0 || b[t] == target.len() || target[b[t]] != target[b[t] - 1], "{b:?}");
+            }
+        }
+        let mut errors = [None, Some(Error::Empty { what: "a" }), Some(Error::Empty { what: "b" })];
+        assert!(matches!(first_error(&mut errors), Err(Error::Empty { what: "a" })));
+    }
+}
