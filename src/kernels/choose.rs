@@ -185,6 +185,7 @@ mod bench {
         use super::*;
 
         #[test]
+        #[cfg_attr(miri, ignore = "times both paths, which an interpreter cannot do in useful time")]
         fn kernels_bf16_choice_is_measured_where_both_paths_exist() {
             let c = bf16_choice();
             std::println!("{}", c.describe());

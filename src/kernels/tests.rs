@@ -586,6 +586,7 @@ fn kernels_reject_bad_shapes() {
 }
 
 #[test]
+#[cfg_attr(miri, ignore = "measures speed, which an interpreter does not have")]
 fn kernels_peak_is_positive() {
     let p = peak::measure(Kernels::best(), 2.0);
     println!(
