@@ -100,7 +100,7 @@ impl Dataset {
     /// frame one implicit step of the training objective at the final collision weight (f64
     /// L-BFGS, [`REFERENCE_ITERATIONS`] iterations at most), default material, pinned vertices at
     /// their targets; a rollout that turns non-finite keeps its frames up to there, and one that
-    /// loses the garment ([`crate::eval::OffBodyFrame::lost`]: worn vertices off the body)
+    /// loses the garment ([`crate::eval::OffBodyFrame::off`]: worn vertices off the body)
     /// keeps its frames before that one, so that no sample starts
     /// from a garment the solver has thrown off (on fast arm swings and inversions the implicit
     /// step of the objective can lose a loose top). With
