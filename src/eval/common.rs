@@ -8,10 +8,10 @@
 //!
 //! [`rollout`]: super::rollout
 
-use super::{
-    advance, check_frames, step_kind, store, summarise, Animation, Gap, InsideCounter, Rollout, RolloutOptions, Scorer,
-    StepKind, Summary,
-};
+use super::rollout::{advance, check_frames, step_kind, store};
+use super::scoring::{InsideCounter, Scorer};
+use super::summary::summarise;
+use super::{Animation, Gap, Rollout, RolloutOptions, StepKind, Summary};
 use crate::error::{Error, Result};
 use crate::model::file::Model;
 use crate::physics::Objective;

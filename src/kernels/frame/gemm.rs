@@ -1,0 +1,343 @@
+//! The register-tile product: the f32 and bf16 micro-kernels, the fused epilogue, the row and
+//! column passes over a tile, and [`gemm`], the frame every layer runs its products on.
+
+use super::Simd;
+use crate::kernels::PANEL;
+
+/// Rows per micro-kernel tile.
+pub(crate) const MR: usize = 6;
+
+/// Largest tile width in `f32` (stack tile for partial panels).
+const MAX_TILE: usize = 64;
+
+/// One f32 operand of a tile: activations (row stride `ldx`) and packed weights with `k` inputs.
+#[derive(Clone, Copy)]
+pub(crate) struct SegF32 {
+    pub x: *const f32,
+    pub ldx: usize,
+    pub w: *const f32,
+    pub k: usize,
+}
+
+/// One bf16 operand: prepared activations (row stride `ldx` slots) and packed pair-panels.
+#[derive(Clone, Copy)]
+pub(crate) struct SegBf16 {
+    pub x: *const f32,
+    pub ldx: usize,
+    pub w: *const u16,
+    pub pairs: usize,
+}
+
+/// Operand lists of either precision.
+#[derive(Clone, Copy)]
+pub(crate) enum Segs<'a> {
+    F32(&'a [SegF32]),
+    Bf16(&'a [SegBf16]),
+}
+
+/// The fused epilogue of a tile: `+ bias`, `+ addend row`, ReLU, then store or add.
+#[derive(Clone, Copy)]
+pub(crate) struct TileEpi {
+    pub bias: *const f32,
+    /// Null, or rows of `n` values (stride `n`) added to output row `i` after the bias: the
+    /// gathered node projections of the split first edge layer, summed once per block.
+    pub addend: *const f32,
+    pub relu: bool,
+    pub accumulate: bool,
+}
+
+#[inline(always)]
+unsafe fn kernel_f32<S: Simd, const R: usize, const NV: usize>(
+    s: S,
+    segs: &[SegF32],
+    row0: usize,
+    p0: usize,
+) -> [[S::V; NV]; R] {
+    // SAFETY (whole body): the frame passes rows `row0..row0+R` that exist in every operand and
+    // panels `p0..p0+NV·LANES/PANEL` that exist in every packed matrix.
+    unsafe {
+        let mut acc = [[s.zero(); NV]; R];
+        for seg in segs {
+            let k = seg.k;
+            let w: [*const f32; NV] = core::array::from_fn(|v| {
+                let c = v * S::LANES;
+                seg.w.add((p0 + c / PANEL) * PANEL * k + c % PANEL)
+            });
+            let x: [*const f32; R] = core::array::from_fn(|r| seg.x.add((row0 + r) * seg.ldx));
+            for kk in 0..k {
+                if NV * S::LANES >= 32 {
+                    s.prefetch(w[0].wrapping_add((kk + 8) * PANEL) as *const u8);
+                }
+                let wv: [S::V; NV] = core::array::from_fn(|v| s.load(w[v].add(kk * PANEL)));
+                for r in 0..R {
+                    let xb = s.splat(*x[r].add(kk));
+                    for v in 0..NV {
+                        acc[r][v] = s.fma(xb, wv[v], acc[r][v]);
+                    }
+                }
+            }
+        }
+        acc
+    }
+}
+
+#[inline(always)]
+unsafe fn kernel_bf16<S: Simd, const R: usize, const NV: usize>(
+    s: S,
+    segs: &[SegBf16],
+    row0: usize,
+    p0: usize,
+) -> [[S::V; NV]; R] {
+    // SAFETY (whole body): as in `kernel_f32`, for pairs of inputs.
+    unsafe {
+        let mut acc = [[s.zero(); NV]; R];
+        for seg in segs {
+            let kp = seg.pairs * 2;
+            let w: [*const u16; NV] = core::array::from_fn(|v| {
+                let c = v * S::LANES;
+                seg.w.add((p0 + c / PANEL) * PANEL * kp + (c % PANEL) * 2)
+            });
+            let x: [*const f32; R] = core::array::from_fn(|r| seg.x.add((row0 + r) * seg.ldx));
+            if S::SLOTS_PER_PAIR == 2 {
+                // Widened weights: the even then the odd input of each pair, like two f32 steps
+                // (only NV weight registers live, and the scalar reference's summation order).
+                for pr in 0..seg.pairs {
+                    for half in 0..2 {
+                        let wv: [S::V; NV] = core::array::from_fn(|v| s.load_w_half(w[v].add(pr * 2 * PANEL), half));
+                        for r in 0..R {
+                            let xb = s.splat(*x[r].add(pr * 2 + half));
+                            for v in 0..NV {
+                                acc[r][v] = s.fma(xb, wv[v], acc[r][v]);
+                            }
+                        }
+                    }
+                }
+            } else {
+                for pr in 0..seg.pairs {
+                    let wv: [S::WP; NV] = core::array::from_fn(|v| s.load_w2(w[v].add(pr * 2 * PANEL)));
+                    for r in 0..R {
+                        let xp = s.bcast_x2(x[r].add(pr));
+                        for v in 0..NV {
+                            acc[r][v] = s.dot2(acc[r][v], wv[v], xp);
+                        }
+                    }
+                }
+            }
+        }
+        acc
+    }
+}
+
+/// The epilogue of one output vector `y` at column `c` of output row `o` (`g`: that row of the
+/// addend, if any): `+ bias`, `+ addend`, ReLU, then store or add.
+#[inline(always)]
+unsafe fn epilogue_vec<S: Simd>(s: S, mut y: S::V, c: usize, g: Option<*const f32>, o: *mut f32, epi: &TileEpi) {
+    // SAFETY: the caller's: `LANES` columns from `c` exist in the bias, `g` and `o`.
+    unsafe {
+        if !epi.bias.is_null() {
+            y = s.add(y, s.load(epi.bias.add(c)));
+        }
+        if let Some(g) = g {
+            y = s.add(y, s.load(g.add(c)));
+        }
+        if epi.relu {
+            y = s.max(y, s.zero());
+        }
+        if epi.accumulate {
+            y = s.add(y, s.load(o.add(c)));
+        }
+        s.store(o.add(c), y);
+    }
+}
+
+/// [`epilogue_vec`] for one value.
+#[inline(always)]
+unsafe fn epilogue_one(mut y: f32, c: usize, g: Option<*const f32>, o: *mut f32, epi: &TileEpi) {
+    // SAFETY: the caller's: column `c` exists in the bias, `g` and `o`.
+    unsafe {
+        if !epi.bias.is_null() {
+            y += *epi.bias.add(c);
+        }
+        if let Some(g) = g {
+            y += *g.add(c);
+        }
+        if epi.relu {
+            y = y.max(0.0);
+        }
+        if epi.accumulate {
+            y += *o.add(c);
+        }
+        *o.add(c) = y;
+    }
+}
+
+/// Applies the epilogue to one panel of sums (`PANEL` values at `sums`) and writes them to output
+/// row `row`, columns `c0..min(c0 + PANEL, n)`: for kernels that accumulate outside registers.
+///
+/// # Safety
+/// As [`gemm`]'s; `sums` holds `PANEL` values and `c0 < n`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn epilogue_row<S: Simd>(
+    s: S,
+    sums: *const f32,
+    row: usize,
+    c0: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    // SAFETY: as the contract: row `row` exists in `out` and the addend, columns below `n`.
+    unsafe {
+        let o = out.add(row * ldo);
+        let g = if epi.addend.is_null() { None } else { Some(epi.addend.add(row * n)) };
+        if c0 + PANEL <= n && PANEL.is_multiple_of(S::LANES) {
+            for v in (0..PANEL).step_by(S::LANES) {
+                epilogue_vec(s, s.load(sums.add(v)), c0 + v, g, o, epi);
+            }
+        } else {
+            for j in 0..(n - c0).min(PANEL) {
+                epilogue_one(*sums.add(j), c0 + j, g, o, epi);
+            }
+        }
+    }
+}
+
+/// Applies the epilogue to a tile and writes output rows `row0..row0+R`, columns from panel `p0`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn store_tile<S: Simd, const R: usize, const NV: usize>(
+    s: S,
+    acc: [[S::V; NV]; R],
+    row0: usize,
+    p0: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    let c0 = p0 * PANEL;
+    let width = NV * S::LANES;
+    // SAFETY (whole body): output rows exist with `ldo >= n`; bias and gathered rows have `n`
+    // columns; vector accesses stay below `n` (full tiles) or go through the stack tile.
+    unsafe {
+        for (r, acc_r) in acc.iter().enumerate() {
+            let row = row0 + r;
+            let o = out.add(row * ldo);
+            let g = if epi.addend.is_null() { None } else { Some(epi.addend.add(row * n)) };
+            if c0 + width <= n {
+                for (v, &a) in acc_r.iter().enumerate() {
+                    epilogue_vec(s, a, c0 + v * S::LANES, g, o, epi);
+                }
+            } else {
+                let mut tile = [0.0f32; MAX_TILE];
+                for (v, &a) in acc_r.iter().enumerate() {
+                    s.store(tile.as_mut_ptr().add(v * S::LANES), a);
+                }
+                for (j, &t) in tile.iter().enumerate().take(n.saturating_sub(c0).min(width)) {
+                    epilogue_one(t, c0 + j, g, o, epi);
+                }
+            }
+        }
+    }
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn tile<S: Simd, const R: usize, const NV: usize>(
+    s: S,
+    segs: Segs<'_>,
+    row0: usize,
+    p0: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    // SAFETY: forwarded contract of `gemm`.
+    unsafe {
+        let acc = match segs {
+            Segs::F32(sg) => kernel_f32::<S, R, NV>(s, sg, row0, p0),
+            Segs::Bf16(sg) => kernel_bf16::<S, R, NV>(s, sg, row0, p0),
+        };
+        store_tile::<S, R, NV>(s, acc, row0, p0, n, out, ldo, epi);
+    }
+}
+
+/// All rows of one column tile (panels `p0..p0 + NV·LANES/PANEL`): the tile's weights stay in L1
+/// while the row block's activations stream past them.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn column_pass<S: Simd, const NV: usize>(
+    s: S,
+    segs: Segs<'_>,
+    rows: usize,
+    p0: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    let mut row0 = 0;
+    // SAFETY: forwarded contract of `gemm`; each tile covers rows below `rows`.
+    unsafe {
+        while row0 + MR <= rows {
+            tile::<S, MR, NV>(s, segs, row0, p0, n, out, ldo, epi);
+            row0 += MR;
+        }
+        match rows - row0 {
+            1 => tile::<S, 1, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            2 => tile::<S, 2, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            3 => tile::<S, 3, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            4 => tile::<S, 4, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            5 => tile::<S, 5, NV>(s, segs, row0, p0, n, out, ldo, epi),
+            _ => {}
+        }
+    }
+}
+
+/// `out[rows × n] (+)= epilogue(Σ segs)`, column tiles outside, row tiles inside (callers pass
+/// blocks of at most ~100 rows, so the activations stay in L2 and each weight tile in L1).
+///
+/// # Safety
+/// The CPU supports `S`; every operand has `rows` rows and packed weights with `ceil(n/16)`
+/// panels; `out` has `rows` rows of stride `ldo >= n`; the epilogue's pointers cover `n` columns
+/// (and, for a gather, `rows` valid indices).
+#[inline(always)]
+pub(crate) unsafe fn gemm<S: Simd>(
+    s: S,
+    segs: Segs<'_>,
+    rows: usize,
+    n: usize,
+    out: *mut f32,
+    ldo: usize,
+    epi: &TileEpi,
+) {
+    if let Segs::Bf16(sg) = segs {
+        // SAFETY: forwarded contract.
+        if unsafe { s.gemm_bf16(sg, rows, n, out, ldo, epi) } {
+            return;
+        }
+    }
+    let panels = n.div_ceil(PANEL);
+    let mut p = 0;
+    // SAFETY: forwarded; each pass covers panels below `panels`.
+    unsafe {
+        while p < panels {
+            if S::LANES == 8 {
+                column_pass::<S, 2>(s, segs, rows, p, n, out, ldo, epi);
+                p += 1;
+                continue;
+            }
+            let np = (panels - p).min(S::TILE_PANELS);
+            match np {
+                1 => column_pass::<S, 1>(s, segs, rows, p, n, out, ldo, epi),
+                2 => column_pass::<S, 2>(s, segs, rows, p, n, out, ldo, epi),
+                3 => column_pass::<S, 3>(s, segs, rows, p, n, out, ldo, epi),
+                _ => column_pass::<S, 4>(s, segs, rows, p, n, out, ldo, epi),
+            }
+            p += np;
+        }
+    }
+}

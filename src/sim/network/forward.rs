@@ -1,0 +1,212 @@
+//! The forward pass over the workspace's buffers: edge encoders ([`Workspace::encode_edges`]),
+//! then nodes, body edges, message-passing blocks and decoder ([`Workspace::forward`]).
+
+use super::tasks::{gather, scatter, Edges, Par};
+use super::{BodyEdges, Net, Probe, Stage, Workspace};
+use crate::error::{Error, Result};
+use crate::exec::Executor;
+use crate::features::{BODY_EDGE_WIDTH, EDGE_WIDTH, NODE_NORMALISED, NODE_WIDTH};
+use crate::kernels::MAX_OPERANDS;
+use crate::model::spec::EdgeKey;
+use crate::normaliser::normalise_rows;
+use crate::sim::graph::Graph;
+
+impl Workspace {
+    /// Normalises the first `n` edge feature rows and encodes them into the latents of `key`.
+    pub fn encode_edges(&mut self, net: &Net<'_>, exec: &dyn Executor, key: EdgeKey, n: usize) -> Result<()> {
+        let (mean, std) = net.model.edge_stats();
+        let rows = &mut self.edge_features[..n * EDGE_WIDTH];
+        normalise_rows(rows, EDGE_WIDTH, mean, std);
+        let enc_i = net
+            .model
+            .spec()
+            .encoder_index(key)
+            .ok_or(Error::IncompatibleModel { reason: "the model has no encoder for an edge set it uses" })?;
+        let out = match key.coarse_level() {
+            Some(l) => &mut self.coarse_latents[l][..n * self.h],
+            None => &mut self.mesh_latents[..n * self.h],
+        };
+        let mut p = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors, flops: &mut self.flops };
+        p.mlp(net, &net.model.edge_encoders[enc_i], &[Some(&self.edge_features[..n * EDGE_WIDTH])], n, out, false)
+    }
+
+    /// The forward pass after the edge latents are encoded: nodes (features already in
+    /// `node_features`, garment then active body rows), body edges (features in
+    /// `g2b_features`/`b2g_features`), blocks, decoder into `decoded`.
+    pub fn forward(
+        &mut self,
+        net: &Net<'_>,
+        exec: &dyn Executor,
+        graph: &Graph,
+        body: &BodyEdges<'_>,
+        observer: &mut dyn FnMut(Probe<'_>),
+    ) -> Result<()> {
+        let (h, v) = (self.h, self.v);
+        let a = body.n_active;
+        if a > self.max_active {
+            return Err(Error::CapacityExceeded { what: "active body nodes", capacity: self.max_active, needed: a });
+        }
+        let rows = v + a;
+        let nb = body.prefix[0];
+        let model = net.model;
+        let mut par = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors, flops: &mut self.flops };
+        // Nodes: normalise the first 21 columns, encode.
+        let (mean, std) = model.node_stats();
+        let feats = &mut self.node_features[..rows * NODE_WIDTH];
+        normalise_rows(feats, NODE_WIDTH, &mean[..NODE_NORMALISED], &std[..NODE_NORMALISED]);
+        par.mlp(
+            net,
+            &model.node_encoder,
+            &[Some(&self.node_features[..rows * NODE_WIDTH])],
+            rows,
+            &mut self.latents[..rows * h],
+            false,
+        )?;
+        // Body edges: both directions, one normaliser, one encoder.
+        if nb > 0 {
+            let enc = model.body_encoder.as_ref().ok_or(Error::UnsupportedEffect { effect: "body collision" })?;
+            let (mean, std) = model.body_edge_stats();
+            for (f, lat) in
+                [(&mut self.g2b_features, &mut self.g2b_latents), (&mut self.b2g_features, &mut self.b2g_latents)]
+            {
+                normalise_rows(&mut f[..nb * BODY_EDGE_WIDTH], BODY_EDGE_WIDTH, mean, std);
+                par.mlp(net, enc, &[Some(&f[..nb * BODY_EDGE_WIDTH])], nb, &mut lat[..nb * h], false)?;
+            }
+        }
+        observer(Probe {
+            stage: Stage::Encoded,
+            garment: &self.latents[..v * h],
+            body: &self.latents[v * h..rows * h],
+        });
+
+        for (bi, (bspec, bview)) in model.spec().blocks.iter().zip(&model.blocks).enumerate() {
+            let n_slots = bspec.keys.len() + usize::from(nb > 0);
+            for s in &mut self.slots[..n_slots] {
+                par.fill(&mut s[..rows * h]);
+            }
+            for (ki, (&key, mlp)) in bspec.keys.iter().zip(&bview.edges).enumerate() {
+                let slot = &mut self.slots[ki][..rows * h];
+                match key.coarse_level() {
+                    None => {
+                        let e = &graph.mesh;
+                        let x = &self.latents[..v * h];
+                        par.edge_mlp(
+                            net,
+                            mlp,
+                            (x, x),
+                            Edges::Split { list: e, split: &self.mesh_split },
+                            &mut self.mesh_latents[..e.target.len() * h],
+                            &mut slot[..v * h],
+                            (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
+                        )?;
+                    }
+                    Some(l) => {
+                        let level = &graph.coarse[l];
+                        let nl = level.nodes.len();
+                        gather(&self.latents, &level.nodes, h, &mut self.gathered[..nl * h]);
+                        let local = &mut self.local_agg[..nl * h];
+                        local.fill(0.0);
+                        let x = &self.gathered[..nl * h];
+                        par.edge_mlp(
+                            net,
+                            mlp,
+                            (x, x),
+                            Edges::Split { list: &level.edges, split: &self.coarse_split[l] },
+                            &mut self.coarse_latents[l][..level.edges.target.len() * h],
+                            local,
+                            (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
+                        )?;
+                        scatter(&self.local_agg[..nl * h], &level.nodes, h, slot);
+                    }
+                }
+            }
+            if nb > 0 {
+                let mlp = bview.body.as_ref().ok_or(Error::UnsupportedEffect { effect: "body collision" })?;
+                let depth = bspec.finest().coarse_level().map_or(0, |l| l + 1);
+                let n = body.prefix[depth];
+                let slot = &mut self.slots[bspec.keys.len()][..rows * h];
+                if n > 0 {
+                    gather(&self.latents, &body.garment[..n], h, &mut self.gathered[..n * h]);
+                    let xg = &self.gathered[..n * h];
+                    let xb = &self.latents[v * h..rows * h];
+                    // body -> garment: each garment end has one body edge, so the per-edge
+                    // messages are its aggregate: compute them in edge order, then scatter.
+                    let msgs = &mut self.local_agg[..n * h];
+                    msgs.fill(0.0);
+                    par.edge_mlp(
+                        net,
+                        mlp,
+                        (xg, xb),
+                        Edges::PerEdge { source: &body.body[..n], iota: graph.iota(), target_rows: None },
+                        &mut self.b2g_latents[..n * h],
+                        msgs,
+                        (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
+                    )?;
+                    scatter(&self.local_agg[..n * h], &body.garment[..n], h, slot);
+                    // garment -> body: per-edge messages, then a sum per active body node in
+                    // edge order (independent of the task split).
+                    let msgs = &mut self.local_agg[..n * h];
+                    msgs.fill(0.0);
+                    par.edge_mlp(
+                        net,
+                        mlp,
+                        (xb, xg),
+                        Edges::PerEdge {
+                            source: &graph.iota()[..n],
+                            iota: graph.iota(),
+                            target_rows: Some(&body.body[..n]),
+                        },
+                        &mut self.g2b_latents[..n * h],
+                        msgs,
+                        (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
+                    )?;
+                    let offsets = &mut self.g2b_offsets[..a + 1];
+                    let perm = &mut self.g2b_perm[..n];
+                    counting_sort(&body.body[..n], offsets, perm);
+                    par.reduce_rows(&self.local_agg[..n * h], offsets, perm, h, &mut slot[v * h..rows * h]);
+                }
+            }
+            // Node update from the latents at the start of the block.
+            par.copy(&mut self.next_latents[..rows * h], &self.latents[..rows * h]);
+            let mut inputs: [Option<&[f32]>; MAX_OPERANDS] = [None; MAX_OPERANDS];
+            inputs[0] = Some(&self.latents[..rows * h]);
+            for s in 0..n_slots {
+                inputs[1 + s] = Some(&self.slots[s][..rows * h]);
+            }
+            // A model trained with a body but run without one: the body slot is zero and skipped.
+            let n_inputs = model.spec().node_inputs(bspec);
+            par.mlp(net, &bview.node, &inputs[..n_inputs], rows, &mut self.next_latents[..rows * h], true)?;
+            core::mem::swap(&mut self.latents, &mut self.next_latents);
+            observer(Probe {
+                stage: Stage::Block(bi),
+                garment: &self.latents[..v * h],
+                body: &self.latents[v * h..rows * h],
+            });
+        }
+        par.mlp(net, &model.decoder, &[Some(&self.latents[..v * h])], v, &mut self.decoded, false)?;
+        observer(Probe { stage: Stage::Decoded, garment: &self.decoded, body: &[] });
+        Ok(())
+    }
+}
+
+/// CSR of `keys` (values below `offsets.len() - 1`): `perm[offsets[k]..offsets[k+1]]` are the
+/// positions holding `k`, ascending.
+fn counting_sort(keys: &[u32], offsets: &mut [u32], perm: &mut [u32]) {
+    offsets.fill(0);
+    for &k in keys {
+        offsets[k as usize + 1] += 1;
+    }
+    for i in 1..offsets.len() {
+        offsets[i] += offsets[i - 1];
+    }
+    // Fill using the starts, then shift back.
+    for (e, &k) in keys.iter().enumerate() {
+        let slot = &mut offsets[k as usize];
+        perm[*slot as usize] = e as u32;
+        *slot += 1;
+    }
+    for i in (1..offsets.len()).rev() {
+        offsets[i] = offsets[i - 1];
+    }
+    offsets[0] = 0;
+}

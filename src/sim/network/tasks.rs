@@ -1,0 +1,306 @@
+//! The network's row passes split between tasks ([`Par`]): MLPs by row ranges, edge MLPs by
+//! target ranges, linear layers, fills, copies and row reductions, each task with its own
+//! scratch; and the chunked MLP one task runs over its rows.
+
+use super::{EdgeSplit, Net, TaskBufs, CHUNK};
+use crate::error::{Error, Result};
+use crate::exec::par::{first_error, split, Disjoint};
+use crate::exec::Executor;
+use crate::kernels::{self, EdgeInputs, EdgeMlp, Epilogue, Operand, MAX_OPERANDS};
+use crate::model::file::MlpView;
+use crate::sim::graph::EdgeList;
+use core::ops::Range;
+
+/// Floats below which a fill or copy is not worth splitting between tasks.
+const PAR_FLOATS: usize = 1 << 15;
+
+/// Copies rows `idx` of `src` (`h` wide) into consecutive rows of `dst`.
+pub(super) fn gather(src: &[f32], idx: &[u32], h: usize, dst: &mut [f32]) {
+    for (d, &g) in dst.chunks_exact_mut(h).zip(idx) {
+        let g = g as usize;
+        d.copy_from_slice(&src[g * h..(g + 1) * h]);
+    }
+}
+
+/// Copies consecutive rows of `src` into rows `idx` of `dst`.
+pub(super) fn scatter(src: &[f32], idx: &[u32], h: usize, dst: &mut [f32]) {
+    for (s, &g) in src.chunks_exact(h).zip(idx) {
+        let g = g as usize;
+        dst[g * h..(g + 1) * h].copy_from_slice(s);
+    }
+}
+
+/// The edges of one edge-MLP call.
+#[derive(Clone, Copy)]
+pub(super) enum Edges<'a> {
+    /// A static list sorted by target, split at target changes.
+    Split { list: &'a EdgeList, split: &'a EdgeSplit },
+    /// One message row per edge (target `e` is edge `e`), any split; `iota` is `0, 1, 2, ...`.
+    /// With `target_rows`, the target-side rows `x.0` are per node and edge `e` reads row
+    /// `target_rows[e]` (its projection is gathered per edge first).
+    PerEdge { source: &'a [u32], iota: &'a [u32], target_rows: Option<&'a [u32]> },
+}
+
+/// The executor with per-task scratch.
+pub(super) struct Par<'w> {
+    pub(super) exec: &'w dyn Executor,
+    pub(super) tasks: &'w mut [TaskBufs],
+    pub(super) errors: &'w mut [Option<Error>],
+    pub(super) flops: &'w mut u64,
+}
+
+impl Par<'_> {
+    /// Runs `f(task, scratch)` for `n` tasks and returns the first error.
+    fn run(&mut self, n: usize, f: &(dyn Fn(usize, &mut TaskBufs) -> Result<()> + Sync)) -> Result<()> {
+        let n = n.clamp(1, self.tasks.len());
+        let tasks = Disjoint::new(&mut self.tasks[..n]);
+        let errors = Disjoint::new(&mut self.errors[..n]);
+        self.exec.run(n, &|t| {
+            // SAFETY: the executor calls each task index once; index t owns element t.
+            let (tb, err) = unsafe { (tasks.range(t..t + 1), errors.range(t..t + 1)) };
+            if let (Some(tb), Some(err)) = (tb.first_mut(), err.first_mut()) {
+                if let Err(e) = f(t, tb) {
+                    *err = Some(e);
+                }
+            }
+        });
+        first_error(&mut self.errors[..n])
+    }
+
+    /// Zeroes `buf`, split between tasks (megabytes per block at h = 128: serially it would
+    /// hold back the second thread).
+    pub(super) fn fill(&mut self, buf: &mut [f32]) {
+        let len = buf.len();
+        let n = self.tasks.len().min(len.div_ceil(PAR_FLOATS)).max(1);
+        let buf = Disjoint::new(buf);
+        let _ = self.run(n, &|t, _| {
+            // SAFETY: ranges of different tasks are disjoint.
+            unsafe { buf.range(split(len, n, t)) }.fill(0.0);
+            Ok(())
+        });
+    }
+
+    /// `dst.copy_from_slice(src)` (same lengths), split between tasks.
+    pub(super) fn copy(&mut self, dst: &mut [f32], src: &[f32]) {
+        let len = dst.len().min(src.len());
+        let n = self.tasks.len().min(len.div_ceil(PAR_FLOATS)).max(1);
+        let dst = Disjoint::new(dst);
+        let _ = self.run(n, &|t, _| {
+            let r = split(len, n, t);
+            // SAFETY: ranges of different tasks are disjoint.
+            unsafe { dst.range(r.clone()) }.copy_from_slice(&src[r]);
+            Ok(())
+        });
+    }
+
+    /// `mlp` over `rows` rows, split into row ranges per task (see [`Net::mlp_rows`]).
+    pub(super) fn mlp(
+        &mut self,
+        net: &Net<'_>,
+        mlp: &MlpView<'_>,
+        inputs: &[Option<&[f32]>],
+        rows: usize,
+        out: &mut [f32],
+        residual: bool,
+    ) -> Result<()> {
+        if rows == 0 {
+            return Ok(());
+        }
+        let w = out.len() / rows;
+        let first: usize = mlp.layers[0]
+            .parts(net.bf16)
+            .iter()
+            .zip(inputs)
+            .filter(|(_, x)| x.is_some())
+            .map(|(p, _)| p.k() * p.n())
+            .sum();
+        let rest: usize = mlp.layers[1..].iter().map(|l| l.inp * l.out).sum();
+        *self.flops += 2 * (rows * (first + rest)) as u64;
+        // Even row ranges (not whole chunks: a few hundred rows in chunks of 256 would leave one
+        // task with twice the work of another); rows are independent, so the split changes no bit.
+        let n = self.tasks.len().min(rows.div_ceil(64)).max(1);
+        let out = Disjoint::new(out);
+        self.run(n, &|t, tb| {
+            let r = split(rows, n, t);
+            // SAFETY: row ranges of different tasks are disjoint.
+            let o = unsafe { out.range(r.start * w..r.end * w) };
+            net.mlp_rows(mlp, inputs, r, o, residual, tb)
+        })
+    }
+
+    /// One edge set through an edge MLP: both node projections (row-split), then the fused
+    /// kernel (edge-split so that no target's sum spans two tasks).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn edge_mlp(
+        &mut self,
+        net: &Net<'_>,
+        mlp: &MlpView<'_>,
+        x: (&[f32], &[f32]),
+        edges: Edges<'_>,
+        latent: &mut [f32],
+        aggregate: &mut [f32],
+        proj: (&mut [f32], &mut [f32], &mut [f32]),
+    ) -> Result<()> {
+        let l = &mlp.layers;
+        let p1 = l[0].parts(net.bf16);
+        let h = l[0].out;
+        let (nt, ns) = (x.0.len() / h, x.1.len() / h);
+        let (pt, ps) = (&mut proj.0[..nt * h], &mut proj.1[..ns * h]);
+        self.linear(net, x.0, p1[0], pt)?;
+        self.linear(net, x.1, p1[1], ps)?;
+        let pt: &[f32] = match edges {
+            Edges::PerEdge { target_rows: Some(rows), .. } => {
+                let per_edge = &mut proj.2[..rows.len() * h];
+                gather(pt, rows, h, per_edge);
+                per_edge
+            }
+            _ => pt,
+        };
+        let ps = &*ps;
+        let em = EdgeMlp {
+            w1_edge: p1[2],
+            b1: l[0].bias,
+            w2: l[1].parts(net.bf16)[0],
+            b2: l[1].bias,
+            w3: l[2].parts(net.bf16)[0],
+            b3: l[2].bias,
+            layer_norm: mlp.layer_norm,
+        };
+        let k_e = em.w3.n();
+        let n_edges = latent.len() / k_e;
+        *self.flops += 2 * (n_edges * (em.w1_edge.k() * h + em.w2.k() * em.w2.n() + em.w3.k() * k_e)) as u64;
+        let latent = Disjoint::new(latent);
+        let aggregate = Disjoint::new(aggregate);
+        let tasks = self.tasks.len().min(n_edges.div_ceil(64)).max(1);
+        match edges {
+            Edges::Split { list, split } => {
+                let n = split.bounds.len() - 1;
+                self.run(n, &|t, tb| {
+                    let (a, b) = (split.bounds[t], split.bounds[t + 1]);
+                    if a == b {
+                        return Ok(());
+                    }
+                    let (lo, hi) = (list.target[a] as usize, list.target[b - 1] as usize + 1);
+                    let inputs = EdgeInputs {
+                        p_target: &pt[lo * h..hi * h],
+                        p_source: ps,
+                        target: &split.rebased[a..b],
+                        source: &list.source[a..b],
+                    };
+                    // SAFETY: edge ranges are disjoint, and so are their target ranges (the split
+                    // never cuts a target's edges).
+                    let (lat, agg) = unsafe { (latent.range(a * k_e..b * k_e), aggregate.range(lo * k_e..hi * k_e)) };
+                    net.kernels.edge_mlp(&em, &inputs, lat, agg, &mut tb.edge)
+                })
+            }
+            Edges::PerEdge { source, iota, .. } => self.run(tasks, &|t, tb| {
+                let r = split(n_edges, tasks, t);
+                if r.is_empty() {
+                    return Ok(());
+                }
+                let inputs = EdgeInputs {
+                    p_target: &pt[r.start * h..r.end * h],
+                    p_source: ps,
+                    target: &iota[..r.len()],
+                    source: &source[r.clone()],
+                };
+                // SAFETY: edge ranges (and so their message rows) are disjoint between tasks.
+                let (lat, agg) =
+                    unsafe { (latent.range(r.start * k_e..r.end * k_e), aggregate.range(r.start * k_e..r.end * k_e)) };
+                net.kernels.edge_mlp(&em, &inputs, lat, agg, &mut tb.edge)
+            }),
+        }
+    }
+
+    /// `out = x · Wᵀ` (no bias), row-split.
+    fn linear(&mut self, net: &Net<'_>, x: &[f32], w: kernels::Weights<'_>, out: &mut [f32]) -> Result<()> {
+        let (k, n_out) = (w.k(), w.n());
+        let rows = x.len() / k.max(1);
+        *self.flops += 2 * (rows * k * n_out) as u64;
+        let n = self.tasks.len().min(rows.div_ceil(64)).max(1);
+        let out = Disjoint::new(out);
+        self.run(n, &|t, tb| {
+            let r = split(rows, n, t);
+            // SAFETY: row ranges of different tasks are disjoint.
+            let o = unsafe { out.range(r.start * n_out..r.end * n_out) };
+            let op = [Operand { x: &x[r.start * k..r.end * k], w }];
+            net.kernels.linear(&op, None, &Epilogue::default(), o, &mut tb.lin)
+        })
+    }
+
+    /// `out[r] = Σ src[perm[k]]` for `k` in `offsets[r]..offsets[r+1]`, row-split.
+    pub(super) fn reduce_rows(&mut self, src: &[f32], offsets: &[u32], perm: &[u32], h: usize, out: &mut [f32]) {
+        let rows = offsets.len() - 1;
+        let n = self.tasks.len().min(rows.div_ceil(64)).max(1);
+        let out = Disjoint::new(out);
+        let _ = self.run(n, &|t, _| {
+            let r = split(rows, n, t);
+            // SAFETY: row ranges of different tasks are disjoint.
+            let o = unsafe { out.range(r.start * h..r.end * h) };
+            for (row, node) in o.chunks_exact_mut(h).zip(r) {
+                row.fill(0.0);
+                for &e in &perm[offsets[node] as usize..offsets[node + 1] as usize] {
+                    let m = &src[e as usize * h..(e as usize + 1) * h];
+                    row.iter_mut().zip(m).for_each(|(o, m)| *o += m);
+                }
+            }
+            Ok(())
+        });
+    }
+}
+
+impl Net<'_> {
+    /// Runs `mlp` over the rows `rows` (chunk by chunk). `inputs` are the column parts of the
+    /// whole input (the parts of the first layer, in order; `None` is a part known to be zero
+    /// and skipped); `out` holds just these rows and is added to when `residual`.
+    fn mlp_rows(
+        &self,
+        mlp: &MlpView<'_>,
+        inputs: &[Option<&[f32]>],
+        rows: Range<usize>,
+        out: &mut [f32],
+        residual: bool,
+        tb: &mut TaskBufs,
+    ) -> Result<()> {
+        let layers = &mlp.layers;
+        let parts = layers[0].parts(self.bf16);
+        if parts.len() != inputs.len() {
+            return Err(Error::IncompatibleModel { reason: "MLP input parts disagree with the model" });
+        }
+        let n_out = layers[layers.len() - 1].out;
+        let (mut a, mut b) = (&mut tb.t1[..], &mut tb.t2[..]);
+        let mut start = rows.start;
+        while start < rows.end {
+            let end = (start + CHUNK).min(rows.end);
+            let r = end - start;
+            let o = (start - rows.start) * n_out..(end - rows.start) * n_out;
+            let mut ops = [Operand { x: &[], w: parts[0] }; MAX_OPERANDS];
+            let mut n_ops = 0;
+            for (x, w) in inputs.iter().zip(parts) {
+                if let Some(x) = x {
+                    ops[n_ops] = Operand { x: &x[start * w.k()..end * w.k()], w: *w };
+                    n_ops += 1;
+                }
+            }
+            for (li, l) in layers.iter().enumerate() {
+                let last = li + 1 == layers.len();
+                let ep = if last {
+                    Epilogue { relu: false, layer_norm: mlp.layer_norm, residual }
+                } else {
+                    Epilogue { relu: true, layer_norm: None, residual: false }
+                };
+                if li == 0 {
+                    let dst: &mut [f32] = if last { &mut out[o.clone()] } else { &mut a[..r * l.out] };
+                    self.kernels.linear(&ops[..n_ops], Some(l.bias), &ep, dst, &mut tb.lin)?;
+                } else {
+                    let op = [Operand { x: &a[..r * l.inp], w: l.parts(self.bf16)[0] }];
+                    let dst: &mut [f32] = if last { &mut out[o.clone()] } else { &mut b[..r * l.out] };
+                    self.kernels.linear(&op, Some(l.bias), &ep, dst, &mut tb.lin)?;
+                    core::mem::swap(&mut a, &mut b);
+                }
+            }
+            start = end;
+        }
+        Ok(())
+    }
+}
