@@ -28,6 +28,8 @@
 //!   and comes back. The window tells them apart: the converged implicit step's loose dress on
 //!   held-out jumps is shifted 10 cm or more on at most 13 of any 30 frames, a t-shirt ridden
 //!   up by a network on a spin or a hop on 20 of 30 within a second of riding up.
+//!   The direction does not count: a skirt stretched down the legs by too few solver iterations
+//!   is lost the same way.
 //!
 //! Distances to the body surface are exact over the faces around the nearest body vertex (the
 //! surface point nearest a garment vertex lies on one of them unless the body is coarser than
