@@ -119,6 +119,30 @@ pub enum Error {
 /// `core::result::Result` with [`Error`].
 pub type Result<T> = core::result::Result<T, Error>;
 
+/// Checks that a buffer named `what` has `got` entries where `expected` are needed.
+///
+/// # Errors
+/// [`Error::SizeMismatch`] when they differ.
+pub fn check_len(what: &'static str, got: usize, expected: usize) -> Result<()> {
+    if got == expected {
+        Ok(())
+    } else {
+        Err(Error::SizeMismatch { what, expected, got })
+    }
+}
+
+/// Checks that a buffer named `what` has `got` entries where at least `expected` are needed.
+///
+/// # Errors
+/// [`Error::SizeMismatch`] when it is shorter.
+pub fn check_at_least(what: &'static str, got: usize, expected: usize) -> Result<()> {
+    if got >= expected {
+        Ok(())
+    } else {
+        Err(Error::SizeMismatch { what, expected, got })
+    }
+}
+
 impl Error {
     /// The stable numeric status code of this error, as the C ABI reports it. Codes are never
     /// reused; 0 is success.

@@ -5,7 +5,7 @@
 //! Column order and widths are part of the model contract (they must match reference
 //! checkpoints): see the constants below.
 
-use crate::error::{Error, Result};
+use crate::error::{check_len, Error, Result};
 use glam::Vec3;
 
 /// Width of a node feature row.
@@ -54,14 +54,6 @@ impl Embeddings<'_> {
     fn check(&self) -> Result<()> {
         check_len("node-type embedding", self.node_type.len(), NODE_TYPES * NODE_TYPES)?;
         check_len("vertex-level embedding", self.level.len(), LEVELS * LEVELS)
-    }
-}
-
-fn check_len(what: &'static str, got: usize, expected: usize) -> Result<()> {
-    if got == expected {
-        Ok(())
-    } else {
-        Err(Error::SizeMismatch { what, expected, got })
     }
 }
 

@@ -92,14 +92,6 @@ pub(crate) unsafe fn points_mut<'a>(p: *mut f32, n: usize, what: &'static str) -
     unsafe { slice_mut(p as *mut [f32; 3], n, what) }
 }
 
-pub(crate) fn expect_len(what: &'static str, expected: usize, got: usize) -> Result<()> {
-    if expected == got {
-        Ok(())
-    } else {
-        Err(Error::SizeMismatch { what, expected, got }.into())
-    }
-}
-
 /// Writes an out-parameter (after the call's work succeeded).
 ///
 /// # Safety

@@ -1,11 +1,12 @@
 //! Fixed-step driver handles: a sim's clock, stepping it at its own rate and interpolating for
 //! the engine's frames.
 
-use crate::arrays::{disjoint, expect_len, points, points_mut, require, write_out};
+use crate::arrays::{disjoint, points, points_mut, require, write_out};
 use crate::guard::guard;
 use crate::sim::{claim_failure, free_slot, hood_sim, insert_slot, sim_mut, sim_ref};
 use crate::slots;
 use crate::status::hood_status;
+use hood::error::check_len;
 use hood::sim::Interpolator;
 
 /// A driver handle: a slot of `DRIVERS`, checked and claimed without a lock like a sim's.
@@ -73,7 +74,7 @@ pub unsafe extern "C" fn hood_driver_update(
         require(garment_out, "garment_out")?;
         let (input, output) = (body_now as *const [f32; 3], garment_out as *const [f32; 3]);
         disjoint(input, n_body_vertices, output, n_garment_vertices, "garment_out")?;
-        expect_len("garment output vertices", s.sim.garment().n_vertices(), n_garment_vertices)?;
+        check_len("garment output vertices", n_garment_vertices, s.sim.garment().n_vertices())?;
         // SAFETY: counts are the caller's promise.
         let body = unsafe { points(body_now, n_body_vertices, "body_now")? };
         // SAFETY: as above.

@@ -1,7 +1,7 @@
 //! Sim handles: creating and freeing a sim, claiming it for a call, stepping it and reading what
 //! it holds.
 
-use crate::arrays::{disjoint, expect_len, points, points_mut, require, write_out};
+use crate::arrays::{disjoint, points, points_mut, require, write_out};
 use crate::body::{hood_body_desc, read_body};
 use crate::config::{hood_sim_config, sim_config};
 use crate::consts::{
@@ -16,6 +16,7 @@ use crate::model::hood_model;
 use crate::registry::{check_live, live, Kind};
 use crate::slots;
 use crate::status::{hood_status, Failure, Result};
+use hood::error::check_len;
 use hood::model::Model;
 use hood::sim::{BodyDesc, Sim, SimConfig, StepMode};
 use hood::Error;
@@ -338,8 +339,8 @@ pub unsafe extern "C" fn hood_sim_step(
 ) -> hood_status {
     guard(|| {
         let mut s = sim_mut(sim)?;
-        expect_len("body vertices", s.sim.state().body_pos.len(), n_body_vertices)?;
-        expect_len("garment output vertices", s.sim.garment().n_vertices(), n_garment_vertices)?;
+        check_len("body vertices", n_body_vertices, s.sim.state().body_pos.len())?;
+        check_len("garment output vertices", n_garment_vertices, s.sim.garment().n_vertices())?;
         require(garment_out, "garment_out")?;
         let (input, output) = (body_next as *const [f32; 3], garment_out as *const [f32; 3]);
         disjoint(input, n_body_vertices, output, n_garment_vertices, "garment_out")?;
@@ -354,7 +355,7 @@ pub unsafe extern "C" fn hood_sim_step(
 }
 
 fn copy_out(src: &[[f32; 3]], out: *mut f32, n: usize, what: &'static str) -> Result<()> {
-    expect_len(what, src.len(), n)?;
+    check_len(what, n, src.len())?;
     require(out, "out")?;
     // SAFETY: `out` holds 3n floats (caller).
     unsafe { points_mut(out, n, "out")? }.copy_from_slice(src);

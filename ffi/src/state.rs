@@ -1,12 +1,13 @@
 //! Changing a sim other than by a step: pin targets, reset, teleport, and saving and loading its
 //! whole state.
 
-use crate::arrays::{expect_len, points, require, slice, slice_mut, write_out};
+use crate::arrays::{points, require, slice, slice_mut, write_out};
 use crate::guard::guard;
 use crate::sim::{hood_sim, sim_mut, sim_ref};
 use crate::status::{hood_status, Result};
 use glam::{Mat3, Quat, Vec3};
 use hood::body::rigid::RigidMotion;
+use hood::error::check_len;
 use hood::sim::SimState;
 use hood::Error;
 
@@ -22,7 +23,7 @@ pub unsafe extern "C" fn hood_sim_set_pin_targets(
 ) -> hood_status {
     guard(|| {
         let mut s = sim_mut(sim)?;
-        expect_len("pin targets", s.sim.garment().n_vertices(), n_vertices)?;
+        check_len("pin targets", n_vertices, s.sim.garment().n_vertices())?;
         require(targets, "targets")?;
         // SAFETY: count is the caller's promise.
         let t = unsafe { points(targets, n_vertices, "targets")? };
@@ -46,7 +47,7 @@ pub unsafe extern "C" fn hood_sim_reset(
     guard(|| {
         let mut s = sim_mut(sim)?;
         let n = s.sim.garment().n_vertices();
-        expect_len("reset positions", n, n_vertices)?;
+        check_len("reset positions", n_vertices, n)?;
         require(positions, "positions")?;
         // SAFETY: counts are the caller's promise.
         let pos = unsafe { points(positions, n_vertices, "positions")? };
@@ -54,7 +55,7 @@ pub unsafe extern "C" fn hood_sim_reset(
         let body = if body_positions.is_null() && n_body_vertices == 0 {
             old.body_pos.clone()
         } else {
-            expect_len("reset body vertices", old.body_pos.len(), n_body_vertices)?;
+            check_len("reset body vertices", n_body_vertices, old.body_pos.len())?;
             // SAFETY: as above.
             unsafe { points(body_positions, n_body_vertices, "body_positions")? }.to_vec()
         };
@@ -96,7 +97,7 @@ pub unsafe extern "C" fn hood_sim_save_state(sim: *const hood_sim, out: *mut u8,
     guard(|| {
         let s = sim_ref(sim)?;
         require(out, "out")?;
-        expect_len("saved state buffer", s.sim.saved_state_len(), len)?;
+        check_len("saved state buffer", len, s.sim.saved_state_len())?;
         // SAFETY: `len` writable bytes (caller).
         let buf = unsafe { slice_mut(out, len, "out")? };
         s.sim.save_state(buf)?;
@@ -180,7 +181,7 @@ pub unsafe extern "C" fn hood_sim_teleport(
         let body: Vec<[f32; 3]> = if body_now.is_null() && n_body_vertices == 0 {
             s.sim.state().body_pos.iter().map(|p| motion.apply(*p)).collect()
         } else {
-            expect_len("teleport body vertices", s.sim.state().body_pos.len(), n_body_vertices)?;
+            check_len("teleport body vertices", n_body_vertices, s.sim.state().body_pos.len())?;
             require(body_now, "body_now")?;
             // SAFETY: count is the caller's promise.
             unsafe { points(body_now, n_body_vertices, "body_now")? }.to_vec()

@@ -43,6 +43,7 @@ pub use pack::{
     pack_bf16, pack_f32, packed_len_bf16, packed_len_f32, padded_cols, PackedBf16, PackedF32, Weights, PANEL,
 };
 
+use crate::error::{check_at_least, check_len};
 use crate::{Error, Result};
 
 /// LayerNorm epsilon (PyTorch's default).
@@ -254,20 +255,6 @@ pub fn edge_mlp_scratch_len(k_e: usize, h: usize) -> usize {
         + packed_len_f32(h, k_e)
 }
 
-fn size_check(what: &'static str, expected: usize, got: usize) -> Result<()> {
-    if expected != got {
-        return Err(Error::SizeMismatch { what, expected, got });
-    }
-    Ok(())
-}
-
-fn at_least(what: &'static str, expected: usize, got: usize) -> Result<()> {
-    if got < expected {
-        return Err(Error::SizeMismatch { what, expected, got });
-    }
-    Ok(())
-}
-
 impl Kernels {
     /// The best path for this CPU, capped by [`force_tier`] / `HOOD_KERNEL_TIER`.
     pub fn best() -> Kernels {
@@ -346,16 +333,16 @@ impl Kernels {
             if op.w.n() != n || op.w.is_bf16() != first.w.is_bf16() {
                 return Err(Error::IncompatibleModel { reason: "linear operands differ in width or precision" });
             }
-            size_check("linear input", rows * op.w.k(), op.x.len())?;
+            check_len("linear input", op.x.len(), rows * op.w.k())?;
         }
         if let Some(b) = bias {
-            size_check("linear bias", n, b.len())?;
+            check_len("linear bias", b.len(), n)?;
         }
         if let Some(ln) = &epilogue.layer_norm {
-            size_check("layer norm gamma", n, ln.gamma.len())?;
-            size_check("layer norm beta", n, ln.beta.len())?;
+            check_len("layer norm gamma", ln.gamma.len(), n)?;
+            check_len("layer norm beta", ln.beta.len(), n)?;
         }
-        at_least("linear scratch", linear_scratch_len(ops, n), scratch.len())?;
+        check_at_least("linear scratch", scratch.len(), linear_scratch_len(ops, n))?;
         match self.backend {
             Backend::Scalar => scalar::linear(ops, bias, epilogue, out, scratch),
             #[cfg(target_arch = "x86_64")]
@@ -402,31 +389,31 @@ impl Kernels {
         if mlp.w2.is_bf16() != bf || mlp.w3.is_bf16() != bf {
             return Err(Error::IncompatibleModel { reason: "edge MLP layers differ in precision" });
         }
-        size_check("edge MLP bias 1", h, mlp.b1.len())?;
-        size_check("edge MLP bias 2", h, mlp.b2.len())?;
-        size_check("edge MLP bias 3", k_e, mlp.b3.len())?;
+        check_len("edge MLP bias 1", mlp.b1.len(), h)?;
+        check_len("edge MLP bias 2", mlp.b2.len(), h)?;
+        check_len("edge MLP bias 3", mlp.b3.len(), k_e)?;
         if let Some(ln) = &mlp.layer_norm {
-            size_check("edge MLP layer norm gamma", k_e, ln.gamma.len())?;
-            size_check("edge MLP layer norm beta", k_e, ln.beta.len())?;
+            check_len("edge MLP layer norm gamma", ln.gamma.len(), k_e)?;
+            check_len("edge MLP layer norm beta", ln.beta.len(), k_e)?;
         }
         let n_edges = edges.target.len();
-        size_check("edge sources", n_edges, edges.source.len())?;
-        size_check("edge latents", n_edges * k_e, latent.len())?;
+        check_len("edge sources", edges.source.len(), n_edges)?;
+        check_len("edge latents", latent.len(), n_edges * k_e)?;
         for (what, len) in [
             ("target-node projections (a multiple of h)", edges.p_target.len()),
             ("source-node projections (a multiple of h)", edges.p_source.len()),
         ] {
-            size_check(what, len.next_multiple_of(h), len)?;
+            check_len(what, len, len.next_multiple_of(h))?;
         }
         let n_t = edges.p_target.len() / h;
         let n_s = edges.p_source.len() / h;
-        size_check("edge aggregate", n_t * k_e, aggregate.len())?;
+        check_len("edge aggregate", aggregate.len(), n_t * k_e)?;
         for (what, idx, len) in [("edge target", edges.target, n_t), ("edge source", edges.source, n_s)] {
             if let Some((at, &i)) = idx.iter().enumerate().find(|(_, &i)| i as usize >= len) {
                 return Err(Error::IndexOutOfRange { what, at, index: i as usize, len });
             }
         }
-        at_least("edge MLP scratch", edge_mlp_scratch_len(k_e, h), scratch.len())?;
+        check_at_least("edge MLP scratch", scratch.len(), edge_mlp_scratch_len(k_e, h))?;
         match self.backend {
             Backend::Scalar => scalar::edge_mlp(mlp, edges, latent, aggregate, scratch),
             #[cfg(target_arch = "x86_64")]
@@ -452,11 +439,11 @@ impl Kernels {
 /// decrease or pass the last message.
 pub fn aggregate(messages: &[f32], width: usize, offsets: &[u32], out: &mut [f32], accumulate: bool) -> Result<()> {
     let nodes = offsets.len().checked_sub(1).ok_or(Error::Empty { what: "aggregate offsets" })?;
-    size_check("aggregate output", nodes * width, out.len())?;
+    check_len("aggregate output", out.len(), nodes * width)?;
     if width == 0 {
         return Ok(());
     }
-    size_check("aggregate messages (a multiple of width)", messages.len().next_multiple_of(width), messages.len())?;
+    check_len("aggregate messages (a multiple of width)", messages.len(), messages.len().next_multiple_of(width))?;
     let edges = messages.len() / width;
     for (r, w) in offsets.windows(2).enumerate() {
         if w[0] > w[1] || w[1] as usize > edges {

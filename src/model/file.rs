@@ -13,10 +13,11 @@
 //! kernels can apply the split first layer and the never-materialised concatenation; all other
 //! layers are one part.
 
-use super::params::{BlockParams, LayerNorm, Linear, Mlp, Normalisers, Params};
+use super::params::{LayerNorm, Linear, Mlp, Normalisers, Params};
+use super::skeleton::{Block, MlpShape, Network};
 use super::spec::{parse_schedule, ModelEffects, ModelSpec};
 use crate::error::{Error, Result};
-use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, EDGE_WIDTH, LEVELS, NODE_NORMALISED, NODE_TYPES, NODE_WIDTH};
+use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, LEVELS, NODE_NORMALISED, NODE_TYPES};
 use crate::kernels::{self, PackedBf16, PackedF32, Weights};
 use crate::normaliser::{NormStats, Normaliser};
 use alloc::string::{String, ToString};
@@ -163,14 +164,12 @@ pub fn write_model(params: &Params, with_bf16: bool, provenance: &[(&str, &str)]
     let effects = u8::from(spec.effects.body)
         | (u8::from(spec.effects.pinning) << 1)
         | (u8::from(spec.effects.local_materials) << 2);
-    let mut blocks = Vec::with_capacity(params.blocks.len());
-    for (b, s) in params.blocks.iter().zip(&spec.blocks) {
-        blocks.push(BlockRec {
-            edges: b.edges.iter().map(|m| pack_mlp(m, Some(3), with_bf16)).collect::<Result<_>>()?,
-            body: b.body.as_ref().map(|m| pack_mlp(m, Some(3), with_bf16)).transpose()?,
-            node: pack_mlp(&b.node, Some(spec.node_inputs(s)), with_bf16)?,
-        });
-    }
+    let packed = params.net.try_zip_map(
+        &Network::shapes(spec),
+        || Error::IncompatibleModel { reason: "the MLPs disagree with the spec's structure" },
+        |m, s| pack_mlp(m, s.first_layer_parts, with_bf16),
+    )?;
+    let blocks = packed.blocks.into_iter().map(|b| BlockRec { edges: b.edges, body: b.body, node: b.node }).collect();
     let n = &params.normalisers;
     let rec = ModelRec {
         latent: spec.latent as u32,
@@ -179,11 +178,11 @@ pub fn write_model(params: &Params, with_bf16: bool, provenance: &[(&str, &str)]
         schedule: super::spec::format_schedule(&spec.blocks),
         effects,
         has_bf16: with_bf16,
-        node_encoder: pack_mlp(&params.node_encoder, None, with_bf16)?,
-        edge_encoders: params.edge_encoders.iter().map(|m| pack_mlp(m, None, with_bf16)).collect::<Result<_>>()?,
-        body_encoder: params.body_encoder.as_ref().map(|m| pack_mlp(m, None, with_bf16)).transpose()?,
+        node_encoder: packed.node_encoder,
+        edge_encoders: packed.edge_encoders,
+        body_encoder: packed.body_encoder,
         blocks,
-        decoder: pack_mlp(&params.decoder, None, with_bf16)?,
+        decoder: packed.decoder,
         node_type_embedding: params.node_type_embedding.clone(),
         level_embedding: params.level_embedding.clone(),
         normalisers: vec![norm_rec(&n.node), norm_rec(&n.edge), norm_rec(&n.body_edge), norm_rec(&n.output)],
@@ -240,32 +239,13 @@ pub struct MlpView<'a> {
     pub layer_norm: Option<kernels::LayerNorm<'a>>,
 }
 
-/// One processor block of a loaded model.
-#[derive(Clone, Debug)]
-pub struct BlockView<'a> {
-    /// Edge MLPs, one per key of the block spec.
-    pub edges: Vec<MlpView<'a>>,
-    /// Body-edge MLP.
-    pub body: Option<MlpView<'a>>,
-    /// Node MLP.
-    pub node: MlpView<'a>,
-}
-
 /// A loaded, validated model whose weights live in the caller's buffer.
 #[derive(Clone, Debug)]
 pub struct Model<'a> {
     spec: ModelSpec,
     has_bf16: bool,
-    /// Node encoder.
-    pub node_encoder: MlpView<'a>,
-    /// Edge encoders in [`ModelSpec::encoded_keys`] order.
-    pub edge_encoders: Vec<MlpView<'a>>,
-    /// Body edge encoder.
-    pub body_encoder: Option<MlpView<'a>>,
-    /// Processor blocks.
-    pub blocks: Vec<BlockView<'a>>,
-    /// Decoder.
-    pub decoder: MlpView<'a>,
+    /// Every MLP, in the skeleton's structure.
+    pub net: Network<MlpView<'a>>,
     /// Node-type embedding, 9 x 9.
     pub node_type_embedding: &'a [f32],
     /// Vertex-level embedding, 4 x 4.
@@ -282,15 +262,8 @@ fn corrupt(reason: &'static str) -> Error {
     Error::CorruptData { reason }
 }
 
-fn view_mlp<'a>(
-    m: &'a ArchivedMlpRec,
-    spec: &ModelSpec,
-    input: usize,
-    output: usize,
-    norm: bool,
-    first_layer_parts: Option<usize>,
-    has_bf16: bool,
-) -> Result<MlpView<'a>> {
+fn view_mlp<'a>(m: &'a ArchivedMlpRec, spec: &ModelSpec, shape: &MlpShape, has_bf16: bool) -> Result<MlpView<'a>> {
+    let MlpShape { input, output, norm, first_layer_parts, .. } = *shape;
     let dims = spec.mlp_dims(input, output);
     if m.layers.len() != dims.len() {
         return Err(corrupt("model file: an MLP has the wrong number of layers"));
@@ -329,6 +302,22 @@ fn view_mlp<'a>(
         _ => return Err(corrupt("model file: LayerNorm parameters disagree with the spec")),
     };
     Ok(MlpView { layers, layer_norm })
+}
+
+/// The MLP records of an archived model in the skeleton's structure (checked against the spec
+/// by the caller).
+fn records(rec: &ArchivedModelRec) -> Network<&ArchivedMlpRec> {
+    Network {
+        node_encoder: &rec.node_encoder,
+        edge_encoders: rec.edge_encoders.iter().collect(),
+        body_encoder: rec.body_encoder.as_ref(),
+        blocks: rec
+            .blocks
+            .iter()
+            .map(|b| Block { edges: b.edges.iter().collect(), body: b.body.as_ref(), node: &b.node })
+            .collect(),
+        decoder: &rec.decoder,
+    }
 }
 
 impl<'a> Model<'a> {
@@ -373,44 +362,9 @@ impl<'a> Model<'a> {
         };
         spec.validate()?;
         let has_bf16 = rec.has_bf16;
-        let h = spec.latent;
-        let node_encoder = view_mlp(&rec.node_encoder, &spec, NODE_WIDTH, h, true, None, has_bf16)?;
-        if rec.edge_encoders.len() != spec.encoded_keys().len() {
-            return Err(corrupt("model file: wrong number of edge encoders"));
-        }
-        let edge_encoders = rec
-            .edge_encoders
-            .iter()
-            .map(|m| view_mlp(m, &spec, EDGE_WIDTH, h, true, None, has_bf16))
-            .collect::<Result<Vec<_>>>()?;
-        let body_encoder = match (rec.body_encoder.as_ref(), spec.effects.body) {
-            (Some(m), true) => Some(view_mlp(m, &spec, BODY_EDGE_WIDTH, h, true, None, has_bf16)?),
-            (None, false) => None,
-            _ => return Err(corrupt("model file: body encoder disagrees with the effects")),
-        };
-        if rec.blocks.len() != spec.blocks.len() {
-            return Err(corrupt("model file: wrong number of blocks"));
-        }
-        let mut blocks = Vec::with_capacity(spec.blocks.len());
-        for (b, s) in rec.blocks.iter().zip(&spec.blocks) {
-            if b.edges.len() != s.keys.len() {
-                return Err(corrupt("model file: a block has the wrong number of edge MLPs"));
-            }
-            let edges = b
-                .edges
-                .iter()
-                .map(|m| view_mlp(m, &spec, 3 * h, h, true, Some(3), has_bf16))
-                .collect::<Result<Vec<_>>>()?;
-            let body = match (b.body.as_ref(), spec.effects.body) {
-                (Some(m), true) => Some(view_mlp(m, &spec, 3 * h, h, true, Some(3), has_bf16)?),
-                (None, false) => None,
-                _ => return Err(corrupt("model file: a block's body MLP disagrees with the effects")),
-            };
-            let k = spec.node_inputs(s);
-            let node = view_mlp(&b.node, &spec, k * h, h, true, Some(k), has_bf16)?;
-            blocks.push(BlockView { edges, body, node });
-        }
-        let decoder = view_mlp(&rec.decoder, &spec, h, 3, false, None, has_bf16)?;
+        let mismatch = || corrupt("model file: the MLPs disagree with the spec");
+        let net =
+            records(rec).try_zip_map(&Network::shapes(&spec), mismatch, |m, s| view_mlp(m, &spec, s, has_bf16))?;
         let node_type_embedding = floats(&rec.node_type_embedding);
         let level_embedding = floats(&rec.level_embedding);
         if node_type_embedding.len() != NODE_TYPES * NODE_TYPES || level_embedding.len() != LEVELS * LEVELS {
@@ -431,19 +385,7 @@ impl<'a> Model<'a> {
             }
             norm[i] = (mean, std);
         }
-        Ok(Model {
-            spec,
-            has_bf16,
-            node_encoder,
-            edge_encoders,
-            body_encoder,
-            blocks,
-            decoder,
-            node_type_embedding,
-            level_embedding,
-            norm,
-            rec,
-        })
+        Ok(Model { spec, has_bf16, net, node_type_embedding, level_embedding, norm, rec })
     }
 
     /// The model's shape.
@@ -511,19 +453,7 @@ impl<'a> Model<'a> {
         };
         Params {
             spec: self.spec.clone(),
-            node_encoder: unpack(&self.node_encoder),
-            edge_encoders: self.edge_encoders.iter().map(unpack).collect(),
-            body_encoder: self.body_encoder.as_ref().map(unpack),
-            blocks: self
-                .blocks
-                .iter()
-                .map(|b| BlockParams {
-                    edges: b.edges.iter().map(unpack).collect(),
-                    body: b.body.as_ref().map(unpack),
-                    node: unpack(&b.node),
-                })
-                .collect(),
-            decoder: unpack(&self.decoder),
+            net: self.net.map(unpack),
             node_type_embedding: self.node_type_embedding.to_vec(),
             level_embedding: self.level_embedding.to_vec(),
             normalisers: Normalisers { node: n(0), edge: n(1), body_edge: n(2), output: n(3) },

@@ -2,9 +2,10 @@
 //! (`weight` is `[out, in]` row-major, `y = x W^T + b`), LayerNorms, embedding tables and the four
 //! normalisers. The trainer updates this form; model files hold it packed for the kernels.
 
+use super::skeleton::{MlpShape, Network, Role};
 use super::spec::{EdgeKey, ModelSpec};
 use crate::error::{Error, Result};
-use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, EDGE_WIDTH, LEVELS, NODE_NORMALISED, NODE_TYPES, NODE_WIDTH};
+use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, LEVELS, NODE_NORMALISED, NODE_TYPES};
 use crate::normaliser::Normaliser;
 use crate::rng::Rng;
 use alloc::vec;
@@ -73,17 +74,6 @@ impl Mlp {
     }
 }
 
-/// One processor block's MLPs.
-#[derive(Clone, Debug, PartialEq)]
-pub struct BlockParams {
-    /// One edge MLP per garment key of the block, in the block's (sorted) key order.
-    pub edges: Vec<Mlp>,
-    /// The body-edge MLP (both directions), when the model has a body.
-    pub body: Option<Mlp>,
-    /// The node MLP (garment and body nodes).
-    pub node: Mlp,
-}
-
 /// The four normalisers.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Normalisers {
@@ -139,16 +129,8 @@ impl Default for Normalisers {
 pub struct Params {
     /// The shape.
     pub spec: ModelSpec,
-    /// Node encoder 24 -> h.
-    pub node_encoder: Mlp,
-    /// Edge encoders 12 -> h, in [`ModelSpec::encoded_keys`] order.
-    pub edge_encoders: Vec<Mlp>,
-    /// Body edge encoder 9 -> h (both directions).
-    pub body_encoder: Option<Mlp>,
-    /// Processor blocks.
-    pub blocks: Vec<BlockParams>,
-    /// Decoder h -> 3 (no LayerNorm).
-    pub decoder: Mlp,
+    /// Every MLP, as [`Network::shapes`] of the spec describes them.
+    pub net: Network<Mlp>,
     /// Node-type embedding, 9 x 9 row-major.
     pub node_type_embedding: Vec<f32>,
     /// Vertex-level embedding, 4 x 4 row-major.
@@ -165,68 +147,21 @@ impl Params {
     pub fn init(spec: &ModelSpec, seed: u64) -> Result<Params> {
         spec.validate()?;
         let mut rng = Rng::new(seed);
-        let h = spec.latent;
-        let node_encoder = Mlp::init(spec, NODE_WIDTH, h, true, &mut rng);
-        let edge_encoders =
-            spec.encoded_keys().iter().map(|_| Mlp::init(spec, EDGE_WIDTH, h, true, &mut rng)).collect();
-        let body_encoder = spec.effects.body.then(|| Mlp::init(spec, BODY_EDGE_WIDTH, h, true, &mut rng));
-        let blocks = spec
-            .blocks
-            .iter()
-            .map(|b| BlockParams {
-                edges: b.keys.iter().map(|_| Mlp::init(spec, 3 * h, h, true, &mut rng)).collect(),
-                body: spec.effects.body.then(|| Mlp::init(spec, 3 * h, h, true, &mut rng)),
-                node: Mlp::init(spec, spec.node_inputs(b) * h, h, true, &mut rng),
-            })
-            .collect();
-        let decoder = Mlp::init(spec, h, 3, false, &mut rng);
+        let net = Network::shapes(spec).map(|s| Mlp::init(spec, s.input, s.output, s.norm, &mut rng));
         let node_type_embedding = (0..NODE_TYPES * NODE_TYPES).map(|_| rng.normal() as f32).collect();
         let level_embedding = (0..LEVELS * LEVELS).map(|_| rng.normal() as f32).collect();
-        Ok(Params {
-            spec: spec.clone(),
-            node_encoder,
-            edge_encoders,
-            body_encoder,
-            blocks,
-            decoder,
-            node_type_embedding,
-            level_embedding,
-            normalisers: Normalisers::new(),
-        })
+        Ok(Params { spec: spec.clone(), net, node_type_embedding, level_embedding, normalisers: Normalisers::new() })
     }
 
     /// The edge encoder of `key`, if the model encodes it.
     pub fn edge_encoder(&self, key: EdgeKey) -> Option<&Mlp> {
-        let i = self.spec.encoded_keys().iter().position(|&k| k == key)?;
-        self.edge_encoders.get(i)
+        self.net.edge_encoders.get(self.spec.encoder_index(key)?)
     }
 
-    /// Every MLP in a fixed order (encoders, blocks, decoder), for visiting all parameters.
-    pub fn mlps(&self) -> Vec<&Mlp> {
-        let mut v = vec![&self.node_encoder];
-        v.extend(self.edge_encoders.iter());
-        v.extend(self.body_encoder.iter());
-        for b in &self.blocks {
-            v.extend(b.edges.iter());
-            v.extend(b.body.iter());
-            v.push(&b.node);
-        }
-        v.push(&self.decoder);
-        v
-    }
-
-    /// Every trainable tensor, mutable, in the fixed order of [`mlps`](Self::mlps) (each layer's
-    /// weight then bias, then the LayerNorm), followed by the two embedding tables.
+    /// Every trainable tensor, mutable, in the skeleton's order of MLPs ([`Network::iter`];
+    /// each layer's weight then bias, then the LayerNorm), followed by the two embedding tables.
     pub fn tensors_mut(&mut self) -> Vec<&mut [f32]> {
-        let mut mlps: Vec<&mut Mlp> = vec![&mut self.node_encoder];
-        mlps.extend(self.edge_encoders.iter_mut());
-        mlps.extend(self.body_encoder.iter_mut());
-        for b in &mut self.blocks {
-            mlps.extend(b.edges.iter_mut());
-            mlps.extend(b.body.iter_mut());
-            mlps.push(&mut b.node);
-        }
-        mlps.push(&mut self.decoder);
+        let mlps = self.net.iter_mut();
         let mut out: Vec<&mut [f32]> = Vec::new();
         for m in mlps {
             for l in &mut m.layers {
@@ -279,7 +214,7 @@ impl Params {
     /// Trainable parameter count (must equal [`ModelSpec::parameter_count`]).
     pub fn count(&self) -> usize {
         let mlp: usize = self
-            .mlps()
+            .net
             .iter()
             .map(|m| {
                 m.layers.iter().map(|l| l.weight.len() + l.bias.len()).sum::<usize>()
@@ -296,52 +231,25 @@ impl Params {
     pub fn validate(&self) -> Result<()> {
         self.spec.validate()?;
         let bad = |reason| Err(Error::IncompatibleModel { reason });
-        let h = self.spec.latent;
-        let check_mlp = |m: &Mlp, i: usize, o: usize, ln: bool| -> bool {
-            let dims = self.spec.mlp_dims(i, o);
+        let check_mlp = |m: &Mlp, s: &MlpShape| -> bool {
+            let dims = self.spec.mlp_dims(s.input, s.output);
             m.layers.len() == dims.len()
                 && m.layers
                     .iter()
                     .zip(&dims)
                     .all(|(l, &(a, b))| l.inp == a && l.out == b && l.weight.len() == a * b && l.bias.len() == b)
-                && match (&m.norm, ln) {
-                    (Some(n), true) => n.gamma.len() == o && n.beta.len() == o,
+                && match (&m.norm, s.norm) {
+                    (Some(n), true) => n.gamma.len() == s.output && n.beta.len() == s.output,
                     (None, false) => true,
                     _ => false,
                 }
         };
-        if !check_mlp(&self.node_encoder, NODE_WIDTH, h, true) {
-            return bad("node encoder shape");
+        let shapes = Network::shapes(&self.spec);
+        if !self.net.same_structure(&shapes) {
+            return bad("the MLPs disagree with the spec's structure");
         }
-        if self.edge_encoders.len() != self.spec.encoded_keys().len()
-            || !self.edge_encoders.iter().all(|m| check_mlp(m, EDGE_WIDTH, h, true))
-        {
-            return bad("edge encoder shapes");
-        }
-        match (&self.body_encoder, self.spec.effects.body) {
-            (Some(m), true) if check_mlp(m, BODY_EDGE_WIDTH, h, true) => {}
-            (None, false) => {}
-            _ => return bad("body encoder shape"),
-        }
-        if self.blocks.len() != self.spec.blocks.len() {
-            return bad("block count");
-        }
-        for (b, s) in self.blocks.iter().zip(&self.spec.blocks) {
-            let body_ok = match (&b.body, self.spec.effects.body) {
-                (Some(m), true) => check_mlp(m, 3 * h, h, true),
-                (None, false) => true,
-                _ => false,
-            };
-            if b.edges.len() != s.keys.len()
-                || !b.edges.iter().all(|m| check_mlp(m, 3 * h, h, true))
-                || !body_ok
-                || !check_mlp(&b.node, self.spec.node_inputs(s) * h, h, true)
-            {
-                return bad("processor block shape");
-            }
-        }
-        if !check_mlp(&self.decoder, h, 3, false) {
-            return bad("decoder shape");
+        if let Some(s) = self.net.iter().zip(shapes.iter()).find_map(|(m, s)| (!check_mlp(m, s)).then_some(s)) {
+            return bad(shape_error(s.role));
         }
         if self.node_type_embedding.len() != NODE_TYPES * NODE_TYPES || self.level_embedding.len() != LEVELS * LEVELS {
             return bad("embedding table shape");
@@ -355,6 +263,17 @@ impl Params {
             return bad("normaliser widths");
         }
         Ok(())
+    }
+}
+
+/// The message of [`Params::validate`] for an MLP of the wrong shape.
+fn shape_error(role: Role) -> &'static str {
+    match role {
+        Role::NodeEncoder => "node encoder shape",
+        Role::EdgeEncoder(_) => "edge encoder shapes",
+        Role::BodyEncoder => "body encoder shape",
+        Role::BlockEdge { .. } | Role::BlockBody { .. } | Role::BlockNode { .. } => "processor block shape",
+        Role::Decoder => "decoder shape",
     }
 }
 
@@ -394,7 +313,7 @@ mod tests {
         }
         let p = Params::init(&ModelSpec::hood(128), 3).unwrap();
         // PyTorch's bound for a 384-wide input.
-        let w = &p.blocks[0].edges[0].layers[0].weight;
+        let w = &p.net.blocks[0].edges[0].layers[0].weight;
         let bound = 1.0 / 384f32.sqrt();
         assert!(w.iter().all(|x| x.abs() <= bound));
         assert!(w.iter().any(|x| x.abs() > 0.9 * bound));

@@ -2,7 +2,8 @@
 //! [`Params`]. Key names follow `Model.state_dict()`, with or without the `model.` prefix that
 //! `Runner.state_dict()` (and so `checkpoint['training_module']`) adds.
 
-use super::params::{BlockParams, LayerNorm, Linear, Mlp, Normalisers, Params};
+use super::params::{LayerNorm, Linear, Mlp, Normalisers, Params};
+use super::skeleton::{Network, Role};
 use super::spec::ModelSpec;
 use crate::error::{Error, Result};
 use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, NODE_NORMALISED};
@@ -61,8 +62,6 @@ impl Dict<'_> {
 
 /// Builds [`Params`] of shape `spec` from a reference state dict.
 ///
-/// Block `k` (0-based) reads `levels.{k / 3}.{k % 3}`, as the reference's 5 x 3 layout does.
-///
 /// # Errors
 /// [`Error::Parse`] naming a missing or mis-shaped tensor; [`Error::IncompatibleModel`] if the
 /// result does not fit `spec`.
@@ -70,39 +69,7 @@ pub fn params_from_state_dict(st: &SafeTensors, spec: &ModelSpec) -> Result<Para
     spec.validate()?;
     let prefix = if st.info("model._learned_model.decoder.layers.0.weight").is_ok() { "model." } else { "" };
     let d = Dict { st, prefix };
-    let h = spec.latent;
-    let lm = "_learned_model";
-    let node_encoder = d.mlp(spec, &format!("{lm}.node_encoder"), 24, h, true)?;
-    let mut edge_encoders = Vec::new();
-    for key in spec.encoded_keys() {
-        let name = match key.coarse_level() {
-            Some(l) => format!("coarse{l}"),
-            None => String::from("mesh"),
-        };
-        edge_encoders.push(d.mlp(spec, &format!("{lm}.edgeset_encoders.{name}"), 12, h, true)?);
-    }
-    let body_encoder = if spec.effects.body {
-        Some(d.mlp(spec, &format!("{lm}.edgeset_encoders.world"), BODY_EDGE_WIDTH, h, true)?)
-    } else {
-        None
-    };
-    let mut blocks = Vec::new();
-    for (k, b) in spec.blocks.iter().enumerate() {
-        let base = format!("{lm}.levels.{}.{}", k / 3, k % 3);
-        let edges = b
-            .keys
-            .iter()
-            .map(|key| d.mlp(spec, &format!("{base}.edge_processor_dict.{}", key.reference_name()), 3 * h, h, true))
-            .collect::<Result<Vec<_>>>()?;
-        let body = if spec.effects.body {
-            Some(d.mlp(spec, &format!("{base}.edge_processor_dict.world_edge"), 3 * h, h, true)?)
-        } else {
-            None
-        };
-        let node = d.mlp(spec, &format!("{base}.node_processor_dict.node"), spec.node_inputs(b) * h, h, true)?;
-        blocks.push(BlockParams { edges, body, node });
-    }
-    let decoder = d.mlp(spec, &format!("{lm}.decoder"), h, 3, false)?;
+    let net = Network::shapes(spec).try_map(|s| d.mlp(spec, &reference_name(s.role), s.input, s.output, s.norm))?;
     let node_type_embedding = d.tensor("nodetype_embedding.weight", &[9, 9])?;
     let level_embedding = d.tensor("vertexlevel_embedding.weight", &[4, 4])?;
     let normalisers = Normalisers {
@@ -111,19 +78,28 @@ pub fn params_from_state_dict(st: &SafeTensors, spec: &ModelSpec) -> Result<Para
         body_edge: d.normaliser("world_edge", BODY_EDGE_WIDTH)?,
         output: d.normaliser("output", 3)?,
     };
-    let p = Params {
-        spec: spec.clone(),
-        node_encoder,
-        edge_encoders,
-        body_encoder,
-        blocks,
-        decoder,
-        node_type_embedding,
-        level_embedding,
-        normalisers,
-    };
+    let p = Params { spec: spec.clone(), net, node_type_embedding, level_embedding, normalisers };
     p.validate()?;
     Ok(p)
+}
+
+/// The reference's name of an MLP. Block `k` (0-based) is `levels.{k / 3}.{k % 3}`, as the
+/// reference's 5 x 3 layout has it.
+fn reference_name(role: Role) -> String {
+    let lm = "_learned_model";
+    let block = |k: usize| format!("{lm}.levels.{}.{}", k / 3, k % 3);
+    match role {
+        Role::NodeEncoder => format!("{lm}.node_encoder"),
+        Role::EdgeEncoder(key) => match key.coarse_level() {
+            Some(l) => format!("{lm}.edgeset_encoders.coarse{l}"),
+            None => format!("{lm}.edgeset_encoders.mesh"),
+        },
+        Role::BodyEncoder => format!("{lm}.edgeset_encoders.world"),
+        Role::BlockEdge { block: k, key } => format!("{}.edge_processor_dict.{}", block(k), key.reference_name()),
+        Role::BlockBody { block: k } => format!("{}.edge_processor_dict.world_edge", block(k)),
+        Role::BlockNode { block: k } => format!("{}.node_processor_dict.node", block(k)),
+        Role::Decoder => format!("{lm}.decoder"),
+    }
 }
 
 /// Infers the latent width from a reference state dict (the decoder's first layer).

@@ -1,8 +1,8 @@
 //! The shape of a model: latent width, MLP depth, the block schedule, levels and effects
 //! (MODEL.md section 4).
 
+use super::skeleton::Network;
 use crate::error::{Error, Result};
-use crate::features::{BODY_EDGE_WIDTH, EDGE_WIDTH, NODE_WIDTH};
 use alloc::vec::Vec;
 
 /// The reference HOOD schedule: 15 blocks going down to c1 and back up.
@@ -285,7 +285,7 @@ impl ModelSpec {
         let w = |x: usize| x as u64;
         let h = w(self.latent);
         let mlp = |i: u64, o: u64, ln: bool| -> u64 {
-            let mut n = if ln { 2 * o } else { 0 };
+            let mut n = if ln { o.saturating_mul(2) } else { 0 };
             let mut i = i;
             for _ in 0..self.hidden_layers {
                 n = n.saturating_add(i.saturating_mul(h).saturating_add(h));
@@ -293,20 +293,8 @@ impl ModelSpec {
             }
             n.saturating_add(i.saturating_mul(o).saturating_add(o))
         };
-        let mut n = mlp(w(NODE_WIDTH), h, true).saturating_add(w(self.encoded_keys().len()).saturating_mul(mlp(
-            w(EDGE_WIDTH),
-            h,
-            true,
-        )));
-        if self.effects.body {
-            n = n.saturating_add(mlp(w(BODY_EDGE_WIDTH), h, true));
-        }
-        n = n.saturating_add(mlp(h, 3, false));
-        for b in &self.blocks {
-            let edge_sets = w(b.keys.len() + usize::from(self.effects.body));
-            let node_in = w(self.node_inputs(b)).saturating_mul(h);
-            n = n.saturating_add(edge_sets.saturating_mul(mlp(3 * h, h, true))).saturating_add(mlp(node_in, h, true));
-        }
+        let mlps = Network::shapes(self);
+        let n = mlps.iter().fold(0u64, |n, s| n.saturating_add(mlp(w(s.input), w(s.output), s.norm)));
         n.saturating_add(9 * 9 + 4 * 4)
     }
 

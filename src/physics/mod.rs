@@ -56,19 +56,7 @@ pub const THICKNESS: f64 = 4.7e-4;
 /// Gravitational acceleration, m/s², acting along -y.
 pub const GRAVITY: f64 = 9.81;
 
-use crate::error::{Error, Result};
-
-/// Checks that a buffer has `expected` entries.
-///
-/// # Errors
-/// [`Error::SizeMismatch`] naming `what` otherwise.
-pub(crate) fn check_len(what: &'static str, got: usize, expected: usize) -> Result<()> {
-    if got == expected {
-        Ok(())
-    } else {
-        Err(Error::SizeMismatch { what, expected, got })
-    }
-}
+pub(crate) use crate::error::check_len;
 
 #[cfg(all(test, feature = "std"))]
 mod parity_tests;

@@ -1,4 +1,5 @@
 use super::*;
+use crate::error::Error;
 use crate::mesh::shapes::grid;
 use crate::mesh::{Garment, GarmentDesc, Material};
 use alloc::vec;

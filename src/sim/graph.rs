@@ -110,6 +110,14 @@ impl Graph {
         self.vertex_level.len()
     }
 
+    /// The edge sets a model's edge encoders can read, in the order they are encoded: the mesh
+    /// edges, then each coarse level the graph has, up to c2.
+    pub fn edge_sets(&self) -> impl Iterator<Item = (crate::model::EdgeKey, &EdgeList)> + '_ {
+        let coarse = self.coarse.iter().enumerate();
+        let coarse = coarse.filter_map(|(l, c)| crate::model::EdgeKey::coarse(l).map(|k| (k, &c.edges)));
+        core::iter::once((crate::model::EdgeKey::Mesh, &self.mesh)).chain(coarse)
+    }
+
     /// The edge list an edge key reads: the mesh edges or one coarse level's.
     ///
     /// # Errors

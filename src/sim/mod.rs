@@ -12,13 +12,13 @@
 //!
 //! Units: metres; one step is one frame at the model's 30 Hz (velocities are m/frame).
 
-pub(crate) mod body_edges;
 mod body_query;
 mod clock;
 mod config;
 pub mod driver;
 mod effects;
 pub mod graph;
+pub(crate) mod inputs;
 mod motion;
 pub mod network;
 mod outfit;
@@ -43,7 +43,6 @@ use crate::model::file::Model;
 use alloc::boxed::Box;
 use alloc::vec;
 use alloc::vec::Vec;
-pub use body_edges::BODY_EDGE_RADIUS;
 use body_query::{BodyNeeds, BodyQuery};
 pub use clock::Clock;
 #[cfg(feature = "std")]
@@ -55,6 +54,7 @@ pub use config::{
 pub use driver::{FixedStep, Interpolator};
 pub use effects::StepEffects;
 pub use graph::Graph;
+pub use inputs::BODY_EDGE_RADIUS;
 use motion::FrameMotion;
 use network::{Net, Workspace};
 pub use network::{Probe, Stage};

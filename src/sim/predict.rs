@@ -5,37 +5,25 @@
 //! Every stage works in the speed limit's frame of reference, translated to coincide with the
 //! world at the current frame (see [`Pass`]); positions are in metres, velocities in m/frame.
 
-use super::body_edges::{link_body_edges, BodyEdgeCounts, BodyEdgeLists, BODY_EDGE_RADIUS};
 use super::body_query::BodyQuery;
 use super::graph::Graph;
+use super::inputs::{node_features, BodyInputs, BodyLinks, FeatureRows};
 use super::network::{BodyEdges, Net, Probe, Workspace};
 use super::stages::Pass;
 use super::{body_query, BodyState, Sim, SimState};
-use crate::body::{BodyMesh, Nearest, PointGrid};
 use crate::error::{Error, Result};
 use crate::exec::Executor;
-use crate::features::{self, BodyNodes, Embeddings, GarmentNodes, BODY_EDGE_WIDTH, EDGE_WIDTH, NODE_WIDTH};
+use crate::features::{self, BodyNodes, Embeddings, GarmentNodes, BODY_EDGE_WIDTH, NODE_WIDTH};
 use crate::math::finite3;
 use crate::mesh::vertex_normals;
-use crate::model::spec::EdgeKey;
 use alloc::vec;
 use alloc::vec::Vec;
 
-/// What the network's prediction keeps of the body between passes, sized at creation: the
-/// buffers of the body edges and the body's frames in the speed limit's frame of reference.
+/// What the network's prediction keeps of the body between passes, sized at creation: its
+/// body edges and the body's frames in the speed limit's frame of reference.
 pub(super) struct NetBody {
-    nearest: Vec<Option<Nearest>>,
-    /// Last pass's nearest body vertex of every garment vertex (`u32::MAX`: none yet): the
-    /// search starts from it, which only changes its speed.
-    hints: Vec<u32>,
-    /// Each body vertex's row among the active body nodes (`u32::MAX` between passes).
-    active_of: Vec<u32>,
-    /// The active body nodes, ascending.
-    active: Vec<u32>,
-    edge_garment: Vec<u32>,
-    /// Each body edge's active row.
-    edge_body: Vec<u32>,
-    edge_pairs: Vec<[u32; 2]>,
+    /// The pass's body edges and active body nodes.
+    links: BodyLinks,
     /// The body's previous and next frames as the network sees them under the speed limit, in
     /// the frame of reference that follows the carried motion, m (empty without the limit).
     carried_prev: Vec<[f32; 3]>,
@@ -47,13 +35,7 @@ impl NetBody {
     /// limit).
     pub(super) fn new(n: usize, nb: usize, carried: bool) -> NetBody {
         NetBody {
-            nearest: vec![None; n],
-            hints: vec![u32::MAX; n],
-            active_of: vec![u32::MAX; nb],
-            active: vec![0; nb.min(n)],
-            edge_garment: vec![0; n],
-            edge_body: vec![0; n],
-            edge_pairs: vec![[0; 2]; n],
+            links: BodyLinks::new(n, nb),
             carried_prev: if carried { vec![[0.0; 3]; nb] } else { Vec::new() },
             carried_next: if carried { vec![[0.0; 3]; nb] } else { Vec::new() },
         }
@@ -61,7 +43,7 @@ impl NetBody {
 
     /// Most active body nodes of a pass.
     pub(super) fn max_active(&self) -> usize {
-        self.active.len()
+        self.links.max_active()
     }
 }
 
@@ -95,8 +77,8 @@ impl Sim<'_> {
             Some(b) => {
                 carry_frames(&mut b.net, &state.body_prev, pass);
                 let (grid, normals) = body_query(query, own)?.vertices(&b.mesh, &state.body_pos)?;
-                let counts = body_edges(&mut b.net, &b.mesh, grid, exec, graph, new_pos)?;
-                Some(SeenBody::new(b, state, normals, counts, pass))
+                b.net.links.link(grid, exec, graph, &b.mesh, new_pos)?;
+                Some(SeenBody::new(b, state, normals, pass))
             }
             None => None,
         };
@@ -113,7 +95,14 @@ impl Sim<'_> {
         };
         let model = net.model;
         let emb = Embeddings { node_type: model.node_type_embedding, level: model.level_embedding };
-        features(&nodes, seen.as_ref(), new_pos, &emb, ws)?;
+        let inputs = seen.as_ref().map(|s| &s.inputs);
+        let n_edges = inputs.map_or(0, |b| b.pairs.len());
+        let rows = FeatureRows {
+            nodes: &mut ws.node_features[..(new_pos.len() + inputs.map_or(0, |b| b.active.len())) * NODE_WIDTH],
+            g2b: &mut ws.g2b_features[..n_edges * BODY_EDGE_WIDTH],
+            b2g: &mut ws.b2g_features[..n_edges * BODY_EDGE_WIDTH],
+        };
+        node_features(&nodes, inputs, new_pos, &emb, rows)?;
         let edges = GarmentEdges { graph, pos: new_pos, rest: garment.rest(), material: material_in, dt: pass.dt };
         encode(&edges, net, exec, ws)?;
         let body_edges = seen.map_or(NO_BODY_EDGES, |s| s.edges);
@@ -140,56 +129,18 @@ fn carry_frames(net: &mut NetBody, prev: &[[f32; 3]], pass: &Pass<'_>) {
     shift(&mut net.carried_next, next, pass.carry.map(|c| -c));
 }
 
-/// Body edges at the current frame ([`link_body_edges`]): each garment vertex (at `pos`, m)
-/// within [`BODY_EDGE_RADIUS`] of a body vertex that is not omitted (nearest by `grid`) is
-/// linked to it.
-fn body_edges(
-    net: &mut NetBody,
-    mesh: &BodyMesh,
-    grid: &PointGrid,
-    exec: &dyn Executor,
-    graph: &Graph,
-    pos: &[[f32; 3]],
-) -> Result<BodyEdgeCounts> {
-    grid.nearest_within_on(exec, pos, BODY_EDGE_RADIUS, &net.hints, &mut net.nearest)?;
-    for (h, near) in net.hints.iter_mut().zip(&net.nearest) {
-        if let Some(near) = near {
-            *h = near.index;
-        }
-    }
-    let lists = BodyEdgeLists {
-        garment: &mut net.edge_garment,
-        active_row: &mut net.edge_body,
-        pairs: &mut net.edge_pairs,
-        active: &mut net.active,
-        active_of: &mut net.active_of,
-    };
-    Ok(link_body_edges(graph, mesh, &mut net.nearest, lists))
-}
-
 /// The body as one pass of the network sees it.
 struct SeenBody<'a> {
-    /// The active body nodes' inputs: the current frame, the previous one in the speed limit's
-    /// frame (the current one in the start-up pass: a static body), normals, omitted flags.
-    nodes: BodyNodes<'a>,
-    /// The next frame in the speed limit's frame (the current one for a static body), m.
-    next: &'a [[f32; 3]],
-    /// The active body nodes, ascending.
-    active: &'a [u32],
-    /// Each body edge's garment and body vertex.
-    pairs: &'a [[u32; 2]],
+    /// The body's inputs: the current frame, the previous one in the speed limit's frame (the
+    /// current one in the start-up pass: a static body), normals, omitted flags, the next frame
+    /// in the speed limit's frame (the current one for a static body), the body edges.
+    inputs: BodyInputs<'a>,
     /// The body edges as the forward pass reads them.
     edges: BodyEdges<'a>,
 }
 
 impl<'a> SeenBody<'a> {
-    fn new(
-        b: &'a BodyState,
-        state: &'a SimState,
-        normals: &'a [[f32; 3]],
-        counts: BodyEdgeCounts,
-        pass: &Pass<'a>,
-    ) -> SeenBody<'a> {
+    fn new(b: &'a BodyState, state: &'a SimState, normals: &'a [[f32; 3]], pass: &Pass<'a>) -> SeenBody<'a> {
         let (net, pos) = (&b.net, &state.body_pos[..]);
         let prev = match (pass.startup(), pass.shifted()) {
             (true, _) => pos,
@@ -200,41 +151,16 @@ impl<'a> SeenBody<'a> {
             (true, Some(_)) => &net.carried_next,
             _ => pass.body_next.unwrap_or(pos),
         };
-        let (nb, n_active) = (counts.prefix[0], counts.n_active);
         SeenBody {
-            nodes: BodyNodes { pos, prev, normals, omitted: b.mesh.omitted(), dt: pass.dt },
-            next,
-            active: &net.active[..n_active],
-            pairs: &net.edge_pairs[..nb],
-            edges: BodyEdges {
-                garment: &net.edge_garment[..nb],
-                body: &net.edge_body[..nb],
-                n_active,
-                prefix: counts.prefix,
+            inputs: BodyInputs {
+                nodes: BodyNodes { pos, prev, normals, omitted: b.mesh.omitted(), dt: pass.dt },
+                next,
+                active: net.links.active(),
+                pairs: net.links.pairs(),
             },
+            edges: net.links.edges(),
         }
     }
-}
-
-/// Features into the workspace: a row per garment node (`garment`) then per active body node,
-/// and, with a body, both directions of the body edges between the garment at `pos` (m) and
-/// the body.
-fn features(
-    garment: &GarmentNodes<'_>,
-    body: Option<&SeenBody<'_>>,
-    pos: &[[f32; 3]],
-    emb: &Embeddings<'_>,
-    ws: &mut Workspace,
-) -> Result<()> {
-    let (gpart, bpart) = ws.node_features.split_at_mut(pos.len() * NODE_WIDTH);
-    features::garment_node_features(garment, emb, gpart)?;
-    if let Some(b) = body {
-        features::body_node_features(&b.nodes, b.active, emb, &mut bpart[..b.active.len() * NODE_WIDTH])?;
-        let rows = b.pairs.len() * BODY_EDGE_WIDTH;
-        let (g2b, b2g) = (&mut ws.g2b_features[..rows], &mut ws.b2g_features[..rows]);
-        features::body_edge_features(b.pairs, pos, b.nodes.pos, b.next, garment.dt, g2b, b2g)?;
-    }
-    Ok(())
 }
 
 /// The garment's mesh and coarse edges at the pass's start, as their features read them.
@@ -255,21 +181,13 @@ struct GarmentEdges<'a> {
 /// workspace's count of floating-point operations restarts at zero.
 fn encode(edges: &GarmentEdges<'_>, net: &Net<'_>, exec: &dyn Executor, ws: &mut Workspace) -> Result<()> {
     ws.flops = 0;
-    let (graph, pos, rest, material, dt) = (edges.graph, edges.pos, edges.rest, edges.material, edges.dt);
-    if ws.uses(EdgeKey::Mesh) {
-        let e = &graph.mesh.global;
-        features::edge_features(e, pos, rest, material, dt, ws.edge_feature_rows(e.len()))?;
-        ws.encode_edges(net, exec, EdgeKey::Mesh, e.len())?;
-    }
-    for l in 0..graph.coarse.len().min(3) {
-        let key = EdgeKey::coarse(l).unwrap_or(EdgeKey::Mesh);
+    let (pos, rest, material, dt) = (edges.pos, edges.rest, edges.material, edges.dt);
+    for (key, list) in edges.graph.edge_sets() {
         if !ws.uses(key) {
             continue;
         }
-        let e = &graph.coarse[l].edges.global;
-        let rows = ws.edge_feature_rows(e.len());
-        debug_assert_eq!(rows.len(), e.len() * EDGE_WIDTH);
-        features::edge_features(e, pos, rest, material, dt, rows)?;
+        let e = &list.global;
+        features::edge_features(e, pos, rest, material, dt, ws.edge_feature_rows(e.len()))?;
         ws.encode_edges(net, exec, key, e.len())?;
     }
     Ok(())

@@ -13,9 +13,9 @@
 
 use super::gemm::Gemm;
 use super::layout::MlpAt;
+use crate::exec::par::Disjoint;
 use crate::exec::Executor;
 use alloc::vec::Vec;
-use parallel::Shared;
 
 mod backward;
 mod forward;
@@ -195,5 +195,5 @@ struct Ctx<'a> {
     wt: &'a [f32],
     /// The backward's parameter gradient (each product's parts' shares are added into it right
     /// after the product, while they are still in cache).
-    grad: Option<&'a Shared<'a, f32>>,
+    grad: Option<&'a Disjoint<'a, f32>>,
 }

@@ -3,15 +3,16 @@
 //! embedding tables are applied by the differentiable forward, so that the embeddings can be
 //! trained).
 
-use crate::body::{BodyMesh, Nearest, PointGrid};
+use crate::body::{BodyMesh, PointGrid};
 use crate::error::{Error, Result};
+use crate::exec::Serial;
 use crate::features::{
     self, BodyNodes, Embeddings, GarmentNodes, NodeType, BODY_EDGE_WIDTH, LEVELS, NODE_TYPES, NODE_WIDTH,
 };
 use crate::mesh::{vertex_normals, Garment};
-use crate::model::{EdgeKey, ModelSpec};
-use crate::sim::body_edges::{link_body_edges, BodyEdgeLists};
-use crate::sim::{Graph, BODY_EDGE_RADIUS};
+use crate::model::ModelSpec;
+use crate::sim::inputs::{node_features, BodyInputs, BodyLinks, FeatureRows};
+use crate::sim::Graph;
 use alloc::vec::Vec;
 
 /// The body at the three frames a step reads, m.
@@ -123,16 +124,16 @@ impl StepData {
 }
 
 /// Builds [`StepData`] step after step reusing its body grid and buffers (they only grow; the
-/// grid is rebuilt in place, and remade only when the body's vertex count changes).
+/// grid is rebuilt in place, and it and the body-edge buffers are remade only when the garment's
+/// or the body's vertex count changes). The body edges and features are those of the runtime
+/// (`sim::inputs`).
 #[derive(Clone, Debug, Default)]
 pub struct InputBuilder {
     grid: Option<PointGrid>,
-    nearest: Vec<Option<Nearest>>,
+    links: Option<BodyLinks>,
     normals: Vec<[f32; 3]>,
     body_normals: Vec<[f32; 3]>,
     material: Vec<[f32; 3]>,
-    active_of: Vec<u32>,
-    pairs: Vec<[u32; 2]>,
 }
 
 impl InputBuilder {
@@ -181,8 +182,6 @@ impl InputBuilder {
         self.normals.clear();
         self.normals.resize(n, [0.0; 3]);
         vertex_normals(garment.faces(), &d.pos, &mut self.normals);
-        d.node_features.clear();
-        d.node_features.resize(n * NODE_WIDTH, 0.0);
         let gn = GarmentNodes {
             velocity: state.velocity,
             normals: &self.normals,
@@ -192,7 +191,6 @@ impl InputBuilder {
             material: &self.material,
             dt,
         };
-        features::garment_node_features(&gn, &emb, &mut d.node_features)?;
         d.node_type.clear();
         d.node_type.extend(state.pinned.iter().map(|&p| if p { NodeType::Pinned } else { NodeType::Normal } as u8));
         d.node_level.clear();
@@ -200,8 +198,7 @@ impl InputBuilder {
         for v in [&mut d.body_garment, &mut d.body_active, &mut d.active] {
             v.clear();
         }
-        d.g2b_features.clear();
-        d.b2g_features.clear();
+        let mut seen = None;
         if let (Some(b), true) = (body, spec.effects.body) {
             let nb = b.mesh.n_vertices();
             b.mesh.check_positions(b.pos)?;
@@ -210,62 +207,51 @@ impl InputBuilder {
             }
             let grid = self.grid.as_mut().ok_or(Error::Empty { what: "body grid" })?;
             grid.rebuild(b.pos)?;
-            self.nearest.clear();
-            self.nearest.resize(n, None);
-            grid.nearest_within(&d.pos, BODY_EDGE_RADIUS, &mut self.nearest)?;
-            d.body_garment.resize(n, 0);
-            d.body_active.resize(n, 0);
-            d.active.resize(n.min(nb), 0);
-            self.pairs.clear();
-            self.pairs.resize(n, [0; 2]);
-            self.active_of.clear();
-            self.active_of.resize(nb, u32::MAX);
-            let lists = BodyEdgeLists {
-                garment: &mut d.body_garment,
-                active_row: &mut d.body_active,
-                pairs: &mut self.pairs,
-                active: &mut d.active,
-                active_of: &mut self.active_of,
-            };
-            let counts = link_body_edges(graph, b.mesh, &mut self.nearest, lists);
-            let ne = counts.prefix[0];
+            if !self.links.as_ref().is_some_and(|l| l.fits(n, nb)) {
+                self.links = Some(BodyLinks::new(n, nb));
+            }
+            let links = self.links.as_mut().ok_or(Error::Empty { what: "body edges" })?;
+            let counts = links.link(grid, &Serial, graph, b.mesh, &d.pos)?;
             d.prefix = counts.prefix;
-            d.body_garment.truncate(ne);
-            d.body_active.truncate(ne);
-            d.active.truncate(counts.n_active);
-            self.pairs.truncate(ne);
+            let edges = links.edges();
+            d.body_garment.extend_from_slice(edges.garment);
+            d.body_active.extend_from_slice(edges.body);
+            d.active.extend_from_slice(links.active());
             d.n_active = d.active.len();
-            self.body_normals.clear();
-            self.body_normals.resize(nb, [0.0; 3]);
-            vertex_normals(b.mesh.faces(), b.pos, &mut self.body_normals);
-            let bn = BodyNodes { pos: b.pos, prev: b.prev, normals: &self.body_normals, omitted: b.mesh.omitted(), dt };
-            d.node_features.resize((n + d.n_active) * NODE_WIDTH, 0.0);
-            features::body_node_features(&bn, &d.active, &emb, &mut d.node_features[n * NODE_WIDTH..])?;
             for &o in &d.active {
                 let omitted = b.mesh.omitted().get(o as usize).copied().unwrap_or(false);
                 d.node_type.push(if omitted { NodeType::BodyOmitted } else { NodeType::Body } as u8);
                 d.node_level.push(0);
             }
-            d.g2b_features.resize(ne * BODY_EDGE_WIDTH, 0.0);
-            d.b2g_features.resize(ne * BODY_EDGE_WIDTH, 0.0);
-            features::body_edge_features(
-                &self.pairs,
-                &d.pos,
-                b.pos,
-                b.next,
-                dt,
-                &mut d.g2b_features,
-                &mut d.b2g_features,
-            )?;
+            self.body_normals.clear();
+            self.body_normals.resize(nb, [0.0; 3]);
+            vertex_normals(b.mesh.faces(), b.pos, &mut self.body_normals);
+            let nodes =
+                BodyNodes { pos: b.pos, prev: b.prev, normals: &self.body_normals, omitted: b.mesh.omitted(), dt };
+            seen = Some(BodyInputs { nodes, next: b.next, active: links.active(), pairs: links.pairs() });
         }
+        let ne = d.prefix[0];
+        d.node_features.clear();
+        d.node_features.resize((n + d.n_active) * NODE_WIDTH, 0.0);
+        d.g2b_features.clear();
+        d.g2b_features.resize(ne * BODY_EDGE_WIDTH, 0.0);
+        d.b2g_features.clear();
+        d.b2g_features.resize(ne * BODY_EDGE_WIDTH, 0.0);
+        let rows = FeatureRows { nodes: &mut d.node_features, g2b: &mut d.g2b_features, b2g: &mut d.b2g_features };
+        node_features(&gn, seen.as_ref(), &d.pos, &emb, rows)?;
         let rest = garment.rest();
-        for key in [EdgeKey::C0, EdgeKey::C1, EdgeKey::C2, EdgeKey::Mesh] {
-            let f = &mut d.edge_features[key as usize];
+        for f in &mut d.edge_features {
             f.clear();
+        }
+        // A model reading a coarse level the graph lacks is refused, not fed empty rows.
+        for key in spec.blocks.iter().flat_map(|b| &b.keys) {
+            graph.edges(*key)?;
+        }
+        for (key, list) in graph.edge_sets() {
             if !spec.blocks.iter().any(|b| b.keys.contains(&key)) {
                 continue;
             }
-            let list = graph.edges(key)?;
+            let f = &mut d.edge_features[key as usize];
             f.resize(list.global.len() * features::EDGE_WIDTH, 0.0);
             features::edge_features(&list.global, &d.pos, rest, &self.material, dt, f)?;
         }

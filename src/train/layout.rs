@@ -4,7 +4,7 @@
 
 use crate::features::{LEVELS, NODE_TYPES, NODE_WIDTH};
 use crate::math::Real;
-use crate::model::{Mlp, ModelSpec, Params};
+use crate::model::{Mlp, ModelSpec, Network, Params};
 use alloc::format;
 use alloc::string::String;
 use alloc::vec::Vec;
@@ -39,30 +39,11 @@ impl MlpAt {
     }
 }
 
-/// One processor block's MLPs.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct BlockAt {
-    /// Edge MLP per garment key of the block (sorted key order).
-    pub edges: Vec<MlpAt>,
-    /// Body-edge MLP, when the model has a body.
-    pub body: Option<MlpAt>,
-    /// Node MLP.
-    pub node: MlpAt,
-}
-
 /// Offsets of every trainable tensor of a model of one [`ModelSpec`].
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Layout {
-    /// Node encoder.
-    pub node_encoder: MlpAt,
-    /// Edge encoders in [`ModelSpec::encoded_keys`] order.
-    pub edge_encoders: Vec<MlpAt>,
-    /// Body edge encoder.
-    pub body_encoder: Option<MlpAt>,
-    /// Processor blocks.
-    pub blocks: Vec<BlockAt>,
-    /// Decoder.
-    pub decoder: MlpAt,
+    /// Every MLP, in the skeleton's structure.
+    pub net: Network<MlpAt>,
     /// Offset of the 9 x 9 node-type embedding.
     pub node_type_embedding: usize,
     /// Offset of the 4 x 4 vertex-level embedding.
@@ -121,49 +102,14 @@ impl Alloc {
 }
 
 impl Layout {
-    /// The layout of `p` (its spec and tensor sizes); the order follows [`Params::mlps`], then
-    /// the two embedding tables.
+    /// The layout of `p` (its spec and tensor sizes): its MLPs in the skeleton's order
+    /// ([`Network::iter`]), then the two embedding tables.
     pub fn new(p: &Params) -> Layout {
         let mut a = Alloc(0);
-        let node_encoder = a.mlp(&p.node_encoder);
-        let edge_encoders = p.edge_encoders.iter().map(|m| a.mlp(m)).collect();
-        let body_encoder = p.body_encoder.as_ref().map(|m| a.mlp(m));
-        let blocks = p
-            .blocks
-            .iter()
-            .map(|b| BlockAt {
-                edges: b.edges.iter().map(|m| a.mlp(m)).collect(),
-                body: b.body.as_ref().map(|m| a.mlp(m)),
-                node: a.mlp(&b.node),
-            })
-            .collect();
-        let decoder = a.mlp(&p.decoder);
+        let net = p.net.map(|m| a.mlp(m));
         let node_type_embedding = a.take(NODE_TYPES * NODE_TYPES);
         let level_embedding = a.take(LEVELS * LEVELS);
-        Layout {
-            node_encoder,
-            edge_encoders,
-            body_encoder,
-            blocks,
-            decoder,
-            node_type_embedding,
-            level_embedding,
-            len: a.0,
-        }
-    }
-
-    /// Every MLP, in [`Params::mlps`] order.
-    pub fn mlps(&self) -> Vec<&MlpAt> {
-        let mut v = alloc::vec![&self.node_encoder];
-        v.extend(self.edge_encoders.iter());
-        v.extend(self.body_encoder.iter());
-        for b in &self.blocks {
-            v.extend(b.edges.iter());
-            v.extend(b.body.iter());
-            v.push(&b.node);
-        }
-        v.push(&self.decoder);
-        v
+        Layout { net, node_type_embedding, level_embedding, len: a.0 }
     }
 
     /// The flat vector of `p`'s parameters in precision `R`.
@@ -174,7 +120,7 @@ impl Layout {
                 *d = R::from_f32(s);
             }
         };
-        for (m, at) in p.mlps().iter().zip(self.mlps()) {
+        for (m, at) in p.net.iter().zip(self.net.iter()) {
             for (l, la) in m.layers.iter().zip(&at.layers) {
                 put(la.w, &l.weight);
                 put(la.b, &l.bias);
@@ -197,11 +143,7 @@ impl Layout {
                 *d = s.to_f64() as f32;
             }
         };
-        let ats = self.mlps();
-        let mut i = 0;
-        let mut visit = |m: &mut Mlp| {
-            let at = ats[i];
-            i += 1;
+        for (m, at) in p.net.iter_mut().zip(self.net.iter()) {
             for (l, la) in m.layers.iter_mut().zip(&at.layers) {
                 get(la.w, &mut l.weight);
                 get(la.b, &mut l.bias);
@@ -210,22 +152,14 @@ impl Layout {
                 get(g, &mut n.gamma);
                 get(b, &mut n.beta);
             }
-        };
-        visit(&mut p.node_encoder);
-        p.edge_encoders.iter_mut().for_each(&mut visit);
-        p.body_encoder.iter_mut().for_each(&mut visit);
-        for b in &mut p.blocks {
-            b.edges.iter_mut().for_each(&mut visit);
-            b.body.iter_mut().for_each(&mut visit);
-            visit(&mut b.node);
         }
-        visit(&mut p.decoder);
         get(self.node_type_embedding, &mut p.node_type_embedding);
         get(self.level_embedding, &mut p.level_embedding);
     }
 
-    /// Every tensor as `(name, range in the flat vector)`, e.g. `block3.edge1.layer0.weight`,
-    /// `block3.body.norm.gamma`, `node_encoder.layer2.bias`, `node_type_embedding`.
+    /// Every tensor as `(name, range in the flat vector)`, e.g. `block3.mesh_edge.layer0.weight`,
+    /// `block3.body_edge.norm.gamma`, `node_encoder.layer2.bias`, `node_type_embedding` (MLP
+    /// names: [`Role::name`](crate::model::Role::name)).
     pub fn tensors(&self, spec: &ModelSpec) -> Vec<(String, Range<usize>)> {
         let mut out = Vec::new();
         let mut mlp = |name: String, m: &MlpAt| {
@@ -239,23 +173,9 @@ impl Layout {
                 out.push((format!("{name}.norm.beta"), b..b + n));
             }
         };
-        mlp("node_encoder".into(), &self.node_encoder);
-        for (k, m) in spec.encoded_keys().iter().zip(&self.edge_encoders) {
-            mlp(format!("edge_encoder.{}", k.reference_name()), m);
+        for (shape, m) in Network::shapes(spec).iter().zip(self.net.iter()) {
+            mlp(shape.role.name(), m);
         }
-        if let Some(m) = &self.body_encoder {
-            mlp("body_encoder".into(), m);
-        }
-        for (bi, (b, bs)) in self.blocks.iter().zip(&spec.blocks).enumerate() {
-            for (m, k) in b.edges.iter().zip(&bs.keys) {
-                mlp(format!("block{bi}.{}", k.reference_name()), m);
-            }
-            if let Some(m) = &b.body {
-                mlp(format!("block{bi}.body_edge"), m);
-            }
-            mlp(format!("block{bi}.node"), &b.node);
-        }
-        mlp("decoder".into(), &self.decoder);
         out.push(("node_type_embedding".into(), self.node_type_embedding..self.node_type_embedding + 81));
         out.push(("level_embedding".into(), self.level_embedding..self.level_embedding + 16));
         out
@@ -285,14 +205,14 @@ mod tests {
         // Back into a Params: identical; a changed entry lands in the tensor the layout names.
         let mut q = Params::init(&spec, 10).unwrap();
         lay.unflatten(&flat, &mut q);
-        assert_eq!(q.node_encoder, p.node_encoder);
-        assert_eq!(q.blocks, p.blocks);
+        assert_eq!(q.net.node_encoder, p.net.node_encoder);
+        assert_eq!(q.net.blocks, p.net.blocks);
         assert_eq!(q.level_embedding, p.level_embedding);
         let mut f2 = flat.clone();
-        let b = &lay.blocks[1].edges[1].layers[0];
+        let b = &lay.net.blocks[1].edges[1].layers[0];
         f2[b.w + 3 * b.inp + 5] = 42.0;
         lay.unflatten(&f2, &mut q);
-        assert_eq!(q.blocks[1].edges[1].layers[0].weight[3 * b.inp + 5], 42.0);
+        assert_eq!(q.net.blocks[1].edges[1].layers[0].weight[3 * b.inp + 5], 42.0);
         assert_eq!(lay.flatten::<f32>(&q), f2);
     }
 }

@@ -2,8 +2,8 @@
 //! projections, the MLP with its LayerNorm and residual, and the edge MLP's message pass
 //! (projected node parts, gathered per edge, messages scattered to the targets).
 
-use super::parallel::Shared;
 use super::{fit, hidden_at, size, Ctx, EdgeTape, MlpTape, PartBufs, MAX_INPUTS};
+use crate::exec::par::Disjoint;
 use crate::kernels::{lane_dot, lane_sum, layer_norm_stats};
 use crate::train::gemm::{Mat, Out};
 use crate::train::layout::{LinearAt, MlpAt};
@@ -41,7 +41,7 @@ impl Ctx<'_> {
     fn project(&self, l: &LinearAt, col: usize, k: usize, x: &[f32], y: &mut [f32]) {
         let rows = x.len() / k;
         let n = l.out;
-        let ys = Shared::new(y);
+        let ys = Disjoint::new(y);
         let (g, wt) = (self.g, self.wt);
         self.parts(rows, &|_, r| {
             // SAFETY: row ranges of different parts are disjoint.
@@ -70,11 +70,11 @@ impl Ctx<'_> {
         let nl = m.layers.len();
         let nout = m.output();
         let offs: [usize; 8] = core::array::from_fn(|l| if l < nl { hidden_at(m, rows, l) } else { 0 });
-        let hid = Shared::new(&mut tape.hidden);
-        let xhat = Shared::new(&mut tape.xhat);
-        let inv = Shared::new(&mut tape.inv_std);
-        let outs = Shared::new(out);
-        let pbs = Shared::new(parts);
+        let hid = Disjoint::new(&mut tape.hidden);
+        let xhat = Disjoint::new(&mut tape.xhat);
+        let inv = Disjoint::new(&mut tape.inv_std);
+        let outs = Disjoint::new(out);
+        let pbs = Disjoint::new(parts);
         let (g, theta, wt) = (self.g, self.theta, self.wt);
         self.parts(rows, &|p, r| {
             let nr = r.len();
@@ -191,14 +191,14 @@ impl Ctx<'_> {
         let ks: [usize; MAX_INPUTS] = core::array::from_fn(|i| inputs.get(i).map_or(0, |x| x.len() / rows));
         // Column of each part: an edge MLP's single input is the last part of its first layer.
         let col0 = l0.inp - ks.iter().sum::<usize>();
-        let mut din: [Option<Shared<'_, f32>>; MAX_INPUTS] = Default::default();
+        let mut din: [Option<Disjoint<'_, f32>>; MAX_INPUTS] = Default::default();
         for (d, s) in dinputs.iter_mut().zip(din.iter_mut()) {
-            *s = d.as_deref_mut().map(Shared::new);
+            *s = d.as_deref_mut().map(Disjoint::new);
         }
-        let d0s = d0_out.map(Shared::new);
+        let d0s = d0_out.map(Disjoint::new);
         let span = span_of(m);
         let base = span.start;
-        let pbs = Shared::new(parts);
+        let pbs = Disjoint::new(parts);
         let (g, theta) = (self.g, self.theta);
         self.parts(rows, &|p, r| {
             let nr = r.len();
@@ -301,9 +301,9 @@ impl Ctx<'_> {
     ) {
         let rows = x.len() / k;
         let n = l.out;
-        let dxs = dx.map(Shared::new);
+        let dxs = dx.map(Disjoint::new);
         let span = l.w..l.w + l.inp * l.out;
-        let pbs = Shared::new(parts);
+        let pbs = Disjoint::new(parts);
         let (g, theta) = (self.g, self.theta);
         self.parts(rows, &|p, r| {
             // SAFETY: part p owns scratch p and rows `r` of `dx`.

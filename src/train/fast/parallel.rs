@@ -1,41 +1,14 @@
-//! Running the fast path's loops in parallel: mutable access to disjoint ranges of one slice
-//! from parallel tasks ([`Shared`]), the fixed [`PARTS`] split, the reduction of the parts'
-//! partial gradients in part order, and the row-split gathers, scatters and sums.
+//! Running the fast path's loops in parallel: the fixed [`PARTS`] split, the reduction of the
+//! parts' partial gradients in part order, and the row-split gathers, scatters and sums (each
+//! part writes its own rows through the execution layer's [`Disjoint`]).
 
 use super::{Ctx, PartBufs, PARTS};
-use core::marker::PhantomData;
+use crate::exec::par::{self, Disjoint};
 use core::ops::Range;
 
-/// Mutable access to disjoint ranges of one slice from parallel tasks.
-pub(super) struct Shared<'a, T> {
-    ptr: *mut T,
-    len: usize,
-    _m: PhantomData<&'a mut [T]>,
-}
-
-// SAFETY: sub-slices are handed out only by the unsafe `range`, whose callers guarantee that
-// ranges used at the same time never overlap; sending them is then as safe as sending `&mut [T]`.
-unsafe impl<T: Send> Sync for Shared<'_, T> {}
-// SAFETY: as above.
-unsafe impl<T: Send> Send for Shared<'_, T> {}
-
-impl<'a, T> Shared<'a, T> {
-    pub(super) fn new(s: &'a mut [T]) -> Self {
-        Shared { ptr: s.as_mut_ptr(), len: s.len(), _m: PhantomData }
-    }
-
-    /// # Safety
-    /// No two ranges in use at the same time may overlap.
-    #[allow(clippy::mut_from_ref)]
-    pub(super) unsafe fn range(&self, r: Range<usize>) -> &'a mut [T] {
-        assert!(r.start <= r.end && r.end <= self.len, "shared range out of bounds");
-        // SAFETY: in bounds of a slice borrowed mutably for 'a; no overlapping range is alive.
-        unsafe { core::slice::from_raw_parts_mut(self.ptr.add(r.start), r.end - r.start) }
-    }
-}
-
+/// Part `p` of [`PARTS`] over `total` rows.
 fn split(total: usize, p: usize) -> Range<usize> {
-    (p * total / PARTS)..((p + 1) * total / PARTS)
+    par::split(total, PARTS, p)
 }
 
 impl Ctx<'_> {
@@ -74,7 +47,7 @@ impl Ctx<'_> {
             return;
         }
         let rows = dst.len() / w;
-        let ds = Shared::new(dst);
+        let ds = Disjoint::new(dst);
         self.exec.run(PARTS, &|p| {
             let own = split(rows, p);
             if own.is_empty() {
@@ -94,7 +67,7 @@ impl Ctx<'_> {
 
     /// `dst[e] = src[idx[e]]` (+ `add[e]` when given), row-split.
     pub(super) fn gather(&self, src: &[f32], idx: &[u32], w: usize, add: Option<&[f32]>, dst: &mut [f32]) {
-        let ds = Shared::new(dst);
+        let ds = Disjoint::new(dst);
         self.parts(idx.len(), &|_, r| {
             // SAFETY: row ranges of different parts are disjoint.
             let d = unsafe { ds.range(r.start * w..r.end * w) };
@@ -110,7 +83,7 @@ impl Ctx<'_> {
 
     /// `dst = a + b`, row-split.
     pub(super) fn sum(&self, a: &[f32], b: &[f32], dst: &mut [f32]) {
-        let ds = Shared::new(dst);
+        let ds = Disjoint::new(dst);
         self.parts(a.len(), &|_, r| {
             // SAFETY: disjoint ranges.
             let d = unsafe { ds.range(r.clone()) };
