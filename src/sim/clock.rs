@@ -55,18 +55,20 @@ pub(super) struct Deadline<'c> {
 }
 
 impl<'c> Deadline<'c> {
-    /// A budget of `budget_ns` starting now.
-    pub(super) fn new(clock: &'c dyn Clock, budget_ns: u64) -> Deadline<'c> {
+    /// A budget of `budget_ns` that began at the clock reading `start_ns` (the step's start:
+    /// the work before the solve counts against it; `None`: now).
+    pub(super) fn new(clock: &'c dyn Clock, start_ns: Option<u64>, budget_ns: u64) -> Deadline<'c> {
         let now = clock.now_ns();
-        Deadline { clock, end: now.saturating_add(budget_ns), last: now, longest: 0, first: true }
+        let end = start_ns.unwrap_or(now).saturating_add(budget_ns);
+        Deadline { clock, end, last: now, longest: 0, first: true }
     }
 
     /// Whether to stop rather than start another iteration; asked after each one.
     pub(super) fn stop_before_next(&mut self) -> bool {
         let now = self.clock.now_ns();
         let took = now.saturating_sub(self.last);
-        // The first interval also holds the work before the first iteration (the body's update,
-        // the starting evaluation, about one more iteration's worth): half of it is the iteration.
+        // The first interval also holds the work before the first iteration (the starting
+        // evaluation, about one more iteration's worth): half of it is the iteration.
         let took = if self.first { took / 2 } else { took };
         self.first = false;
         self.last = now;

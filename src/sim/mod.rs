@@ -477,6 +477,9 @@ impl<'m> Sim<'m> {
         body_next: &[[f32; 3]],
         observer: &mut dyn FnMut(Probe<'_>),
     ) -> Result<()> {
+        if let Some(r) = &mut self.refiner {
+            r.start_step(self.clock.as_deref());
+        }
         self.check_body_frame(body_next)?;
         let next = if self.body.is_some() { Some(body_next) } else { None };
         // The speed limit's carry over this frame; a jump teleports instead (and reports itself).

@@ -75,16 +75,19 @@ pub(super) struct Refiner {
     last: Option<LbfgsReport>,
     /// The report of a refinement whose step has not been committed yet.
     pending: Option<LbfgsReport>,
-    /// Wall time of one refinement, ns (`None`: the iteration count alone ends it).
+    /// Wall time of one step, ns (`None`: the iteration count alone ends its refinement).
     budget_ns: Option<u64>,
+    /// Clock reading at the start of the current step, with a budget.
+    step_start_ns: Option<u64>,
 }
 
 impl Refiner {
     /// `iterations` L-BFGS iterations per step for `garment` (its materials), with contact
     /// terms against `mesh` when the scene has a body.
     ///
-    /// With `budget_ns`, a refinement also ends once that much wall time has passed since it
-    /// began (after at least one iteration), by the clock [`apply`](Self::apply) is given.
+    /// With `budget_ns`, a refinement also ends before an iteration it predicts would end later
+    /// than that much wall time after its step began ([`start_step`](Self::start_step); at
+    /// least one iteration runs), by the clock [`apply`](Self::apply) is given.
     ///
     /// # Errors
     /// [`Error::OutOfRange`] for 0 or more than [`MAX_REFINE_ITERATIONS`] iterations.
@@ -114,7 +117,17 @@ impl Refiner {
             last: None,
             pending: None,
             budget_ns,
+            step_start_ns: None,
         })
+    }
+
+    /// Notes the start of a step on `clock`, from which a time budget counts (the frame's
+    /// checks and the body's grids are part of the step's time). Reads no clock without a budget.
+    pub(super) fn start_step(&mut self, clock: Option<&dyn Clock>) {
+        self.step_start_ns = match (self.budget_ns, clock) {
+            (Some(_), Some(c)) => Some(c.now_ns()),
+            _ => None,
+        };
     }
 
     /// The last refinement's report (iterations, objective before and after, J).
@@ -142,7 +155,7 @@ impl Refiner {
         self.pending = None;
         let mut deadline = match (self.budget_ns, clock) {
             (None, _) => None,
-            (Some(b), Some(c)) => Some(Deadline::new(c, b)),
+            (Some(b), Some(c)) => Some(Deadline::new(c, self.step_start_ns.take(), b)),
             (Some(_), None) => {
                 return Err(Error::UnsupportedEffect { effect: "solver time budget without a clock (Sim::set_clock)" })
             }
