@@ -282,7 +282,7 @@ fn train_export_runs_in_the_runtime() {
     let again = Trainer::from_model(cfg.clone(), data(&cfg), &model).unwrap();
     assert_eq!(again.iteration, 4);
     let (pa, pb) = (again.params(), t.params());
-    assert_eq!(pa.net, pb.net);
+    assert_eq!(pa.mlps, pb.mlps);
 }
 
 /// The supervised warm start: the optimum the trainer pulls toward beats coasting on the training
@@ -371,7 +371,7 @@ fn train_supervised_pull_toward_the_optimum() {
         b.iteration().unwrap();
     }
     assert!(pulled > 0, "no step recorded a pull");
-    assert_ne!(a.params().net, b.params().net);
+    assert_ne!(a.params().mlps, b.params().mlps);
     assert_eq!(TrainConfig::from_json(&on.to_json()).unwrap(), on);
     // The pull toward the network's own refined prediction: recorded, and another training.
     let own = on.clone().with_supervised_start(PullStart::Prediction);
@@ -382,7 +382,7 @@ fn train_supervised_pull_toward_the_optimum() {
         pulled += r.steps.iter().filter(|s| s.supervised > 0.0 && s.supervised.is_finite()).count();
     }
     assert!(pulled > 0, "no step recorded a pull toward the refined prediction");
-    assert_ne!(c.params().net, a.params().net);
+    assert_ne!(c.params().mlps, a.params().mlps);
     assert_eq!(TrainConfig::from_json(&own.to_json()).unwrap(), own);
     assert!(own.to_json().contains("\"supervised_start\": \"prediction\""));
     assert_eq!(PullStart::parse("coasting").unwrap(), PullStart::Coasting);

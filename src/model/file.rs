@@ -14,7 +14,7 @@
 //! layers are one part.
 
 use super::params::{LayerNorm, Linear, Mlp, Normalisers, Params};
-use super::skeleton::{Block, MlpShape, Network};
+use super::skeleton::{Block, MlpShape, Mlps};
 use super::spec::{parse_schedule, ModelEffects, ModelSpec};
 use crate::error::{Error, Result};
 use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, LEVELS, NODE_NORMALISED, NODE_TYPES};
@@ -164,8 +164,8 @@ pub fn write_model(params: &Params, with_bf16: bool, provenance: &[(&str, &str)]
     let effects = u8::from(spec.effects.body)
         | (u8::from(spec.effects.pinning) << 1)
         | (u8::from(spec.effects.local_materials) << 2);
-    let packed = params.net.try_zip_map(
-        &Network::shapes(spec),
+    let packed = params.mlps.try_zip_map(
+        &Mlps::shapes(spec),
         || Error::IncompatibleModel { reason: "the MLPs disagree with the spec's structure" },
         |m, s| pack_mlp(m, s.first_layer_parts, with_bf16),
     )?;
@@ -245,7 +245,7 @@ pub struct Model<'a> {
     spec: ModelSpec,
     has_bf16: bool,
     /// Every MLP, in the skeleton's structure.
-    pub net: Network<MlpView<'a>>,
+    pub mlps: Mlps<MlpView<'a>>,
     /// Node-type embedding, 9 x 9.
     pub node_type_embedding: &'a [f32],
     /// Vertex-level embedding, 4 x 4.
@@ -306,8 +306,8 @@ fn view_mlp<'a>(m: &'a ArchivedMlpRec, spec: &ModelSpec, shape: &MlpShape, has_b
 
 /// The MLP records of an archived model in the skeleton's structure (checked against the spec
 /// by the caller).
-fn records(rec: &ArchivedModelRec) -> Network<&ArchivedMlpRec> {
-    Network {
+fn records(rec: &ArchivedModelRec) -> Mlps<&ArchivedMlpRec> {
+    Mlps {
         node_encoder: &rec.node_encoder,
         edge_encoders: rec.edge_encoders.iter().collect(),
         body_encoder: rec.body_encoder.as_ref(),
@@ -363,8 +363,7 @@ impl<'a> Model<'a> {
         spec.validate()?;
         let has_bf16 = rec.has_bf16;
         let mismatch = || corrupt("model file: the MLPs disagree with the spec");
-        let net =
-            records(rec).try_zip_map(&Network::shapes(&spec), mismatch, |m, s| view_mlp(m, &spec, s, has_bf16))?;
+        let mlps = records(rec).try_zip_map(&Mlps::shapes(&spec), mismatch, |m, s| view_mlp(m, &spec, s, has_bf16))?;
         let node_type_embedding = floats(&rec.node_type_embedding);
         let level_embedding = floats(&rec.level_embedding);
         if node_type_embedding.len() != NODE_TYPES * NODE_TYPES || level_embedding.len() != LEVELS * LEVELS {
@@ -385,7 +384,7 @@ impl<'a> Model<'a> {
             }
             norm[i] = (mean, std);
         }
-        Ok(Model { spec, has_bf16, net, node_type_embedding, level_embedding, norm, rec })
+        Ok(Model { spec, has_bf16, mlps, node_type_embedding, level_embedding, norm, rec })
     }
 
     /// The model's shape.
@@ -453,7 +452,7 @@ impl<'a> Model<'a> {
         };
         Params {
             spec: self.spec.clone(),
-            net: self.net.map(unpack),
+            mlps: self.mlps.map(unpack),
             node_type_embedding: self.node_type_embedding.to_vec(),
             level_embedding: self.level_embedding.to_vec(),
             normalisers: Normalisers { node: n(0), edge: n(1), body_edge: n(2), output: n(3) },

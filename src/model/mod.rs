@@ -11,5 +11,5 @@ pub mod spec;
 
 pub use file::{write_model, Model, ModelBytes};
 pub use params::{LayerNorm, Linear, Mlp, Normalisers, Params};
-pub use skeleton::{Block, MlpShape, Network, Role};
+pub use skeleton::{Block, MlpShape, Mlps, Role};
 pub use spec::{parse_schedule, BlockSpec, EdgeKey, LevelChange, ModelEffects, ModelSpec, HOOD_SCHEDULE};

@@ -2,7 +2,7 @@
 //! (`weight` is `[out, in]` row-major, `y = x W^T + b`), LayerNorms, embedding tables and the four
 //! normalisers. The trainer updates this form; model files hold it packed for the kernels.
 
-use super::skeleton::{MlpShape, Network, Role};
+use super::skeleton::{MlpShape, Mlps, Role};
 use super::spec::{EdgeKey, ModelSpec};
 use crate::error::{Error, Result};
 use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, LEVELS, NODE_NORMALISED, NODE_TYPES};
@@ -129,8 +129,8 @@ impl Default for Normalisers {
 pub struct Params {
     /// The shape.
     pub spec: ModelSpec,
-    /// Every MLP, as [`Network::shapes`] of the spec describes them.
-    pub net: Network<Mlp>,
+    /// Every MLP, as [`Mlps::shapes`] of the spec describes them.
+    pub mlps: Mlps<Mlp>,
     /// Node-type embedding, 9 x 9 row-major.
     pub node_type_embedding: Vec<f32>,
     /// Vertex-level embedding, 4 x 4 row-major.
@@ -147,21 +147,21 @@ impl Params {
     pub fn init(spec: &ModelSpec, seed: u64) -> Result<Params> {
         spec.validate()?;
         let mut rng = Rng::new(seed);
-        let net = Network::shapes(spec).map(|s| Mlp::init(spec, s.input, s.output, s.norm, &mut rng));
+        let mlps = Mlps::shapes(spec).map(|s| Mlp::init(spec, s.input, s.output, s.norm, &mut rng));
         let node_type_embedding = (0..NODE_TYPES * NODE_TYPES).map(|_| rng.normal() as f32).collect();
         let level_embedding = (0..LEVELS * LEVELS).map(|_| rng.normal() as f32).collect();
-        Ok(Params { spec: spec.clone(), net, node_type_embedding, level_embedding, normalisers: Normalisers::new() })
+        Ok(Params { spec: spec.clone(), mlps, node_type_embedding, level_embedding, normalisers: Normalisers::new() })
     }
 
     /// The edge encoder of `key`, if the model encodes it.
     pub fn edge_encoder(&self, key: EdgeKey) -> Option<&Mlp> {
-        self.net.edge_encoders.get(self.spec.encoder_index(key)?)
+        self.mlps.edge_encoders.get(self.spec.encoder_index(key)?)
     }
 
-    /// Every trainable tensor, mutable, in the skeleton's order of MLPs ([`Network::iter`];
+    /// Every trainable tensor, mutable, in the skeleton's order of MLPs ([`Mlps::iter`];
     /// each layer's weight then bias, then the LayerNorm), followed by the two embedding tables.
     pub fn tensors_mut(&mut self) -> Vec<&mut [f32]> {
-        let mlps = self.net.iter_mut();
+        let mlps = self.mlps.iter_mut();
         let mut out: Vec<&mut [f32]> = Vec::new();
         for m in mlps {
             for l in &mut m.layers {
@@ -214,7 +214,7 @@ impl Params {
     /// Trainable parameter count (must equal [`ModelSpec::parameter_count`]).
     pub fn count(&self) -> usize {
         let mlp: usize = self
-            .net
+            .mlps
             .iter()
             .map(|m| {
                 m.layers.iter().map(|l| l.weight.len() + l.bias.len()).sum::<usize>()
@@ -244,11 +244,11 @@ impl Params {
                     _ => false,
                 }
         };
-        let shapes = Network::shapes(&self.spec);
-        if !self.net.same_structure(&shapes) {
+        let shapes = Mlps::shapes(&self.spec);
+        if !self.mlps.same_structure(&shapes) {
             return bad("the MLPs disagree with the spec's structure");
         }
-        if let Some(s) = self.net.iter().zip(shapes.iter()).find_map(|(m, s)| (!check_mlp(m, s)).then_some(s)) {
+        if let Some(s) = self.mlps.iter().zip(shapes.iter()).find_map(|(m, s)| (!check_mlp(m, s)).then_some(s)) {
             return bad(shape_error(s.role));
         }
         if self.node_type_embedding.len() != NODE_TYPES * NODE_TYPES || self.level_embedding.len() != LEVELS * LEVELS {
@@ -313,7 +313,7 @@ mod tests {
         }
         let p = Params::init(&ModelSpec::hood(128), 3).unwrap();
         // PyTorch's bound for a 384-wide input.
-        let w = &p.net.blocks[0].edges[0].layers[0].weight;
+        let w = &p.mlps.blocks[0].edges[0].layers[0].weight;
         let bound = 1.0 / 384f32.sqrt();
         assert!(w.iter().all(|x| x.abs() <= bound));
         assert!(w.iter().any(|x| x.abs() > 0.9 * bound));

@@ -3,7 +3,7 @@
 //! `Runner.state_dict()` (and so `checkpoint['training_module']`) adds.
 
 use super::params::{LayerNorm, Linear, Mlp, Normalisers, Params};
-use super::skeleton::{Network, Role};
+use super::skeleton::{Mlps, Role};
 use super::spec::ModelSpec;
 use crate::error::{Error, Result};
 use crate::features::{BODY_EDGE_WIDTH, EDGE_NORMALISED, NODE_NORMALISED};
@@ -69,7 +69,7 @@ pub fn params_from_state_dict(st: &SafeTensors, spec: &ModelSpec) -> Result<Para
     spec.validate()?;
     let prefix = if st.info("model._learned_model.decoder.layers.0.weight").is_ok() { "model." } else { "" };
     let d = Dict { st, prefix };
-    let net = Network::shapes(spec).try_map(|s| d.mlp(spec, &reference_name(s.role), s.input, s.output, s.norm))?;
+    let mlps = Mlps::shapes(spec).try_map(|s| d.mlp(spec, &reference_name(s.role), s.input, s.output, s.norm))?;
     let node_type_embedding = d.tensor("nodetype_embedding.weight", &[9, 9])?;
     let level_embedding = d.tensor("vertexlevel_embedding.weight", &[4, 4])?;
     let normalisers = Normalisers {
@@ -78,7 +78,7 @@ pub fn params_from_state_dict(st: &SafeTensors, spec: &ModelSpec) -> Result<Para
         body_edge: d.normaliser("world_edge", BODY_EDGE_WIDTH)?,
         output: d.normaliser("output", 3)?,
     };
-    let p = Params { spec: spec.clone(), net, node_type_embedding, level_embedding, normalisers };
+    let p = Params { spec: spec.clone(), mlps, node_type_embedding, level_embedding, normalisers };
     p.validate()?;
     Ok(p)
 }

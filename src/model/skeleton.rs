@@ -1,7 +1,7 @@
 //! The network's skeleton, described once: which MLPs a model of a [`ModelSpec`] has, in what
 //! order, with what widths. The parameters ([`Params`](super::Params)), the model file (its
 //! writer and its in-place views), the trainer's flat layout and the reference converter all
-//! hold their MLPs in a [`Network`] and visit them in its one order (MODEL.md section 4):
+//! hold their MLPs in an [`Mlps`] and visit them in its one order (MODEL.md section 4):
 //! node encoder, edge encoders ([`ModelSpec::encoded_keys`] order), body-edge encoder, then per
 //! processor block its edge MLPs (the block's key order), its body-edge MLP and its node MLP,
 //! then the decoder.
@@ -91,7 +91,7 @@ pub struct Block<M> {
 /// Something per MLP of the network (its parameters, shape, offsets, or view), in the
 /// skeleton's structure.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Network<M> {
+pub struct Mlps<M> {
     /// Node encoder.
     pub node_encoder: M,
     /// Edge encoders in [`ModelSpec::encoded_keys`] order.
@@ -104,15 +104,15 @@ pub struct Network<M> {
     pub decoder: M,
 }
 
-impl Network<MlpShape> {
+impl Mlps<MlpShape> {
     /// The skeleton of `spec`: every MLP's role and widths. Widths saturate, so that a spec read
     /// from a damaged file cannot overflow them (such a spec fails [`ModelSpec::validate`]).
-    pub fn shapes(spec: &ModelSpec) -> Network<MlpShape> {
+    pub fn shapes(spec: &ModelSpec) -> Mlps<MlpShape> {
         let h = spec.latent;
         let latent =
             |role, input, first_layer_parts| MlpShape { role, input, output: h, norm: true, first_layer_parts };
         let body = spec.effects.body;
-        Network {
+        Mlps {
             node_encoder: latent(Role::NodeEncoder, NODE_WIDTH, None),
             edge_encoders: spec
                 .encoded_keys()
@@ -142,7 +142,7 @@ impl Network<MlpShape> {
     }
 }
 
-impl<M> Network<M> {
+impl<M> Mlps<M> {
     /// Every MLP in the skeleton's order.
     pub fn iter(&self) -> impl Iterator<Item = &M> + '_ {
         let blocks = self.blocks.iter().flat_map(|b| b.edges.iter().chain(b.body.iter()).chain(once(&b.node)));
@@ -169,13 +169,13 @@ impl<M> Network<M> {
     ///
     /// # Errors
     /// The first error of `f`.
-    pub fn try_map<N, E>(&self, mut f: impl FnMut(&M) -> Result<N, E>) -> Result<Network<N>, E> {
+    pub fn try_map<N, E>(&self, mut f: impl FnMut(&M) -> Result<N, E>) -> Result<Mlps<N>, E> {
         self.zip_map(self, |m, _| f(m))
     }
 
     /// The same structure with `f` of every MLP, called in the skeleton's order.
-    pub fn map<N>(&self, mut f: impl FnMut(&M) -> N) -> Network<N> {
-        let mapped: Result<Network<N>, core::convert::Infallible> = self.try_map(|m| Ok(f(m)));
+    pub fn map<N>(&self, mut f: impl FnMut(&M) -> N) -> Mlps<N> {
+        let mapped: Result<Mlps<N>, core::convert::Infallible> = self.try_map(|m| Ok(f(m)));
         match mapped {
             Ok(n) => n,
             Err(e) => match e {},
@@ -184,7 +184,7 @@ impl<M> Network<M> {
 
     /// Whether `other` has the same structure (edge encoders, body encoder, blocks with their
     /// edge and body MLPs).
-    pub fn same_structure<N>(&self, other: &Network<N>) -> bool {
+    pub fn same_structure<N>(&self, other: &Mlps<N>) -> bool {
         self.edge_encoders.len() == other.edge_encoders.len()
             && self.body_encoder.is_some() == other.body_encoder.is_some()
             && self.blocks.len() == other.blocks.len()
@@ -203,10 +203,10 @@ impl<M> Network<M> {
     /// otherwise the first error of `f`.
     pub fn try_zip_map<N, O, E>(
         &self,
-        other: &Network<O>,
+        other: &Mlps<O>,
         mismatch: impl FnOnce() -> E,
         f: impl FnMut(&M, &O) -> Result<N, E>,
-    ) -> Result<Network<N>, E> {
+    ) -> Result<Mlps<N>, E> {
         if !self.same_structure(other) {
             return Err(mismatch());
         }
@@ -215,7 +215,7 @@ impl<M> Network<M> {
 
     /// [`try_zip_map`](Self::try_zip_map) for structures known to be the same (any surplus of
     /// either side is skipped).
-    fn zip_map<N, O, E>(&self, other: &Network<O>, mut f: impl FnMut(&M, &O) -> Result<N, E>) -> Result<Network<N>, E> {
+    fn zip_map<N, O, E>(&self, other: &Mlps<O>, mut f: impl FnMut(&M, &O) -> Result<N, E>) -> Result<Mlps<N>, E> {
         let node_encoder = f(&self.node_encoder, &other.node_encoder)?;
         let mut edge_encoders = Vec::with_capacity(self.edge_encoders.len());
         for (a, b) in self.edge_encoders.iter().zip(&other.edge_encoders) {
@@ -238,7 +238,7 @@ impl<M> Network<M> {
             blocks.push(Block { edges, body, node: f(&a.node, &b.node)? });
         }
         let decoder = f(&self.decoder, &other.decoder)?;
-        Ok(Network { node_encoder, edge_encoders, body_encoder, blocks, decoder })
+        Ok(Mlps { node_encoder, edge_encoders, body_encoder, blocks, decoder })
     }
 }
 
@@ -249,7 +249,7 @@ mod tests {
     #[test]
     fn skeleton_order_and_parameter_count() {
         let spec = ModelSpec::hood(16);
-        let shapes = Network::shapes(&spec);
+        let shapes = Mlps::shapes(&spec);
         let roles: Vec<Role> = shapes.iter().map(|s| s.role).collect();
         assert_eq!(roles.first(), Some(&Role::NodeEncoder));
         assert_eq!(roles.last(), Some(&Role::Decoder));

@@ -1,7 +1,7 @@
 //! The shape of a model: latent width, MLP depth, the block schedule, levels and effects
 //! (MODEL.md section 4).
 
-use super::skeleton::Network;
+use super::skeleton::Mlps;
 use crate::error::{Error, Result};
 use alloc::vec::Vec;
 
@@ -293,7 +293,7 @@ impl ModelSpec {
             }
             n.saturating_add(i.saturating_mul(o).saturating_add(o))
         };
-        let mlps = Network::shapes(self);
+        let mlps = Mlps::shapes(self);
         let n = mlps.iter().fold(0u64, |n, s| n.saturating_add(mlp(w(s.input), w(s.output), s.norm)));
         n.saturating_add(9 * 9 + 4 * 4)
     }

@@ -129,7 +129,7 @@ mod tests {
         let mut p = Params::init(&ModelSpec::hood(8), 5).unwrap();
         p.normalisers = Normalisers::unit_scale(3);
         // A decoder that outputs nothing: every network step is the coasting guess.
-        let last = p.net.decoder.layers.last_mut().unwrap();
+        let last = p.mlps.decoder.layers.last_mut().unwrap();
         last.weight.iter_mut().chain(last.bias.iter_mut()).for_each(|w| *w = 0.0);
         let bytes = ModelBytes::new(&write_model(&p, false, &[]).unwrap());
         let model = bytes.model().unwrap();

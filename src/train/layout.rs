@@ -4,7 +4,7 @@
 
 use crate::features::{LEVELS, NODE_TYPES, NODE_WIDTH};
 use crate::math::Real;
-use crate::model::{Mlp, ModelSpec, Network, Params};
+use crate::model::{Mlp, Mlps, ModelSpec, Params};
 use alloc::format;
 use alloc::string::String;
 use alloc::vec::Vec;
@@ -43,7 +43,7 @@ impl MlpAt {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Layout {
     /// Every MLP, in the skeleton's structure.
-    pub net: Network<MlpAt>,
+    pub mlps: Mlps<MlpAt>,
     /// Offset of the 9 x 9 node-type embedding.
     pub node_type_embedding: usize,
     /// Offset of the 4 x 4 vertex-level embedding.
@@ -103,13 +103,13 @@ impl Alloc {
 
 impl Layout {
     /// The layout of `p` (its spec and tensor sizes): its MLPs in the skeleton's order
-    /// ([`Network::iter`]), then the two embedding tables.
+    /// ([`Mlps::iter`]), then the two embedding tables.
     pub fn new(p: &Params) -> Layout {
         let mut a = Alloc(0);
-        let net = p.net.map(|m| a.mlp(m));
+        let mlps = p.mlps.map(|m| a.mlp(m));
         let node_type_embedding = a.take(NODE_TYPES * NODE_TYPES);
         let level_embedding = a.take(LEVELS * LEVELS);
-        Layout { net, node_type_embedding, level_embedding, len: a.0 }
+        Layout { mlps, node_type_embedding, level_embedding, len: a.0 }
     }
 
     /// The flat vector of `p`'s parameters in precision `R`.
@@ -120,7 +120,7 @@ impl Layout {
                 *d = R::from_f32(s);
             }
         };
-        for (m, at) in p.net.iter().zip(self.net.iter()) {
+        for (m, at) in p.mlps.iter().zip(self.mlps.iter()) {
             for (l, la) in m.layers.iter().zip(&at.layers) {
                 put(la.w, &l.weight);
                 put(la.b, &l.bias);
@@ -143,7 +143,7 @@ impl Layout {
                 *d = s.to_f64() as f32;
             }
         };
-        for (m, at) in p.net.iter_mut().zip(self.net.iter()) {
+        for (m, at) in p.mlps.iter_mut().zip(self.mlps.iter()) {
             for (l, la) in m.layers.iter_mut().zip(&at.layers) {
                 get(la.w, &mut l.weight);
                 get(la.b, &mut l.bias);
@@ -173,7 +173,7 @@ impl Layout {
                 out.push((format!("{name}.norm.beta"), b..b + n));
             }
         };
-        for (shape, m) in Network::shapes(spec).iter().zip(self.net.iter()) {
+        for (shape, m) in Mlps::shapes(spec).iter().zip(self.mlps.iter()) {
             mlp(shape.role.name(), m);
         }
         out.push(("node_type_embedding".into(), self.node_type_embedding..self.node_type_embedding + 81));
@@ -205,14 +205,14 @@ mod tests {
         // Back into a Params: identical; a changed entry lands in the tensor the layout names.
         let mut q = Params::init(&spec, 10).unwrap();
         lay.unflatten(&flat, &mut q);
-        assert_eq!(q.net.node_encoder, p.net.node_encoder);
-        assert_eq!(q.net.blocks, p.net.blocks);
+        assert_eq!(q.mlps.node_encoder, p.mlps.node_encoder);
+        assert_eq!(q.mlps.blocks, p.mlps.blocks);
         assert_eq!(q.level_embedding, p.level_embedding);
         let mut f2 = flat.clone();
-        let b = &lay.net.blocks[1].edges[1].layers[0];
+        let b = &lay.mlps.blocks[1].edges[1].layers[0];
         f2[b.w + 3 * b.inp + 5] = 42.0;
         lay.unflatten(&f2, &mut q);
-        assert_eq!(q.net.blocks[1].edges[1].layers[0].weight[3 * b.inp + 5], 42.0);
+        assert_eq!(q.mlps.blocks[1].edges[1].layers[0].weight[3 * b.inp + 5], 42.0);
         assert_eq!(lay.flatten::<f32>(&q), f2);
     }
 }

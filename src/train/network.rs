@@ -248,7 +248,7 @@ impl Network {
         lay.fill_embeddings(theta, &step.node_type, &step.node_level, &mut nf);
         normalise(&mut nf, NODE_WIDTH, &stats.node, NODE_NORMALISED);
         let mut x = vec![R::ZERO; rows * h];
-        t.node_enc = ops::mlp_forward(theta, &lay.net.node_encoder, &[&nf], rows, &mut x, false);
+        t.node_enc = ops::mlp_forward(theta, &lay.mlps.node_encoder, &[&nf], rows, &mut x, false);
         t.node_in = nf;
         // Mesh and coarse edges.
         let mut lat: [Vec<R>; 4] = Default::default();
@@ -260,7 +260,7 @@ impl Network {
             let enc = self
                 .spec
                 .encoder_index(key)
-                .and_then(|i| lay.net.edge_encoders.get(i))
+                .and_then(|i| lay.mlps.edge_encoders.get(i))
                 .ok_or(Error::IncompatibleModel { reason: "the model has no encoder for an edge set it uses" })?;
             let mut ef = to_real::<R>(&step.edge_features[k]);
             normalise(&mut ef, EDGE_WIDTH, &stats.edge, EDGE_NORMALISED);
@@ -272,7 +272,7 @@ impl Network {
         // Body edges: both directions, one normaliser, one encoder.
         let (mut g2b, mut b2g) = (vec![R::ZERO; nb * h], vec![R::ZERO; nb * h]);
         if nb > 0 {
-            let enc = lay.net.body_encoder.as_ref().ok_or(Error::UnsupportedEffect { effect: "body collision" })?;
+            let enc = lay.mlps.body_encoder.as_ref().ok_or(Error::UnsupportedEffect { effect: "body collision" })?;
             let mut fg = to_real::<R>(&step.g2b_features[..nb * BODY_EDGE_WIDTH]);
             let mut fb = to_real::<R>(&step.b2g_features[..nb * BODY_EDGE_WIDTH]);
             normalise(&mut fg, BODY_EDGE_WIDTH, &stats.body_edge, BODY_EDGE_WIDTH);
@@ -285,7 +285,7 @@ impl Network {
         }
         let iota: Vec<u32> = (0..nb as u32).collect();
         let has_body_slot = self.spec.effects.body;
-        for (bi, (bs, ba)) in self.spec.blocks.iter().zip(&lay.net.blocks).enumerate() {
+        for (bi, (bs, ba)) in self.spec.blocks.iter().zip(&lay.mlps.blocks).enumerate() {
             let n_slots = bs.keys.len() + usize::from(has_body_slot);
             let mut bt =
                 BlockTape { x_in: x.clone(), slots: vec![vec![R::ZERO; rows * h]; n_slots], ..BlockTape::default() };
@@ -332,7 +332,7 @@ impl Network {
             t.blocks.push(bt);
         }
         let mut dec = vec![R::ZERO; v * 3];
-        t.dec = ops::mlp_forward(theta, &lay.net.decoder, &[&x[..v * h]], v, &mut dec, false);
+        t.dec = ops::mlp_forward(theta, &lay.mlps.decoder, &[&x[..v * h]], v, &mut dec, false);
         t.x_final = x;
         let (mean, std) = &stats.output;
         t.new_pos = (0..v)
@@ -390,7 +390,7 @@ impl Network {
         ops::mlp_backward(
             theta,
             grad,
-            &lay.net.decoder,
+            &lay.mlps.decoder,
             &tape.dec,
             &[&tape.x_final[..v * h]],
             &ddec,
@@ -399,7 +399,7 @@ impl Network {
         let mut dlat: [Vec<R>; 4] = core::array::from_fn(|k| vec![R::ZERO; tape.edge_in[k].len() / EDGE_WIDTH * h]);
         let (mut dg2b, mut db2g) = (vec![R::ZERO; nb * h], vec![R::ZERO; nb * h]);
         let iota: Vec<u32> = (0..nb as u32).collect();
-        for (bi, (bs, ba)) in self.spec.blocks.iter().zip(&lay.net.blocks).enumerate().rev() {
+        for (bi, (bs, ba)) in self.spec.blocks.iter().zip(&lay.mlps.blocks).enumerate().rev() {
             let bt = &tape.blocks[bi];
             // Node update x_out = x_in + MLP([x_in, slots]).
             let mut dx_in = dx.clone();
@@ -457,12 +457,12 @@ impl Network {
         for key in [EdgeKey::C0, EdgeKey::C1, EdgeKey::C2, EdgeKey::Mesh] {
             let k = key as usize;
             if let (Some(c), Some(enc)) =
-                (&tape.edge_enc[k], self.spec.encoder_index(key).and_then(|i| lay.net.edge_encoders.get(i)))
+                (&tape.edge_enc[k], self.spec.encoder_index(key).and_then(|i| lay.mlps.edge_encoders.get(i)))
             {
                 ops::mlp_backward(theta, grad, enc, c, &[&tape.edge_in[k]], &dlat[k], &mut [None]);
             }
         }
-        if let (Some((cg, cb)), Some(enc)) = (&tape.body_enc, &lay.net.body_encoder) {
+        if let (Some((cg, cb)), Some(enc)) = (&tape.body_enc, &lay.mlps.body_encoder) {
             ops::mlp_backward(theta, grad, enc, cg, &[&tape.g2b_in], &dg2b, &mut [None]);
             ops::mlp_backward(theta, grad, enc, cb, &[&tape.b2g_in], &db2g, &mut [None]);
         }
@@ -470,7 +470,7 @@ impl Network {
         ops::mlp_backward(
             theta,
             grad,
-            &lay.net.node_encoder,
+            &lay.mlps.node_encoder,
             &tape.node_enc,
             &[&tape.node_in],
             &dx,

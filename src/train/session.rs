@@ -194,7 +194,7 @@ impl Trainer {
     pub fn new(cfg: TrainConfig, data: Dataset) -> Result<Trainer> {
         let spec = cfg.spec()?;
         let mut params = Params::init(&spec, cfg.seed)?;
-        if let Some(last) = params.net.decoder.layers.last_mut() {
+        if let Some(last) = params.mlps.decoder.layers.last_mut() {
             let k = cfg.decoder_init_scale;
             last.weight.iter_mut().chain(last.bias.iter_mut()).for_each(|w| *w *= k);
         }

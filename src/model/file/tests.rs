@@ -21,7 +21,7 @@ fn model_file_round_trip_reads_weights_in_place() {
     let range = bytes.as_bytes().as_ptr_range();
     let inside =
         |s: &[f32]| range.contains(&(s.as_ptr() as *const u8)) && s.as_ptr_range().end as *const u8 <= range.end;
-    for v in m.net.iter() {
+    for v in m.mlps.iter() {
         for l in &v.layers {
             assert!(inside(l.bias));
             for w in &l.f32 {

@@ -27,7 +27,7 @@ impl Workspace {
             None => &mut self.mesh_latents[..n * self.h],
         };
         let mut p = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors, flops: &mut self.flops };
-        p.mlp(net, &net.model.net.edge_encoders[enc_i], &[Some(&self.edge_features[..n * EDGE_WIDTH])], n, out, false)
+        p.mlp(net, &net.model.mlps.edge_encoders[enc_i], &[Some(&self.edge_features[..n * EDGE_WIDTH])], n, out, false)
     }
 
     /// The forward pass after the edge latents are encoded: nodes (features already in
@@ -56,7 +56,7 @@ impl Workspace {
         normalise_rows(feats, NODE_WIDTH, &mean[..NODE_NORMALISED], &std[..NODE_NORMALISED]);
         par.mlp(
             net,
-            &model.net.node_encoder,
+            &model.mlps.node_encoder,
             &[Some(&self.node_features[..rows * NODE_WIDTH])],
             rows,
             &mut self.latents[..rows * h],
@@ -64,7 +64,7 @@ impl Workspace {
         )?;
         // Body edges: both directions, one normaliser, one encoder.
         if nb > 0 {
-            let enc = model.net.body_encoder.as_ref().ok_or(Error::UnsupportedEffect { effect: "body collision" })?;
+            let enc = model.mlps.body_encoder.as_ref().ok_or(Error::UnsupportedEffect { effect: "body collision" })?;
             let (mean, std) = model.body_edge_stats();
             for (f, lat) in
                 [(&mut self.g2b_features, &mut self.g2b_latents), (&mut self.b2g_features, &mut self.b2g_latents)]
@@ -79,7 +79,7 @@ impl Workspace {
             body: &self.latents[v * h..rows * h],
         });
 
-        for (bi, (bspec, bview)) in model.spec().blocks.iter().zip(&model.net.blocks).enumerate() {
+        for (bi, (bspec, bview)) in model.spec().blocks.iter().zip(&model.mlps.blocks).enumerate() {
             let n_slots = bspec.keys.len() + usize::from(nb > 0);
             for s in &mut self.slots[..n_slots] {
                 par.fill(&mut s[..rows * h]);
@@ -183,7 +183,7 @@ impl Workspace {
                 body: &self.latents[v * h..rows * h],
             });
         }
-        par.mlp(net, &model.net.decoder, &[Some(&self.latents[..v * h])], v, &mut self.decoded, false)?;
+        par.mlp(net, &model.mlps.decoder, &[Some(&self.latents[..v * h])], v, &mut self.decoded, false)?;
         observer(Probe { stage: Stage::Decoded, garment: &self.decoded, body: &[] });
         Ok(())
     }

@@ -60,14 +60,14 @@ impl Network {
         }
         fit(&mut tmp.dx, rows * h);
         let xf = &tape.x_final[..v * h];
-        c.mlp_bwd(&lay.net.decoder, &[xf], &tape.dec, &tmp.ddec, &mut [Some(&mut tmp.dx[..v * h])], None, parts);
+        c.mlp_bwd(&lay.mlps.decoder, &[xf], &tape.dec, &tmp.ddec, &mut [Some(&mut tmp.dx[..v * h])], None, parts);
         for k in 0..4 {
             fit(&mut tmp.dlat[k], tape.edge_in[k].len() / EDGE_WIDTH * h);
         }
         fit(&mut tmp.dg2b, nb * h);
         fit(&mut tmp.db2g, nb * h);
         let iota = &tmp.iota;
-        for (bi, (bs, ba)) in self.spec.blocks.iter().zip(&lay.net.blocks).enumerate().rev() {
+        for (bi, (bs, ba)) in self.spec.blocks.iter().zip(&lay.mlps.blocks).enumerate().rev() {
             let bt = &tape.blocks[bi];
             // Node update x_out = x_in + MLP([x_in, slots]).
             tmp.dx_in.clear();
@@ -149,18 +149,18 @@ impl Network {
         for key in [EdgeKey::C0, EdgeKey::C1, EdgeKey::C2, EdgeKey::Mesh] {
             let k = key as usize;
             if let (true, Some(enc)) =
-                (tape.edge_on[k], self.spec.encoder_index(key).and_then(|i| lay.net.edge_encoders.get(i)))
+                (tape.edge_on[k], self.spec.encoder_index(key).and_then(|i| lay.mlps.edge_encoders.get(i)))
             {
                 c.mlp_bwd(enc, &[&tape.edge_in[k]], &tape.edge_enc[k], &tmp.dlat[k], &mut [None], None, parts);
             }
         }
-        if let (true, Some(enc)) = (nb > 0, &lay.net.body_encoder) {
+        if let (true, Some(enc)) = (nb > 0, &lay.mlps.body_encoder) {
             c.mlp_bwd(enc, &[&tape.g2b_in], &tape.body_enc[0], &tmp.dg2b, &mut [None], None, parts);
             c.mlp_bwd(enc, &[&tape.b2g_in], &tape.body_enc[1], &tmp.db2g, &mut [None], None, parts);
         }
         fit(&mut tmp.dnf, tape.node_in.len());
         c.mlp_bwd(
-            &lay.net.node_encoder,
+            &lay.mlps.node_encoder,
             &[&tape.node_in],
             &tape.node_enc,
             &tmp.dx,

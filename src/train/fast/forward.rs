@@ -24,10 +24,10 @@ fn normalise(rows: &mut [f32], stride: usize, (mean, std): &(Vec<f32>, Vec<f32>)
 impl Network {
     /// Checks the spec fits the fast path's fixed-size tables.
     fn check_fast(&self) -> Result<()> {
-        let too_deep = self.layout.net.iter().any(|m| m.layers.len() > 8);
+        let too_deep = self.layout.mlps.iter().any(|m| m.layers.len() > 8);
         let too_wide = self.spec.blocks.iter().any(|b| self.spec.node_inputs(b) > MAX_INPUTS);
         // The LayerNorm backward reads gamma and beta as one block.
-        let split_norm = self.layout.net.iter().any(|m| m.norm.is_some_and(|(g, b)| b != g + m.output()));
+        let split_norm = self.layout.mlps.iter().any(|m| m.norm.is_some_and(|(g, b)| b != g + m.output()));
         if too_deep || too_wide || split_norm {
             return Err(Error::IncompatibleModel {
                 reason: "the fast trainer path supports at most 8 layers and 8 node inputs",
@@ -59,7 +59,7 @@ impl Network {
         }
         if ws.layout.as_ref() != Some(lay) {
             self.check_fast()?;
-            ws.linears = lay.net.iter().flat_map(|m| m.layers.iter().copied()).collect();
+            ws.linears = lay.mlps.iter().flat_map(|m| m.layers.iter().copied()).collect();
             ws.layout = Some(lay.clone());
         }
         // Transposed weights of the current parameters, one layer per task.
@@ -92,7 +92,7 @@ impl Network {
         normalise(nf, NODE_WIDTH, &stats.node, NODE_NORMALISED);
         let x = &mut tmp.x;
         fit(x, rows * h);
-        c.mlp_fwd(&lay.net.node_encoder, First::Parts(&[&t.node_in]), rows, &mut t.node_enc, x, false, parts);
+        c.mlp_fwd(&lay.mlps.node_encoder, First::Parts(&[&t.node_in]), rows, &mut t.node_enc, x, false, parts);
         // Mesh and coarse edges.
         for key in [EdgeKey::C0, EdgeKey::C1, EdgeKey::C2, EdgeKey::Mesh] {
             let k = key as usize;
@@ -103,7 +103,7 @@ impl Network {
             let enc = self
                 .spec
                 .encoder_index(key)
-                .and_then(|i| lay.net.edge_encoders.get(i))
+                .and_then(|i| lay.mlps.edge_encoders.get(i))
                 .ok_or(Error::IncompatibleModel { reason: "the model has no encoder for an edge set it uses" })?;
             let ef = &mut t.edge_in[k];
             ef.clear();
@@ -117,7 +117,7 @@ impl Network {
         fit(&mut tmp.g2b, nb * h);
         fit(&mut tmp.b2g, nb * h);
         if nb > 0 {
-            let enc = lay.net.body_encoder.as_ref().ok_or(Error::UnsupportedEffect { effect: "body collision" })?;
+            let enc = lay.mlps.body_encoder.as_ref().ok_or(Error::UnsupportedEffect { effect: "body collision" })?;
             for (src, dst) in [(&step.g2b_features, &mut t.g2b_in), (&step.b2g_features, &mut t.b2g_in)] {
                 dst.clear();
                 dst.extend_from_slice(&src[..nb * BODY_EDGE_WIDTH]);
@@ -131,7 +131,7 @@ impl Network {
         tmp.iota.extend(0..nb as u32);
         let has_body_slot = self.spec.effects.body;
         t.blocks.resize_with(self.spec.blocks.len(), BlockTape::default);
-        for (bi, (bs, ba)) in self.spec.blocks.iter().zip(&lay.net.blocks).enumerate() {
+        for (bi, (bs, ba)) in self.spec.blocks.iter().zip(&lay.mlps.blocks).enumerate() {
             let n_slots = bs.keys.len() + usize::from(has_body_slot);
             let bt = &mut t.blocks[bi];
             bt.x_in.clear();
@@ -194,7 +194,7 @@ impl Network {
         fit(decoded, v * 3);
         t.x_final.clear();
         t.x_final.extend_from_slice(&tmp.x);
-        c.mlp_fwd(&lay.net.decoder, First::Parts(&[&t.x_final[..v * h]]), v, &mut t.dec, decoded, false, parts);
+        c.mlp_fwd(&lay.mlps.decoder, First::Parts(&[&t.x_final[..v * h]]), v, &mut t.dec, decoded, false, parts);
         let (mean, std) = &stats.output;
         new_pos.clear();
         new_pos.extend((0..v).map(|i| {
