@@ -13,7 +13,7 @@
 
 use hood::render::{Camera, Image, Style};
 use hood::rig::fit::{diffused_weights, pose_garment, DIFFUSION_SAMPLES};
-use hood::rig::motion::{animate, BodyMotion, ClipRest, Retarget, RetargetOptions, MODEL_FPS};
+use hood::rig::motion::{animate, BodyMotion, Retarget, MODEL_FPS};
 use hood::rig::procedural::{family_motion, skirt, walk, Family, Mannequin};
 use hood::rig::Pose;
 use std::path::PathBuf;
@@ -90,11 +90,7 @@ fn main() -> hood::Result<()> {
     }
     let mh = hood::io::makehuman::MakeHuman::load(assets.join("body"))?;
     let clip = hood::io::bvh::read(assets.join("motions/cmu_12_03_walk.bvh"))?.resample(MODEL_FPS)?;
-    let opts = RetargetOptions::default()
-        .with_clip_rest(ClipRest::Frame(0))
-        .with_rig_initial(Some(&mh.t_pose))
-        .with_aliases(&[("LeftHandFinger1", "LeftHandIndex1"), ("RightHandFinger1", "RightHandIndex1")]);
-    let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
+    let mut rt = Retarget::new(&mh.skeleton, &clip, &hood::scene::cmu_retarget(&mh))?;
     let motion = animate(&mh.skeleton, &mh.body_weights, &mh.body.rest, &clip, &mut rt)?;
     let frames: Vec<Image> =
         pick(&motion, 6).into_iter().map(|f| frame_image(motion.frame(f), &mh.body.faces, None)).collect();

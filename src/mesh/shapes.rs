@@ -15,12 +15,21 @@ pub fn grid(nx: usize, nz: usize, width: f32, depth: f32, y: f32) -> (Vec<[f32; 
             rest.push([x, y, z]);
         }
     }
-    let mut faces = Vec::with_capacity(2 * (nx - 1) * (nz - 1));
-    let id = |i: usize, j: usize| (j * nx + i) as u32;
-    for j in 0..nz - 1 {
-        for i in 0..nx - 1 {
+    // Seen from +y with x right and z down the page, each cell's triangles are counter-clockwise.
+    let faces = grid_triangles(nx, nz, false);
+    (rest, faces)
+}
+
+/// The triangles of an `nu x nv` grid of vertices (index `j * nu + i`, `i` fastest), wrapping in
+/// `i` when `closed` (a tube), two per cell with alternating diagonals, all wound as the cell's
+/// corners `(i, j)`, `(i, j + 1)`, `(i + 1, j + 1)` are.
+pub(crate) fn grid_triangles(nu: usize, nv: usize, closed: bool) -> Vec<[u32; 3]> {
+    let cols = if closed { nu } else { nu.saturating_sub(1) };
+    let mut faces = Vec::with_capacity(2 * cols * nv.saturating_sub(1));
+    let id = |i: usize, j: usize| (j * nu + i % nu) as u32;
+    for j in 0..nv.saturating_sub(1) {
+        for i in 0..cols {
             let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
-            // Seen from +y with x right and z down the page, (a, d, c) is counter-clockwise.
             if (i + j) % 2 == 0 {
                 faces.push([a, d, c]);
                 faces.push([a, c, b]);
@@ -30,7 +39,7 @@ pub fn grid(nx: usize, nz: usize, width: f32, depth: f32, y: f32) -> (Vec<[f32; 
             }
         }
     }
-    (rest, faces)
+    faces
 }
 
 /// One 1-to-4 midpoint subdivision: a new vertex at the middle of every edge (appended after

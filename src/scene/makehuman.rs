@@ -107,6 +107,18 @@ pub fn makehuman(assets: &Path, which: MakeHumanGarment, max_frames: usize) -> R
 /// The CMU finger names as the MakeHuman rig spells them.
 const CMU_FINGERS: &[(&str, &str)] = &[("LeftHandFinger1", "LeftHandIndex1"), ("RightHandFinger1", "RightHandIndex1")];
 
+/// How a CMU clip is retargeted onto the MakeHuman rig: the clip's frame 0 is its T-pose
+/// calibration, matched to the rig's T-pose; the CMU finger bones go to MakeHuman's index
+/// fingers. (Skip frame 0 when playing the clip: it is the calibration, not the motion.)
+pub fn cmu_retarget(mh: &MakeHuman) -> RetargetOptions<'_> {
+    RetargetOptions {
+        clip_rest: ClipRest::Frame(0),
+        rig_initial: Some(&mh.t_pose),
+        aliases: CMU_FINGERS,
+        ..Default::default()
+    }
+}
+
 /// `poses` lifted onto the floor: clips put their lowest joint (often an ankle) at y = 0,
 /// which sinks the feet, and some rise over a take (the AMP walk's root by 8 cm). Each frame
 /// goes onto the line through the lowest body vertex of each half of the clip (a stance in
@@ -317,13 +329,7 @@ fn makehuman_poses(assets: &Path, mh: &MakeHuman, motion: MakeHumanMotion, max_f
         }
         MakeHumanMotion::CmuWalk => {
             let clip = bvh::read(assets.join("motions/cmu_12_03_walk.bvh"))?.resample(MODEL_FPS)?;
-            let opts = RetargetOptions {
-                clip_rest: ClipRest::Frame(0),
-                rig_initial: Some(&mh.t_pose),
-                aliases: CMU_FINGERS,
-                ..Default::default()
-            };
-            let mut rt = Retarget::new(&mh.skeleton, &clip, &opts)?;
+            let mut rt = Retarget::new(&mh.skeleton, &clip, &cmu_retarget(mh))?;
             // Frame 0 of the clip is its T-pose calibration frame: start on the walk.
             let first = 1.min(clip.n_frames() - 1);
             let frames = (clip.n_frames() - first).min(max_frames.max(1));

@@ -368,7 +368,8 @@ pub fn procedural(
 
 #[cfg(feature = "std")]
 pub use makehuman::{
-    makehuman, makehuman_on, makehuman_on_bvh, makehuman_wearing, BvhRest, MakeHumanGarment, MakeHumanMotion, Wearing,
+    cmu_retarget, makehuman, makehuman_on, makehuman_on_bvh, makehuman_wearing, BvhRest, MakeHumanGarment,
+    MakeHumanMotion, Wearing,
 };
 
 #[cfg(feature = "std")]

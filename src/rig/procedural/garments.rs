@@ -51,22 +51,7 @@ fn check_target(n: usize) -> Result<()> {
 /// Quads of an `nu x nv` grid (u fastest), wrapping in u when `closed`, triangles oriented so
 /// that `(u, -v)` tangents give the outward side.
 fn grid_faces(nu: usize, nv: usize, closed: bool) -> Vec<[u32; 3]> {
-    let mut faces = Vec::new();
-    let id = |i: usize, j: usize| (j * nu + i % nu) as u32;
-    let cols = if closed { nu } else { nu - 1 };
-    for j in 0..nv - 1 {
-        for i in 0..cols {
-            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
-            if (i + j) % 2 == 0 {
-                faces.push([a, d, c]);
-                faces.push([a, c, b]);
-            } else {
-                faces.push([a, d, b]);
-                faces.push([b, d, c]);
-            }
-        }
-    }
-    faces
+    crate::mesh::shapes::grid_triangles(nu, nv, closed)
 }
 
 /// The smallest radius along the horizontal ray at angle `theta` (0 = +z, pi/2 = +x) from the
