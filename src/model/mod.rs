@@ -1,5 +1,5 @@
 //! Models: their shape ([`spec`]), the MLPs it implies ([`skeleton`]), their parameters
-//! ([`params`]), their file form ([`file`]) and, under `std`, the reference-checkpoint converter
+//! ([`params`]), their file form ([`mod@file`]) and, under `std`, the reference-checkpoint converter
 //! ([`mod@reference`]).
 
 pub mod file;

@@ -57,7 +57,7 @@ pub struct StepData {
     pub node_type: Vec<u8>,
     /// Vertex level (embedding row) per node row.
     pub node_level: Vec<u8>,
-    /// Raw edge features per [`EdgeKey`] (indexed `key as usize`), 12 wide, in the graph's edge
+    /// Raw edge features per [`EdgeKey`](crate::model::EdgeKey) (indexed `key as usize`), 12 wide, in the graph's edge
     /// order; empty for keys no block uses.
     pub edge_features: [Vec<f32>; 4],
     /// Raw garment->body edge features, 9 wide, in [`Graph::body_order`] order.
