@@ -1,9 +1,9 @@
-//! Models: their shape ([`spec`]), their parameters ([`params`]) and, under `std`, the
-//! reference-checkpoint converter ([`mod@reference`]).
+//! Models: their shape ([`spec`]), their parameters ([`params`]), their files ([`mod@file`]) and,
+//! with the feature `tools`, the reference-checkpoint converter (`model::reference`).
 
 pub mod file;
 pub mod params;
-#[cfg(feature = "std")]
+#[cfg(feature = "tools")]
 pub mod reference;
 pub mod spec;
 

@@ -70,7 +70,7 @@ pub(crate) fn check_len(what: &'static str, got: usize, expected: usize) -> Resu
     }
 }
 
-#[cfg(all(test, feature = "std"))]
+#[cfg(all(test, feature = "tools"))]
 mod parity_tests;
 #[cfg(test)]
 mod tests;
