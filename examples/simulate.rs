@@ -2,7 +2,7 @@
 //! written as an OBJ sequence and a PNG preview strip, with per-step timing and the objective.
 //!
 //! ```text
-//! cargo run --release --example simulate -- [MODEL.hood] [OUT_DIR]
+//! cargo run --release --features tools --example simulate -- [MODEL.hood] [OUT_DIR]
 //! ```
 //!
 //! MODEL defaults to the shipped `models/compact.hood`; OUT_DIR to `target/simulate`.

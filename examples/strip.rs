@@ -1,7 +1,7 @@
 //! PNG strips of bodies in motion.
 //!
 //! ```text
-//! cargo run --release --example strip -- [OUT_DIR] [ASSETS_DIR]
+//! cargo run --release --features tools --example strip -- [OUT_DIR] [ASSETS_DIR]
 //! ```
 //!
 //! Writes `OUT_DIR/procedural_walk_skirt.png` (the procedural mannequin walking, with a skirt

@@ -1,5 +1,5 @@
-//! Where the shared data lives: the MakeHuman body, garments and motion clips (an `assets`
-//! folder, laid out as `../shared/assets` of the source checkout) and the reference
+//! Where the shared data lives (feature `tools`): the MakeHuman body, garments and motion clips (an
+//! `assets` folder, laid out as `../shared/assets` of the source checkout) and the reference
 //! implementation's parity fixtures (a `fixtures` folder beside it).
 //!
 //! Nothing is compiled in: the folder comes from the caller (`--assets DIR` on the command

@@ -1,6 +1,6 @@
-//! Step latency measurement shared by `hood bench`, the criterion benches and the report:
-//! median wall time per step, useful FLOPs, GFLOP/s and efficiency against the machine's peak
-//! measured in the same run.
+//! Step latency measurement (feature `tools`) shared by `hood bench`, the criterion benches and the
+//! report: median wall time per step, useful FLOPs, GFLOP/s and efficiency against the machine's
+//! peak measured in the same run.
 
 use crate::error::Result;
 use crate::kernels::{peak, Kernels, Tier};

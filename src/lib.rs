@@ -8,9 +8,6 @@
 //! Units everywhere: metres, kilograms, seconds; **y is up**; positions handed to the network are
 //! per frame at the model's 30 Hz.
 //!
-//! The library is `#![no_std]` with `alloc`; the `std` feature (default) adds file I/O, run-time
-//! CPU dispatch and threads.
-//!
 //! ```
 //! use hood::mesh::{Garment, GarmentDesc};
 //! // One quad of 1 m x 1 m cloth, split into two triangles.
@@ -20,6 +17,21 @@
 //! assert_eq!(garment.edges().len(), 5);
 //! assert_eq!(garment.hinges().len(), 1);
 //! ```
+//!
+//! # Features
+//!
+//! Without features beyond the default, the library is the runtime: what an engine (or the C ABI,
+//! `hood-ffi`) needs to load a model, build a garment and a body, and step ([`model`], [`mesh`],
+//! [`body`], [`sim`] and what they stand on). It is `#![no_std]` with `alloc`.
+//!
+//! * `std` (default): reading model files, run-time CPU dispatch, the thread pool, the wall clock.
+//! * `tools` (implies `std`): making content and measuring the runtime on it: asset readers and
+//!   writers (`io`), rigs, skinning and procedural content (`rig`), animated scenes (`scene`),
+//!   evaluation (`eval`), previews (`render`), the named workloads and step timing (`workloads`,
+//!   `bench`, `kernels::peak`), the assets folder (`assets`) and the reference-checkpoint
+//!   converter (`model::reference`). The file formats' crates come with it.
+//! * `train` (implies `tools`): the trainer (`train`).
+//! * `cli` (implies `tools`): the `hood` command line.
 #![no_std]
 #![deny(unsafe_op_in_unsafe_fn)]
 #![warn(missing_docs, clippy::missing_safety_doc)]
@@ -50,18 +62,19 @@ macro_rules! with_fields {
     };
 }
 
-#[cfg(feature = "std")]
+#[cfg(feature = "tools")]
 pub mod assets;
-#[cfg(feature = "std")]
+#[cfg(feature = "tools")]
 pub mod bench;
 pub mod body;
 pub mod checksum;
 pub mod error;
+#[cfg(feature = "tools")]
 pub mod eval;
 pub mod exec;
 pub mod features;
 pub mod hierarchy;
-#[cfg(feature = "std")]
+#[cfg(feature = "tools")]
 pub mod io;
 pub mod kernels;
 pub mod limits;
@@ -70,15 +83,18 @@ pub mod mesh;
 pub mod model;
 pub mod normaliser;
 pub mod physics;
+#[cfg(feature = "tools")]
 pub mod render;
+#[cfg(feature = "tools")]
 pub mod rig;
 pub mod rng;
+#[cfg(feature = "tools")]
 pub mod scene;
 pub mod sim;
 pub mod solve;
 #[cfg(feature = "train")]
 pub mod train;
-#[cfg(feature = "std")]
+#[cfg(feature = "tools")]
 pub mod workloads;
 
 pub use error::{Error, Result};

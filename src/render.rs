@@ -1,6 +1,6 @@
-//! A small software rasteriser for previews: z-buffered triangles with flat Lambert shading, an
-//! orthographic or perspective look-at camera, RGB images that can be laid side by side. Write
-//! them with [`crate::io::png`].
+//! A small software rasteriser for previews (feature `tools`): z-buffered triangles with flat
+//! Lambert shading, an orthographic or perspective look-at camera, RGB images that can be laid side
+//! by side. Write them with [`crate::io::png`].
 
 use alloc::vec;
 use alloc::vec::Vec;

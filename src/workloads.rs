@@ -1,6 +1,6 @@
-//! The named workloads of EVALUATION.md, built in one place for the command line, the benches
-//! and the report. Procedural ones need no files; asset ones read the parity fixtures beside the
-//! assets folder ([`crate::assets`]) and fail with [`Error::Io`] when they are absent.
+//! The named workloads of EVALUATION.md (feature `tools`), built in one place for the command line,
+//! the benches and the report. Procedural ones need no files; asset ones read the parity fixtures
+//! beside the assets folder ([`crate::assets`]) and fail with [`Error::Io`] when they are absent.
 
 use crate::body::BodyMesh;
 use crate::error::{Error, Result};

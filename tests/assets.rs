@@ -1,5 +1,6 @@
 //! Tests on the real CC0 assets in `../shared/assets` (MakeHuman body and garments). Each test
 //! prints a message and passes when the folder is absent, so a fresh clone still tests clean.
+#![cfg(feature = "tools")]
 
 mod common;
 

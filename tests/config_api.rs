@@ -1,13 +1,8 @@
 //! The config structs are `#[non_exhaustive]`: built from outside the crate with their defaults
 //! and `with_` methods. Every setter sets its own field and leaves the others alone.
 
-use hood::eval::RolloutOptions;
 use hood::hierarchy::{CentreChoice, HierarchyConfig};
 use hood::kernels::Tier;
-use hood::mesh::Material;
-use hood::physics::Objective;
-use hood::rig::motion::{ClipRest, RetargetOptions};
-use hood::scene::own::{GarmentOptions, Pins, UpAxis};
 use hood::sim::{Precision, SimConfig, Sleeping, StepMode};
 use hood::solve::LbfgsParams;
 
@@ -48,22 +43,40 @@ fn config_sim_config_builders_set_every_field() {
     assert_eq!(n.step, StepMode::Network);
 }
 
-#[test]
-fn config_option_builders_set_every_field() {
-    let solver = LbfgsParams::default()
+/// Solver options with every field set away from its default.
+fn solver() -> LbfgsParams {
+    LbfgsParams::default()
         .with_max_iterations(7)
         .with_grad_tol(1e-3)
         .with_rel_decrease_tol(1e-4)
         .with_armijo(1e-2)
         .with_max_line_search(5)
-        .with_first_step(2e-3);
+        .with_first_step(2e-3)
+}
+
+#[test]
+fn config_option_builders_set_every_field() {
+    let solver = solver();
     assert_eq!(
         (solver.max_iterations, solver.grad_tol, solver.rel_decrease_tol, solver.armijo, solver.max_line_search),
         (7, 1e-3, 1e-4, 1e-2, 5)
     );
     assert_eq!(solver.first_step, 2e-3);
 
-    let objective = Objective::training(5e3);
+    let h = HierarchyConfig::default().with_levels(2).with_centre(CentreChoice::Seeded(9));
+    assert_eq!((h.levels, h.centre), (2, CentreChoice::Seeded(9)));
+}
+
+#[cfg(feature = "tools")]
+#[test]
+fn config_tool_option_builders_set_every_field() {
+    use hood::eval::RolloutOptions;
+    use hood::mesh::Material;
+    use hood::physics::Objective;
+    use hood::rig::motion::{ClipRest, RetargetOptions};
+    use hood::scene::own::{GarmentOptions, Pins, UpAxis};
+
+    let (objective, solver) = (Objective::training(5e3), solver());
     let r = RolloutOptions::default()
         .with_objective(objective)
         .with_gap_every(4)
@@ -85,9 +98,6 @@ fn config_option_builders_set_every_field() {
     assert_eq!((g.scale, g.up, g.offset), (0.01, UpAxis::Z, [0.0, 0.1, 0.0]));
     assert_eq!(g.pins, Pins::Vertices(vec![1, 2]));
     assert_eq!(g.material, Some(material));
-
-    let h = HierarchyConfig::default().with_levels(2).with_centre(CentreChoice::Seeded(9));
-    assert_eq!((h.levels, h.centre), (2, CentreChoice::Seeded(9)));
 
     let initial = [glam::Quat::IDENTITY; 2];
     let aliases = [("Hand", "LeftHand")];

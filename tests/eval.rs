@@ -1,6 +1,7 @@
 //! Rollout evaluation on procedural scenes with small random models: what is recorded, that the
 //! per-frame objective agrees with the physics module's independent rollout scoring, and that the
 //! objective gap is ordered (optimum ≤ model, optimum ≤ coasting).
+#![cfg(feature = "tools")]
 
 mod common;
 use common::random_model;

@@ -2,6 +2,7 @@
 //! with new positions, PC2 and MDD by readers of their published layouts, the `.usda` stage by a
 //! small reader (and by the USD library when `python3 -c "import pxr"` works), and `hood
 //! simulate --export` writing them all.
+#![cfg(feature = "tools")]
 
 use hood::io::export::{mdd, pc2, usda, ExportMesh, ObjTemplate};
 use hood::io::obj::Obj;

@@ -1,12 +1,18 @@
 //! Feature assembly and garment rest quantities against the reference implementation's fixture
 //! (`../shared/fixtures/hood-parity`). `cargo test features` selects these.
 
+// The fixture is read with the tools' safetensors reader: every test on it needs `tools`.
+#[cfg(feature = "tools")]
 mod common;
+#[cfg(feature = "tools")]
 use common::*;
 use hood::features::*;
+#[cfg(feature = "tools")]
 use hood::mesh::{vertex_normals, Garment, GarmentDesc, Material};
+#[cfg(feature = "tools")]
 use hood::normaliser::{normalise_rows, Normaliser};
 
+#[cfg(feature = "tools")]
 fn stats(f: &Fixture, name: &str) -> hood::normaliser::NormStats {
     let p = format!("model._{name}_normalizer.");
     let sum = f.weights.f64(&(p.clone() + "_acc_sum")).unwrap().data;
@@ -21,12 +27,14 @@ fn stats(f: &Fixture, name: &str) -> hood::normaliser::NormStats {
     s
 }
 
+#[cfg(feature = "tools")]
 fn check(what: &str, ours: &[f32], theirs: &[f32], tol: f64) {
     let (r, a) = (rel_err(ours, theirs), max_abs(ours, theirs));
     println!("{what}: rel {r:.2e}, max abs {a:.2e}");
     assert!(r < tol, "{what}: relative error {r:.3e} >= {tol:.0e}");
 }
 
+#[cfg(feature = "tools")]
 #[test]
 fn features_garment_rest_quantities_match_reference() {
     let Some(f) = fixture("features_garment_rest_quantities_match_reference") else { return };
@@ -45,6 +53,7 @@ fn features_garment_rest_quantities_match_reference() {
     check("material inputs", &Material::default().network_inputs(), &m, 1e-6);
 }
 
+#[cfg(feature = "tools")]
 #[test]
 fn features_match_reference() {
     let Some(f) = fixture("features_match_reference") else { return };
@@ -155,6 +164,7 @@ fn features_refuse_bad_lengths() {
     assert!(garment_node_features(&gn, &short, &mut out).is_err());
 }
 
+#[cfg(feature = "tools")]
 #[test]
 fn features_reference_state_dict_loads() {
     let Some(f) = fixture("features_reference_state_dict_loads") else { return };

@@ -1,6 +1,7 @@
 //! The fuzz targets' corpora (`fuzz/corpus/TARGET/`) replayed through the targets' own entry
 //! functions on the stable toolchain: every file, found by the fuzzers or written as a seed, must
 //! give errors, never a panic. The C ABI's target is replayed by `ffi/tests/fuzz_corpus.rs`.
+#![cfg(feature = "tools")]
 
 #[path = "../fuzz/src/common.rs"]
 #[allow(dead_code)]

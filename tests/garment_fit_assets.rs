@@ -1,5 +1,6 @@
 //! MakeHuman garments fitted to the MakeHuman body (skipped with a message when
 //! ../shared/assets is absent).
+#![cfg(feature = "tools")]
 
 mod common;
 

@@ -1,4 +1,5 @@
 //! Motion clips on the real assets (skipped with a message when ../shared/assets is absent).
+#![cfg(feature = "tools")]
 
 mod common;
 

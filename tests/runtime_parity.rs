@@ -1,6 +1,7 @@
 //! The whole step against the reference implementation's outputs on the fixture scene and
 //! weights (`../shared/fixtures/hood-parity`): encoder outputs, every block, decoder,
 //! accelerations and positions. `cargo test runtime_parity` selects these.
+#![cfg(feature = "tools")]
 
 mod common;
 use common::*;

@@ -1,10 +1,12 @@
 //! Animated scenes: the procedural garments dressed on the walking mannequin, and the MakeHuman
 //! jeans on the CMU walk (skipped with a message when ../shared/assets is absent).
+#![cfg(feature = "tools")]
 
 mod common;
 
 use hood::rig::procedural::Mannequin;
-use hood::scene::{procedural, GarmentKind, MotionKind, INITIAL_CLEARANCE};
+use hood::scene::{procedural, GarmentKind, MotionKind};
+use hood::solve::INITIAL_CLEARANCE;
 
 #[test]
 fn scene_procedural_skirt_starts_outside_and_pins_follow_the_body() {
@@ -19,7 +21,7 @@ fn scene_procedural_skirt_starts_outside_and_pins_follow_the_body() {
         // Not inside the body: the mannequin's own signed distance at the posed frame is not
         // available, so check against the nearest body face plane via the same push-out again.
         let mut y = x.clone();
-        let moved = hood::scene::push_out_of(&s.body, s.body_frame(f), &mut y, &pinned).unwrap();
+        let moved = hood::solve::push_out_of(&s.body, s.body_frame(f), &mut y, &pinned).unwrap();
         let worst =
             x.iter().zip(&y).map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f32::max)).fold(0.0, f32::max);
         assert!(worst < 0.2 * INITIAL_CLEARANCE, "frame {f}: {moved} vertices still moved by up to {worst} m");
@@ -161,7 +163,7 @@ fn scene_lead_in_starts_from_the_rest_pose_and_joins_the_clip() {
     let off = moved(&g0, led.garment.rest());
     let lifted = g0.iter().zip(led.garment.rest()).filter(|(p, q)| moved(&[**p], &[**q]) > 1e-5).count();
     assert!(
-        off <= hood::scene::INITIAL_CLEARANCE && lifted * 20 < g0.len(),
+        off <= hood::solve::INITIAL_CLEARANCE && lifted * 20 < g0.len(),
         "garment {off} m off its moved rest shape, {lifted} vertices"
     );
     // It blends into the clip without a jolt: the largest change of a body vertex's motion from

@@ -18,6 +18,7 @@
 //! Scenes are small (a ~300-vertex skirt on the coarse procedural mannequin) to keep the file
 //! fast. Under debug assertions (CI runs `cargo test` in the test profile) the long cases run
 //! fewer frames: [`LONG_FRAMES`] and [`BF16_FRAMES`].
+#![cfg(feature = "tools")]
 
 mod common;
 use common::random_model;

@@ -455,8 +455,8 @@ HOOD_API hood_status HOOD_CALL hood_sim_reset(hood_sim *sim, const float *positi
                                               const float *body_positions, size_t n_body_vertices);
 
 /* Places a garment authored in the rest pose on the body, as the Rust scenes start theirs
- * (hood::scene::push_out_of, bitwise): every unpinned vertex closer than 2 mm
- * (hood::scene::INITIAL_CLEARANCE) to the plane of its nearest body face (the face whose centroid
+ * (hood::solve::push_out_of, bitwise): every unpinned vertex closer than 2 mm
+ * (hood::solve::INITIAL_CLEARANCE) to the plane of its nearest body face (the face whose centroid
  * is nearest; omitted vertices do not matter here), or behind that plane, moves along the face's
  * normal to 2 mm in front of it; every other vertex stays. `body`: as for hood_sim_new, at the
  * frame the sim starts from (wound inside out: HOOD_ERR_INSIDE_OUT). `positions`: 3 * n_vertices

@@ -105,7 +105,7 @@ pub unsafe extern "C" fn hood_sim_body_survey(sim: *const hood_sim, out: *mut ho
 }
 
 /// Pushes a garment's unpinned vertices out of the body at its first frame, in place (see the
-/// header): [`hood::scene::push_out_of`] on the caller's arrays.
+/// header): [`hood::solve::push_out_of`] on the caller's arrays.
 ///
 /// # Safety
 /// `body` is NULL or holds the `struct_size` bytes it states, with arrays of the stated counts;
@@ -150,7 +150,7 @@ pub unsafe extern "C" fn hood_garment_push_out(
             // SAFETY: `n_vertices` readable bytes (caller).
             unsafe { slice(pinned, n_vertices, "pinned")? }.iter().map(|&p| p != 0).collect()
         };
-        let count = hood::scene::push_out_of(&mesh, body_pos, &mut x, &pins)?;
+        let count = hood::solve::push_out_of(&mesh, body_pos, &mut x, &pins)?;
         // Written only now, on success.
         // SAFETY: `3 * n_vertices` writable floats (caller), overlapping no input (checked).
         unsafe { points_mut(positions, n_vertices, "positions")? }.copy_from_slice(&x);

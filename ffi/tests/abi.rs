@@ -1749,7 +1749,7 @@ fn bits(x: &[[f32; 3]]) -> Vec<[u32; 3]> {
 
 #[test]
 fn garment_push_out_moves_cloth_out_of_the_body_as_rust_does() {
-    use hood::scene::INITIAL_CLEARANCE;
+    use hood::solve::INITIAL_CLEARANCE;
     let sc = scene(9);
     let bd = sc.body_desc();
     let (start, pinned) = cloth_in_body(&sc);
@@ -1758,7 +1758,7 @@ fn garment_push_out_moves_cloth_out_of_the_body_as_rust_does() {
     let mesh = hood::body::BodyMesh::new(sc.body.len(), &sc.body_faces).unwrap();
     let pins: Vec<bool> = pinned.iter().map(|&p| p != 0).collect();
     let mut want = start.clone();
-    let want_moved = hood::scene::push_out_of(&mesh, &sc.body, &mut want, &pins).unwrap();
+    let want_moved = hood::solve::push_out_of(&mesh, &sc.body, &mut want, &pins).unwrap();
     let mut frame = hood::body::BodyFrame::new(&mesh).unwrap();
     frame.update(&mesh, &sc.body).unwrap();
     let mut near = vec![hood::body::Nearest { index: 0, distance: 0.0 }; n];
@@ -1773,7 +1773,7 @@ fn garment_push_out_moves_cloth_out_of_the_body_as_rust_does() {
     let mut x = start.clone();
     let mut moved = usize::MAX;
     assert_eq!(push_out(&bd, &mut x, pinned.as_ptr(), &mut moved), HOOD_OK, "{}", last_error());
-    assert_eq!(bits(&x), bits(&want), "the C result differs from hood::scene::push_out_of");
+    assert_eq!(bits(&x), bits(&want), "the C result differs from hood::solve::push_out_of");
     assert_eq!(moved, want_moved);
     let changed = (0..n).filter(|&i| x[i] != start[i]).count();
     assert_eq!(moved, changed, "moved counts the vertices that moved");
@@ -1800,7 +1800,7 @@ fn garment_push_out_moves_cloth_out_of_the_body_as_rust_does() {
     assert_eq!(bits(&y), bits(&x));
     let mut y = start.clone();
     let mut unpinned = start.clone();
-    let unpinned_moved = hood::scene::push_out_of(&mesh, &sc.body, &mut unpinned, &[]).unwrap();
+    let unpinned_moved = hood::solve::push_out_of(&mesh, &sc.body, &mut unpinned, &[]).unwrap();
     assert_eq!(push_out(&bd, &mut y, null(), &mut moved), HOOD_OK);
     assert_eq!((bits(&y), moved), (bits(&unpinned), unpinned_moved));
     assert!(moved > changed && (0..n).all(|i| !inside(&y, i)), "the pinned vertex inside moves too");

@@ -21,9 +21,9 @@ mod survey;
 mod winding;
 
 pub use frame::{BodyFrame, GarmentQuery};
-pub use grid::{Nearest, PointGrid, BLOCK, DEFAULT_CELLS_PER_POINT, X_SPLIT};
+pub use grid::{Nearest, PointGrid, DEFAULT_CELLS_PER_POINT};
 pub use survey::BodySurvey;
-pub use winding::{winding_number_exact, Winding, CLUSTER, FAR};
+pub use winding::{winding_number_exact, Winding};
 
 use crate::error::{Error, Result};
 use crate::math::finite3;

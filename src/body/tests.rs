@@ -482,7 +482,7 @@ fn body_query_vectorized_cell_slots_match_cell_of() {
     // The rebuild's slot pass (eight points per step; AVX2 where the CPU has it) against the
     // scalar cell assignment, point by point: random grids, points inside, outside on every side
     // (clamped), non-finite coordinates, and counts that leave every tail length.
-    use grid::{cell_of, SlotsOf};
+    use grid::{cell_of, SlotsOf, BLOCK};
     let mut rng = Rng(11);
     for round in 0..300 {
         let blocks = [1 + rng.below(40), 1 + rng.below(40), 1 + rng.below(12)];

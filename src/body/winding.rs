@@ -26,9 +26,9 @@ use core::f32::consts::PI;
 use super::BodyMesh;
 
 /// Faces per cluster.
-pub const CLUSTER: usize = 32;
+pub(crate) const CLUSTER: usize = 32;
 /// A cluster counts as one dipole for points farther than this many times its radius.
-pub const FAR: f32 = 3.0;
+pub(crate) const FAR: f32 = 3.0;
 
 /// One cluster's far-field summary at the last refit.
 #[derive(Clone, Copy, Debug, Default)]

@@ -148,7 +148,6 @@ pub fn common_state_gaps(
                 None => (vec![], vec![]),
             };
             for (runner, out) in runners.iter_mut().zip(outs.iter_mut()) {
-                #[cfg(feature = "std")]
                 let clock = std::time::Instant::now();
                 let kind = match runner {
                     Runner::Network(sim) => {
@@ -187,10 +186,7 @@ pub fn common_state_gaps(
                         StepKind::Stepped
                     }
                 };
-                #[cfg(feature = "std")]
                 let step_ms = clock.elapsed().as_secs_f64() * 1e3;
-                #[cfg(not(feature = "std"))]
-                let step_ms = 0.0;
                 let stepped = matches!(kind, StepKind::Stepped | StepKind::StartUp);
                 let (terms, penetrating, _) = scorer.score(anim, body_frames, stepped, None)?;
                 let gap: Option<Gap> = terms.map(|terms| optimum.gap(terms.total()));

@@ -1,6 +1,7 @@
-//! Evaluating a model on an animated scene (EVALUATION.md "Accuracy"): a rollout of the runtime
-//! through the scene's frames, scored per frame with the physics objective's evaluation form,
-//! and optionally compared with the converged implicit step (the relative objective gap).
+//! Evaluating a model on an animated scene (feature `tools`; EVALUATION.md "Accuracy"): a rollout
+//! of the runtime through the scene's frames, scored per frame with the physics objective's
+//! evaluation form, and optionally compared with the converged implicit step (the relative
+//! objective gap).
 //!
 //! * [`Animation`]: what a rollout plays (garment, body frames, pinned targets, initial state);
 //!   implemented by [`Scene`] and by the owned, editable [`Playback`].
@@ -181,7 +182,7 @@ pub struct FrameRecord {
     pub max_edge_strain: f64,
     /// Largest vertex speed over the frame, m/s.
     pub max_speed: f64,
-    /// Wall time of `Sim::step`, ms (0 without the `std` feature).
+    /// Wall time of `Sim::step`, ms.
     pub step_ms: f64,
     /// The objective gap, on the frames [`RolloutOptions::gap_every`] picks.
     pub gap: Option<Gap>,

@@ -122,7 +122,6 @@ pub fn rollout_observed(
         anim.pin_targets(t, &mut targets)?;
         sim.set_pin_targets(&targets)?;
         let body_next = anim.body_frame(t);
-        #[cfg(feature = "std")]
         let clock = std::time::Instant::now();
         match sim.step(body_next) {
             Ok(_) => {}
@@ -132,10 +131,7 @@ pub fn rollout_observed(
             }
             Err(e) => return Err(e),
         }
-        #[cfg(feature = "std")]
         let step_ms = clock.elapsed().as_secs_f64() * 1e3;
-        #[cfg(not(feature = "std"))]
-        let step_ms = 0.0;
         let after = sim.state();
         let kind = step_kind(sim_body, &before, after, body_next);
         scorer.load(kind, &before, &targets, &after.pos, &after.velocity);
@@ -194,13 +190,9 @@ pub fn implicit_rollout(
         anim.pin_targets(t, &mut targets)?;
         scorer.load_parts(StepKind::Stepped, &pos, &vel, &targets, &pos, &vel);
         let body_frames = [t.saturating_sub(2), t - 1, t];
-        #[cfg(feature = "std")]
         let clock = std::time::Instant::now();
         scorer.implicit(anim, body_frames, solver)?;
-        #[cfg(feature = "std")]
         let step_ms = clock.elapsed().as_secs_f64() * 1e3;
-        #[cfg(not(feature = "std"))]
-        let step_ms = 0.0;
         if let Err(e) = store(&scorer.x, &mut next) {
             out.failure = Some((t, e));
             break;

@@ -1,4 +1,4 @@
-//! File formats (feature `std`): readers and writers that turn files into the crate's plain
+//! File formats (feature `tools`): readers and writers that turn files into the crate's plain
 //! arrays and back. Errors are [`crate::Error::Parse`] (with the 1-based line) and
 //! [`crate::Error::Io`].
 

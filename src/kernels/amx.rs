@@ -310,7 +310,7 @@ unsafe fn a_tile(seg: &SegBf16, r0: usize, nr: usize, q: usize, tail: &mut RowTa
 /// The tile unit's throughput loop for [`super::peak`]: `iters` rounds of four independent
 /// `tdpbf16ps` (16 × 16 outputs × 32 products each), `iters · 4 · 16 · 16 · 32 · 2` FLOPs, on
 /// zero tiles (the rate does not depend on the values).
-#[cfg(feature = "std")]
+#[cfg(feature = "tools")]
 pub(crate) fn peak_loop(_t: super::x86::AmxBf16, iters: usize) -> f32 {
     let mut c = Out([[0.0; TILE_ROWS * PANEL]; 4]);
     // SAFETY: the token proves AMX is usable; the tiles are configured first and released last;

@@ -112,7 +112,7 @@ impl Kernels {
 
 #[cfg(feature = "std")]
 mod bench {
-    use super::super::peak::Stopwatch;
+    use super::super::stopwatch::Stopwatch;
     use super::super::{
         edge_mlp_scratch_len, pack_bf16, packed_len_bf16, EdgeInputs, EdgeMlp, Kernels, LayerNorm, PackedBf16, Weights,
     };

@@ -27,9 +27,11 @@ pub(crate) use frame::{lane_dot, lane_sum, layer_norm_stats};
 #[cfg(target_arch = "x86_64")]
 mod amx;
 mod pack;
-#[cfg(feature = "std")]
+#[cfg(feature = "tools")]
 pub mod peak;
 mod scalar;
+#[cfg(feature = "std")]
+mod stopwatch;
 #[cfg(test)]
 mod tests;
 #[cfg(target_arch = "x86_64")]
@@ -39,9 +41,8 @@ use core::sync::atomic::{AtomicU8, Ordering};
 
 pub use choose::{bf16_choice, Bf16Choice, Bf16Reason, WIDEN_MARGIN};
 
-pub use pack::{
-    pack_bf16, pack_f32, packed_len_bf16, packed_len_f32, padded_cols, PackedBf16, PackedF32, Weights, PANEL,
-};
+pub use pack::{pack_bf16, pack_f32, packed_len_bf16, packed_len_f32, PackedBf16, PackedF32, Weights};
+pub(crate) use pack::{padded_cols, PANEL};
 
 use crate::error::{check_at_least, check_len};
 use crate::{Error, Result};
@@ -50,10 +51,10 @@ use crate::{Error, Result};
 pub const LN_EPS: f32 = 1e-5;
 
 /// Rows processed per block by [`Kernels::linear`] (sizes its scratch).
-pub const LINEAR_BLOCK_ROWS: usize = 96;
+pub(crate) const LINEAR_BLOCK_ROWS: usize = 96;
 
 /// Edges processed per block by [`Kernels::edge_mlp`] (sizes its scratch).
-pub const EDGE_BLOCK: usize = 96;
+pub(crate) const EDGE_BLOCK: usize = 96;
 
 /// Most operands one [`Kernels::linear`] call sums.
 pub const MAX_OPERANDS: usize = 6;
@@ -360,7 +361,7 @@ impl Kernels {
     /// The fused edge MLP over all edges: for each edge `e` (target `r`, source `s`), computes
     /// the message `m_e` of [`EdgeMlp`], then `latent[e] += m_e` and `aggregate[r] += m_e` (the
     /// caller zeroes `aggregate` when it starts a new sum). Edges are processed in order, in
-    /// blocks of [`EDGE_BLOCK`], so the aggregate sum order is the edge order: deterministic.
+    /// fixed blocks, so the aggregate sum order is the edge order: deterministic.
     ///
     /// Shapes: `latent` is `edges × k_e`, `aggregate` is `n_targets × k_e`, projections are
     /// `n × h`.

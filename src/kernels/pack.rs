@@ -22,10 +22,10 @@ use half::bf16;
 use crate::{Error, Result};
 
 /// Output columns per packed panel.
-pub const PANEL: usize = 16;
+pub(crate) const PANEL: usize = 16;
 
 /// `n` rounded up to whole panels.
-pub const fn padded_cols(n: usize) -> usize {
+pub(crate) const fn padded_cols(n: usize) -> usize {
     n.div_ceil(PANEL) * PANEL
 }
 

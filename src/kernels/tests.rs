@@ -585,6 +585,7 @@ fn kernels_reject_bad_shapes() {
     assert!(k.linear(&[], None, &Epilogue::default(), &mut [0.0; 3 * 32], &mut s).is_err());
 }
 
+#[cfg(feature = "tools")]
 #[test]
 #[cfg_attr(miri, ignore = "measures speed, which an interpreter does not have")]
 fn kernels_peak_is_positive() {

@@ -493,7 +493,7 @@ entries!(AmxBf16, "avx2,fma,avx512f,avx512bf16");
 
 /// Throughput loops for [`super::peak`]: `iters` rounds of 12 independent accumulator chains.
 /// Returns a value depending on every chain so the work cannot be elided.
-#[cfg(feature = "std")]
+#[cfg(feature = "tools")]
 pub(crate) mod peak_loops {
     use super::*;
 

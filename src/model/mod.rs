@@ -1,10 +1,10 @@
 //! Models: their shape ([`spec`]), the MLPs it implies ([`skeleton`]), their parameters
-//! ([`params`]), their file form ([`mod@file`]) and, under `std`, the reference-checkpoint converter
-//! ([`mod@reference`]).
+//! ([`params`]), their files ([`mod@file`]) and, with the feature `tools`, the
+//! reference-checkpoint converter (`model::reference`).
 
 pub mod file;
 pub mod params;
-#[cfg(feature = "std")]
+#[cfg(feature = "tools")]
 pub mod reference;
 pub mod skeleton;
 pub mod spec;

@@ -1,6 +1,6 @@
-//! Reading the reference implementation's (HOOD `postcvpr`) state dict, as safetensors, into
-//! [`Params`]. Key names follow `Model.state_dict()`, with or without the `model.` prefix that
-//! `Runner.state_dict()` (and so `checkpoint['training_module']`) adds.
+//! (Feature `tools`.) Reading the reference implementation's (HOOD `postcvpr`) state dict, as
+//! safetensors, into [`Params`]. Key names follow `Model.state_dict()`, with or without the
+//! `model.` prefix that `Runner.state_dict()` (and so `checkpoint['training_module']`) adds.
 
 use super::params::{LayerNorm, Linear, Mlp, Normalisers, Params};
 use super::skeleton::{Mlps, Role};

@@ -58,7 +58,7 @@ pub const GRAVITY: f64 = 9.81;
 
 pub(crate) use crate::error::check_len;
 
-#[cfg(all(test, feature = "std"))]
+#[cfg(all(test, feature = "tools"))]
 mod parity_tests;
 #[cfg(test)]
 mod tests;

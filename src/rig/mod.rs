@@ -1,6 +1,7 @@
-//! Bodies in motion: a skeleton with rest frames, forward kinematics, linear blend skinning
-//! (this module, `no_std`), motion clips and retargeting ([`motion`]), procedural mannequin,
-//! motions and garments ([`procedural`]), and garment fitting and skinning ([`fit`]).
+//! Bodies in motion (feature `tools`): a skeleton with rest frames, forward kinematics, linear
+//! blend skinning (this module), motion clips and retargeting ([`motion`]), procedural mannequin,
+//! motions and garments ([`procedural`]), and garment fitting and skinning ([`fit`]). The runtime
+//! does not skin: an engine hands [`crate::sim::Sim::step`] its skinned body vertices.
 //!
 //! Frames: positions are in the body's units (metres for everything `hood` builds), y up, the
 //! body facing +z, x = the character's left. A [`Pose`] holds, per bone, the *world* rotation

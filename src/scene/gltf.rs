@@ -1,4 +1,4 @@
-//! A skinned glTF body wearing a garment of the user's (feature `std`): the body's rest (bind)
+//! A skinned glTF body wearing a garment of the user's: the body's rest (bind)
 //! mesh is the reference shape the garment is modelled around; one of its animations moves it.
 
 use super::own::OwnGarment;

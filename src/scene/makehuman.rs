@@ -1,4 +1,4 @@
-//! The MakeHuman scenes (feature `std`): the body of the assets folder wearing a piece of its
+//! The MakeHuman scenes: the body of the assets folder wearing a piece of its
 //! outfits, or a garment of the user's, on the CMU walk, a procedural motion, a clip of the
 //! motion corpus or a BVH clip, retargeted onto its rig.
 

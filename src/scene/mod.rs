@@ -1,27 +1,23 @@
-//! Animated scenes: a garment dressed on a skinned body that follows a motion at the model's
-//! 30 Hz. One place builds them for the trainer's data, the workloads, `hood simulate` and the
-//! evaluation: the procedural mannequin with the procedural garments and motions, and (under
-//! `std`) the MakeHuman body with its garments on the CMU walk.
+//! Animated scenes (feature `tools`): a garment dressed on a skinned body that follows a motion at
+//! the model's 30 Hz. One place builds them for the trainer's data, the workloads, `hood simulate`
+//! and the evaluation: the procedural mannequin with the procedural garments and motions, and the
+//! MakeHuman body with its garments on the CMU walk.
 //!
 //! The garment is skinned along with the body (weights diffused from the body's, MODEL.md
 //! section 7): [`Scene::skinned_garment`] gives the pinned vertices' targets at every frame and,
 //! pushed out of the body, the garment's initial state ([`Scene::initial_garment`]).
 
-use crate::body::{BodyFrame, BodyMesh, Nearest};
+use crate::body::BodyMesh;
 use crate::error::{Error, Result};
 use crate::mesh::{Garment, GarmentDesc, Material};
-use crate::physics::FaceFrame;
 use crate::rig::fit::{diffused_weights, pose_garment, DIFFUSION_SAMPLES};
 use crate::rig::motion::BodyMotion;
 use crate::rig::procedural::{self as proc_, LocalMotion, Mannequin};
 use crate::rig::{Pose, Skeleton, SkinWeights};
-use crate::solve::push_out;
+use crate::solve::push_out_of;
 use alloc::string::String;
 use alloc::vec;
 use alloc::vec::Vec;
-
-/// Clearance the initial garment keeps from the body (MODEL.md section 7), m.
-pub const INITIAL_CLEARANCE: f32 = 2e-3;
 
 /// Voxel edge of the weight diffusion, m.
 const DIFFUSION_VOXEL: f32 = 0.01;
@@ -255,8 +251,8 @@ impl Scene {
     }
 
     /// The garment at frame `f`: skinned, then every unpinned vertex closer than
-    /// [`INITIAL_CLEARANCE`] to (or behind) its nearest body face pushed out along that face's
-    /// normal.
+    /// [`INITIAL_CLEARANCE`](crate::solve::INITIAL_CLEARANCE) to (or behind) its nearest body
+    /// face pushed out along that face's normal ([`push_out_of`]).
     ///
     /// # Errors
     /// Errors of the body queries.
@@ -301,25 +297,9 @@ impl Scene {
     }
 }
 
-/// Pushes the unpinned vertices of `x` at least [`INITIAL_CLEARANCE`] out of the body at
-/// `body_pos`, along the normal of the face whose centroid is nearest.
-///
-/// # Errors
-/// Errors of the body queries.
-pub fn push_out_of(body: &BodyMesh, body_pos: &[[f32; 3]], x: &mut [[f32; 3]], pinned: &[bool]) -> Result<usize> {
-    let mut frame = BodyFrame::new(body)?;
-    frame.update(body, body_pos)?;
-    let mut near = vec![Nearest { index: 0, distance: 0.0 }; x.len()];
-    frame.nearest_faces(x, &mut near)?;
-    let idx: Vec<u32> = near.iter().map(|n| n.index).collect();
-    let ff = FaceFrame { centroids: frame.centroids(), normals: frame.face_normals() };
-    push_out(x, &idx, ff, INITIAL_CLEARANCE, pinned)
-}
-
 /// Local rotations (as [`Skeleton::forward_kinematics`] takes them) that turn the upper arms of
 /// a rig with the CMU bone names from its rest to hanging straight down (-y): the rest of the AMP
 /// clips. Every other bone stays at rest.
-#[cfg(feature = "std")]
 fn arms_hanging_down(skel: &Skeleton) -> Vec<glam::Quat> {
     let mut local = vec![glam::Quat::IDENTITY; skel.len()];
     for name in ["LeftArm", "RightArm"] {
@@ -366,16 +346,12 @@ pub fn procedural(
     Scene::new(name, g, body, mannequin.rest(), mannequin.weights(), skel, poses, body_motion)
 }
 
-#[cfg(feature = "std")]
 pub use makehuman::{
     cmu_retarget, makehuman, makehuman_on, makehuman_on_bvh, makehuman_wearing, BvhRest, MakeHumanGarment,
     MakeHumanMotion, Wearing,
 };
 
-#[cfg(feature = "std")]
 mod gltf;
-#[cfg(feature = "std")]
 mod makehuman;
 pub mod own;
-#[cfg(feature = "std")]
 pub use gltf::gltf_wearing;

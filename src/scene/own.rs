@@ -155,7 +155,7 @@ pub fn garment_from_mesh(
         Pins::Vertices(v) => pinned_flags(rest.len(), v)?,
         _ => vec![false; rest.len()],
     };
-    super::push_out_of(body, body_pos, &mut rest, &fixed)?;
+    crate::solve::push_out_of(body, body_pos, &mut rest, &fixed)?;
     let materials = vec![options.material.unwrap_or_default(); rest.len()];
     let mut garment = Garment::new(GarmentDesc::new(&rest, triangles).materials(&materials))?;
     let pins = match &options.pins {

@@ -2,10 +2,10 @@
 //! [`StepMode`] that computes the step, the network's [`Precision`], [`Sleeping`], and their
 //! defaults.
 
+#[cfg(all(doc, feature = "std"))]
+use super::ThreadPool;
 #[cfg(doc)]
-use super::{
-    Sim, ThreadPool, DEFAULT_PROJECTION_MARGIN, MAX_REFINE_ITERATIONS, PROJECTION_REACH, REFINE_COLLISION_WEIGHT,
-};
+use super::{Sim, DEFAULT_PROJECTION_MARGIN, MAX_REFINE_ITERATIONS, PROJECTION_REACH, REFINE_COLLISION_WEIGHT};
 use crate::kernels::Tier;
 
 /// Default teleport threshold, metres per frame: a fast run moves a hand about 0.35 m per

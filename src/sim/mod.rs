@@ -20,7 +20,7 @@ mod effects;
 pub mod graph;
 pub(crate) mod inputs;
 mod motion;
-pub mod network;
+pub(crate) mod network;
 mod outfit;
 mod predict;
 mod projection;
@@ -57,6 +57,8 @@ pub use graph::Graph;
 pub use inputs::BODY_EDGE_RADIUS;
 use motion::FrameMotion;
 use network::{Net, Workspace};
+// Public for the parity tests (`tests/runtime_parity.rs`): a debugging hook, not stable API.
+#[doc(hidden)]
 pub use network::{Probe, Stage};
 pub use outfit::Outfit;
 use predict::NetBody;
@@ -459,6 +461,8 @@ impl<'m> Sim<'m> {
     ///
     /// # Errors
     /// See [`Sim::step`].
+    // Public for the parity tests (`tests/runtime_parity.rs`): a debugging hook, not stable API.
+    #[doc(hidden)]
     pub fn step_observed(
         &mut self,
         body_next: &[[f32; 3]],

@@ -12,7 +12,7 @@ mod relax;
 
 pub use implicit::{ImplicitStep, Query, StepBody, StepState};
 pub use lbfgs::{Lbfgs, LbfgsParams, LbfgsReport, Termination};
-pub use push_out::push_out;
+pub use push_out::{push_out, push_out_of, INITIAL_CLEARANCE};
 pub use relax::{relax_rest_shape, RestBody};
 
 #[cfg(test)]

@@ -2,7 +2,10 @@
 //! comparing tensors.
 #![allow(dead_code)]
 
-use hood::io::safetensors::SafeTensors;
+// Not every test that shares these helpers reads the fixture.
+#[cfg(feature = "tools")]
+#[allow(unused_imports)]
+pub use fixture::*;
 use std::path::{Path, PathBuf};
 
 /// Says that `test` skips (some or all of its checks) because `missing` is absent: one `SKIPPED`
@@ -20,43 +23,50 @@ pub fn shared_dir() -> PathBuf {
     PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared"))
 }
 
-/// The parity fixture's four files, or `None` (after printing why) when absent.
-pub struct Fixture {
-    pub scene: SafeTensors,
-    pub io: SafeTensors,
-    pub weights: SafeTensors,
-    pub losses: SafeTensors,
-}
+/// The parity fixture, read with the tools' safetensors reader (feature `tools`).
+#[cfg(feature = "tools")]
+mod fixture {
+    use super::{shared_dir, skip};
+    use hood::io::safetensors::SafeTensors;
 
-pub fn fixture(test: &str) -> Option<Fixture> {
-    let dir = shared_dir().join("fixtures/hood-parity");
-    if !dir.join("fixture_scene.safetensors").exists() {
-        skip(test, &dir);
-        return None;
+    /// The parity fixture's four files, or `None` (after printing why) when absent.
+    pub struct Fixture {
+        pub scene: SafeTensors,
+        pub io: SafeTensors,
+        pub weights: SafeTensors,
+        pub losses: SafeTensors,
     }
-    let load = |f: &str| SafeTensors::read(dir.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
-    Some(Fixture {
-        scene: load("fixture_scene.safetensors"),
-        io: load("fixture_io.safetensors"),
-        weights: load("fixture_weights.safetensors"),
-        losses: load("fixture_losses.safetensors"),
-    })
-}
 
-/// An `(n, 2)` edge index stored as `(2, n)` (row 0 sources, row 1 targets) as `[source, target]` pairs.
-pub fn edge_pairs(st: &SafeTensors, name: &str) -> Vec<[u32; 2]> {
-    let t = st.i64(name).unwrap();
-    assert_eq!(t.shape[0], 2, "{name}");
-    let n = t.shape[1];
-    (0..n).map(|k| [t.data[k] as u32, t.data[n + k] as u32]).collect()
-}
+    pub fn fixture(test: &str) -> Option<Fixture> {
+        let dir = shared_dir().join("fixtures/hood-parity");
+        if !dir.join("fixture_scene.safetensors").exists() {
+            skip(test, &dir);
+            return None;
+        }
+        let load = |f: &str| SafeTensors::read(dir.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+        Some(Fixture {
+            scene: load("fixture_scene.safetensors"),
+            io: load("fixture_io.safetensors"),
+            weights: load("fixture_weights.safetensors"),
+            losses: load("fixture_losses.safetensors"),
+        })
+    }
 
-pub fn rows3(st: &SafeTensors, name: &str) -> Vec<[f32; 3]> {
-    st.f32(name).unwrap().rows::<3>().unwrap()
-}
+    /// An `(n, 2)` edge index stored as `(2, n)` (row 0 sources, row 1 targets) as `[source, target]` pairs.
+    pub fn edge_pairs(st: &SafeTensors, name: &str) -> Vec<[u32; 2]> {
+        let t = st.i64(name).unwrap();
+        assert_eq!(t.shape[0], 2, "{name}");
+        let n = t.shape[1];
+        (0..n).map(|k| [t.data[k] as u32, t.data[n + k] as u32]).collect()
+    }
 
-pub fn faces(st: &SafeTensors, name: &str) -> Vec<[u32; 3]> {
-    st.i64(name).unwrap().rows::<3>().unwrap().iter().map(|f| f.map(|v| v as u32)).collect()
+    pub fn rows3(st: &SafeTensors, name: &str) -> Vec<[f32; 3]> {
+        st.f32(name).unwrap().rows::<3>().unwrap()
+    }
+
+    pub fn faces(st: &SafeTensors, name: &str) -> Vec<[u32; 3]> {
+        st.i64(name).unwrap().rows::<3>().unwrap().iter().map(|f| f.map(|v| v as u32)).collect()
+    }
 }
 
 /// `||a - b|| / ||b||` (Frobenius), with `||b||` floored at 1e-30.

@@ -267,7 +267,7 @@ fn files_scene(g: &Obj, body_dir: &Path, options: &GarmentOptions) -> Result<Pla
     }
     let garment = garment_from_mesh(&g.positions, &g.triangles, options, &body, &body_frames[0])?;
     let mut initial = garment.rest().to_vec();
-    hood::scene::push_out_of(&body, &body_frames[0], &mut initial, garment.pinned())?;
+    hood::solve::push_out_of(&body, &body_frames[0], &mut initial, garment.pinned())?;
     // Every vertex rides on its nearest body face: the pins' targets, and for the off-body
     // metric the garment "skinned" with the body (its drift and shift).
     let every: Vec<u32> = (0..garment.n_vertices() as u32).collect();

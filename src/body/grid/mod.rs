@@ -45,7 +45,7 @@ mod scan;
 mod tile;
 
 /// Cells per block edge.
-pub const BLOCK: usize = 4;
+pub(crate) const BLOCK: usize = 4;
 const BLOCK_CELLS: usize = BLOCK * BLOCK * BLOCK;
 const NONE: u32 = u32::MAX;
 /// Points compared at once; the sorted arrays carry this many padding entries, so that a scan
@@ -54,7 +54,7 @@ const LANES: usize = 8;
 /// Cells along x are this many times thinner than along y and z: a row of cells (along x) is one
 /// contiguous range of points whatever its length, so thin x cells trim rows to the ball's chord
 /// more tightly at no cost in rows visited.
-pub const X_SPLIT: usize = 8;
+pub(crate) const X_SPLIT: usize = 8;
 
 /// Default number of cells per point the grid aims for (see [`PointGrid::set_cells_per_point`]).
 pub const DEFAULT_CELLS_PER_POINT: f32 = 2.0;
@@ -202,12 +202,11 @@ impl PointGrid {
     pub fn is_empty(&self) -> bool {
         self.n_points == 0
     }
-    /// Cell edge of the last rebuild along y and z, metres (along x it is [`X_SPLIT`] times
-    /// shorter).
+    /// Cell edge of the last rebuild along y and z, metres (along x it is 8 times shorter).
     pub fn cell_size(&self) -> f32 {
         self.cell
     }
-    /// Cells per axis of the last rebuild (multiples of [`BLOCK`]).
+    /// Cells per axis of the last rebuild (multiples of 4, the blocks the search visits).
     pub fn cells(&self) -> [usize; 3] {
         self.blocks.map(|b| b * BLOCK)
     }
