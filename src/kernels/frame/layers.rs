@@ -51,7 +51,9 @@ pub(crate) unsafe fn linear<S: Simd>(
         let br = (rows - b0).min(LINEAR_BLOCK_ROWS);
         let mut f32_segs = [SegF32 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), k: 0 }; MAX_OPERANDS];
         let mut bf_segs = [SegBf16 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), pairs: 0 }; MAX_OPERANDS];
-        let mut off = 0;
+        // Each bf16 operand's prepared rows are split off the rest of `prep`, so that preparing
+        // the next operand does not reborrow (and so invalidate the pointers into) this one's.
+        let mut free: &mut [f32] = &mut *prep;
         for (i, op) in ops.iter().enumerate() {
             let k = op.w.k();
             let x = &op.x[b0 * k..(b0 + br) * k];
@@ -59,14 +61,14 @@ pub(crate) unsafe fn linear<S: Simd>(
                 Weights::F32(w) => f32_segs[i] = SegF32 { x: x.as_ptr(), ldx: k, w: w.data().as_ptr(), k },
                 Weights::Bf16(w) => {
                     let kp = k.next_multiple_of(2);
-                    let area = &mut prep[off..off + br * kp];
+                    let (area, next) = core::mem::take(&mut free).split_at_mut(br * kp);
+                    free = next;
                     for (src, dst) in x.chunks_exact(k.max(1)).zip(area.chunks_exact_mut(kp.max(1))) {
                         s.prep_bf16(src, dst);
                     }
                     bf_segs[i] =
                         SegBf16 { x: area.as_ptr(), ldx: kp, w: w.data().as_ptr() as *const u16, pairs: kp / 2 };
                     f32_segs[i] = SegF32 { x: area.as_ptr(), ldx: kp, w: wide_ptr[i], k };
-                    off += br * kp;
                 }
             }
         }
