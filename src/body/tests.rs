@@ -883,15 +883,18 @@ fn body_query_tiles_refuse_a_non_finite_query_by_its_index() {
 }
 
 /// The grid's scans follow the kernels' tier (one setting for every SIMD path): capped at
-/// scalar, a new grid scans portably; uncapped, it uses AVX2 exactly when the tier has it.
+/// scalar or portable, a new grid scans portably; uncapped, it uses AVX2 exactly when the tier has it.
 #[test]
 fn body_grid_scans_follow_the_kernel_tier() {
     use crate::kernels::{force_tier, Kernels, Tier};
+    let _guard = crate::kernels::CAP_LOCK.lock().unwrap_or_else(|e| e.into_inner());
     let before = crate::kernels::tier_cap();
-    force_tier(Some(Tier::Scalar));
-    let capped = PointGrid::new(10, 100).unwrap().uses_avx2();
-    force_tier(before);
-    assert!(!capped, "a grid made under the scalar cap scans with AVX2");
+    for cap in [Tier::Scalar, Tier::Portable] {
+        force_tier(Some(cap));
+        let capped = PointGrid::new(10, 100).unwrap().uses_avx2();
+        force_tier(before);
+        assert!(!capped, "a grid made under the {} cap scans with AVX2", cap.name());
+    }
     let now = PointGrid::new(10, 100).unwrap().uses_avx2();
     assert_eq!(now, Kernels::best().tier() >= Tier::Avx2Fma);
 }

@@ -55,7 +55,8 @@ impl Bf16Choice {
         let how = match self.tier {
             Tier::Amx => "AMX tiles",
             Tier::Avx512Bf16 => "vdpbf16ps",
-            _ => "widened onto f32 FMAs",
+            Tier::Avx2Fma | Tier::Avx512 => "widened onto f32 FMAs",
+            Tier::Scalar | Tier::Portable => "widened to f32",
         };
         let why = match self.reason {
             Bf16Reason::Capped => std::string::String::from("the tier cap (HOOD_KERNEL_TIER)"),

@@ -1,5 +1,6 @@
-//! The architecture-neutral half of the SIMD paths: micro-kernels and frames written once over a
-//! [`Simd`] vocabulary, instantiated inside each tier's `#[target_feature]` entry point (every
+//! The architecture-neutral half of the tiled paths: micro-kernels and frames written once over a
+//! [`Simd`] vocabulary and instantiated by each tier: inside the `#[target_feature]` entry points
+//! of the x86 tiers, and with the target's baseline features for the portable one (every
 //! function here is `#[inline(always)]` so it is compiled with the caller's features).
 //!
 //! * The **micro-kernel** computes an `MR × (NV · LANES)` tile of `Σ x · Wᵀ` in registers: per
@@ -9,12 +10,14 @@
 //!   last partial panel (through a small stack tile), and applies the fused epilogue.
 //! * Row passes (bf16 rounding of activations, LayerNorm, residual and aggregate adds) are plain
 //!   loops that the compiler vectorises for the caller's features.
-#![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
 mod gemm;
 mod layers;
 mod rows;
-pub(crate) use gemm::{epilogue_row, gemm, SegBf16, SegF32, Segs, TileEpi};
+// For the AMX tiles, which accumulate outside registers.
+#[cfg(target_arch = "x86_64")]
+pub(crate) use gemm::epilogue_row;
+pub(crate) use gemm::{gemm, SegBf16, SegF32, Segs, TileEpi};
 pub(crate) use layers::{edge_mlp, linear};
 #[cfg(any(test, feature = "train"))]
 pub(crate) use rows::layer_norm_stats;
@@ -22,8 +25,11 @@ pub(crate) use rows::layer_norm_stats;
 pub(crate) use rows::{lane_dot, lane_sum};
 pub(crate) use rows::{layer_norm_row, layer_norm_stats_rows, pack_bf16_pairs, round_bf16, widen_bf16};
 
-/// The vector vocabulary a tier provides. All methods are `unsafe`: they are only sound on a
-/// CPU with the tier's features (which the token type proves) and with in-bounds pointers.
+/// The vector vocabulary a tier provides, implemented only by capability tokens: a value of the
+/// implementing type exists only on a CPU with the tier's instructions (each token's constructor
+/// checks), so holding `self` is the proof those instructions need. Methods that only work on
+/// registers are therefore safe; methods that dereference a pointer are `unsafe` and need the
+/// pointed-to elements to exist.
 pub(crate) trait Simd: Copy {
     /// f32 lanes per vector.
     const LANES: usize;
@@ -40,25 +46,47 @@ pub(crate) trait Simd: Copy {
     /// A broadcast activation pair.
     type XP: Copy;
 
-    unsafe fn zero(self) -> Self::V;
-    unsafe fn splat(self, v: f32) -> Self::V;
-    unsafe fn load(self, p: *const f32) -> Self::V;
-    unsafe fn store(self, p: *mut f32, v: Self::V);
-    /// `a · b + c`.
-    unsafe fn fma(self, a: Self::V, b: Self::V, c: Self::V) -> Self::V;
-    unsafe fn add(self, a: Self::V, b: Self::V) -> Self::V;
-    unsafe fn max(self, a: Self::V, b: Self::V) -> Self::V;
-    unsafe fn prefetch(self, p: *const u8);
+    fn zero(self) -> Self::V;
+    fn splat(self, v: f32) -> Self::V;
+    /// `a · b + c` (fused on the x86 tiers, a product then a sum on the portable one).
+    fn fma(self, a: Self::V, b: Self::V, c: Self::V) -> Self::V;
+    fn add(self, a: Self::V, b: Self::V) -> Self::V;
+    fn max(self, a: Self::V, b: Self::V) -> Self::V;
+    /// `acc + w_even · x_even + w_odd · x_odd`, f32 accumulation.
+    fn dot2(self, acc: Self::V, w: Self::WP, x: Self::XP) -> Self::V;
 
+    /// Reads `LANES` floats at `p`.
+    ///
+    /// # Safety
+    /// `LANES` floats are readable at `p`.
+    unsafe fn load(self, p: *const f32) -> Self::V;
+    /// Writes `LANES` floats at `p`.
+    ///
+    /// # Safety
+    /// `LANES` floats are writable at `p`.
+    unsafe fn store(self, p: *mut f32, v: Self::V);
+    /// A hint to fetch the cache line at `p`.
+    ///
+    /// # Safety
+    /// None beyond the call: a prefetch reads nothing and never faults, whatever the address
+    /// (it is `unsafe` with the other pointer methods so that every pointer use is marked).
+    unsafe fn prefetch(self, p: *const u8);
     /// Loads `LANES` columns × 2 inputs of packed bf16 weights.
+    ///
+    /// # Safety
+    /// `2 · LANES` bf16 values are readable at `p`.
     unsafe fn load_w2(self, p: *const u16) -> Self::WP;
     /// Loads `LANES` columns of the even (`half == 0`) or odd input of packed bf16 weights,
     /// widened to f32.
+    ///
+    /// # Safety
+    /// As [`Simd::load_w2`].
     unsafe fn load_w_half(self, p: *const u16, half: usize) -> Self::V;
     /// Broadcasts the prepared activation pair at `p`.
+    ///
+    /// # Safety
+    /// `SLOTS_PER_PAIR` floats are readable at `p`.
     unsafe fn bcast_x2(self, p: *const f32) -> Self::XP;
-    /// `acc + w_even · x_even + w_odd · x_odd`, f32 accumulation.
-    unsafe fn dot2(self, acc: Self::V, w: Self::WP, x: Self::XP) -> Self::V;
 
     /// [`layer_norm_stats_rows`]; a tier may override it only with the same arithmetic (its
     /// results must stay bitwise those of [`layer_norm_stats`]).
@@ -68,8 +96,11 @@ pub(crate) trait Simd: Copy {
     }
 
     /// A tier's own product for bf16 operands (the AMX tiles), or `false` when the register
-    /// tiles run it. Arguments and contract as [`gemm`]'s; called between [`Simd::bf16_begin`]
-    /// and [`Simd::bf16_end`].
+    /// tiles run it.
+    ///
+    /// # Safety
+    /// Arguments and contract as [`gemm`]'s; called between [`Simd::bf16_begin`] and
+    /// [`Simd::bf16_end`].
     #[inline(always)]
     unsafe fn gemm_bf16(
         self,

@@ -2,19 +2,24 @@
 //! edge MLP (split first layer: gathered node projections + edge product), and aggregation over
 //! edges sorted by target.
 //!
-//! Paths ([`Tier`]): a scalar reference, AVX2+FMA, AVX-512F, AVX-512-BF16 (bf16 weights and
-//! activations, f32 accumulation with `vdpbf16ps`) and AMX-BF16 (the same on the tile unit). The CPU is probed once ([`detected_tier`]);
-//! a [`Kernels`] value carries the chosen path as a capability token, so hot code never probes.
-//! [`force_tier`] (or the environment variable `HOOD_KERNEL_TIER=scalar|avx2|avx512|avx512bf16|amx`,
-//! read once under `std`) caps the tier, and [`Kernels::with_tier`] picks one explicitly, so one
-//! machine can test every path it has.
+//! Paths ([`Tier`]): a scalar reference, a portable tiled path in plain Rust (the best tier off
+//! x86-64, where the compiler vectorises it for the target), and on x86-64 AVX2+FMA, AVX-512F,
+//! AVX-512-BF16 (bf16 weights and activations, f32 accumulation with `vdpbf16ps`) and AMX-BF16
+//! (the same on the tile unit). Every path but the scalar one runs the same frame of register
+//! tiles, row tails and partial panels, written once over a vector vocabulary. The CPU is probed
+//! once ([`detected_tier`]); a [`Kernels`] value carries the chosen path as a capability token,
+//! so hot code never probes. [`force_tier`] (or the environment variable
+//! `HOOD_KERNEL_TIER=scalar|portable|avx2|avx512|avx512bf16|amx`, read once under `std`) caps the
+//! tier, and [`Kernels::with_tier`] picks one explicitly, so one machine can test every path it
+//! has.
 //!
 //! bf16 weights run on whichever of `vdpbf16ps` and widened f32 FMAs is faster on the running
 //! CPU, measured once ([`bf16_choice`], [`Kernels::best_bf16`]).
 //!
-//! bf16 weights on a tier without AVX-512-BF16 run on f32 FMAs: the weights are widened once
-//! per call into caller scratch and the activations rounded to bf16 first, so every tier computes the same products
-//! (exact in f32) and differs only in summation order.
+//! bf16 weights on a tier without AVX-512-BF16 (the portable one included) run on f32
+//! multiply-adds: the weights are widened once per call into caller scratch and the activations
+//! rounded to bf16 first, so every tier computes the same products (exact in f32) and differs
+//! only in summation order.
 //!
 //! All kernels write into caller buffers and never allocate.
 
@@ -29,6 +34,7 @@ mod amx;
 mod pack;
 #[cfg(feature = "tools")]
 pub mod peak;
+mod portable;
 mod scalar;
 #[cfg(feature = "std")]
 mod stopwatch;
@@ -59,12 +65,22 @@ pub(crate) const EDGE_BLOCK: usize = 96;
 /// Most operands one [`Kernels::linear`] call sums.
 pub const MAX_OPERANDS: usize = 6;
 
-/// An instruction-set path, ordered from least to most capable.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+/// An instruction-set path, ordered from least to most capable: `Scalar < Portable < Avx2Fma <
+/// Avx512 < Avx512Bf16 < Amx`.
+///
+/// The order is by capability (the declaration order), not by the numeric values, which are kept
+/// stable for anything that stores them: [`Tier::Portable`] came later and is 6. Every tier from
+/// [`Tier::Avx2Fma`] up is an x86-64 tier with at least AVX2 and FMA, so `tier >= Tier::Avx2Fma`
+/// asks whether a path may use them; the portable tier is below that on every architecture.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[repr(u8)]
 pub enum Tier {
-    /// Portable scalar code: the reference every other path is tested against.
+    /// Scalar code, one output at a time: the reference every other path is tested against.
     Scalar = 1,
+    /// The register-tile frame in plain Rust on 8-lane arrays, which the compiler vectorises with
+    /// the target's baseline features (NEON on aarch64, SSE2 on x86-64); bf16 weights are widened
+    /// to f32 as on [`Tier::Avx2Fma`]. Available on every CPU; the best tier off x86-64.
+    Portable = 6,
     /// AVX2 + FMA (256-bit).
     Avx2Fma = 2,
     /// AVX-512F (512-bit); bf16 weights are widened to f32 in registers.
@@ -77,12 +93,13 @@ pub enum Tier {
 
 impl Tier {
     /// Every tier, lowest first.
-    pub const ALL: [Tier; 5] = [Tier::Scalar, Tier::Avx2Fma, Tier::Avx512, Tier::Avx512Bf16, Tier::Amx];
+    pub const ALL: [Tier; 6] = [Tier::Scalar, Tier::Portable, Tier::Avx2Fma, Tier::Avx512, Tier::Avx512Bf16, Tier::Amx];
 
-    /// Short lowercase name (`scalar`, `avx2`, `avx512`, `avx512bf16`, `amx`).
+    /// Short lowercase name (`scalar`, `portable`, `avx2`, `avx512`, `avx512bf16`, `amx`).
     pub fn name(self) -> &'static str {
         match self {
             Tier::Scalar => "scalar",
+            Tier::Portable => "portable",
             Tier::Avx2Fma => "avx2",
             Tier::Avx512 => "avx512",
             Tier::Avx512Bf16 => "avx512bf16",
@@ -95,8 +112,33 @@ impl Tier {
         Tier::ALL.into_iter().find(|t| t.name().eq_ignore_ascii_case(name.trim()))
     }
 
+    /// Position in the capability order (the index in [`Tier::ALL`]).
+    const fn rank(self) -> u8 {
+        match self {
+            Tier::Scalar => 0,
+            Tier::Portable => 1,
+            Tier::Avx2Fma => 2,
+            Tier::Avx512 => 3,
+            Tier::Avx512Bf16 => 4,
+            Tier::Amx => 5,
+        }
+    }
+
     fn from_u8(v: u8) -> Option<Tier> {
         Tier::ALL.into_iter().find(|t| *t as u8 == v)
+    }
+}
+
+impl PartialOrd for Tier {
+    fn partial_cmp(&self, other: &Tier) -> Option<core::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+/// The capability order (see [`Tier`]), not the numeric values.
+impl Ord for Tier {
+    fn cmp(&self, other: &Tier) -> core::cmp::Ordering {
+        self.rank().cmp(&other.rank())
     }
 }
 
@@ -105,7 +147,8 @@ static DETECTED: AtomicU8 = AtomicU8::new(0);
 /// Cap set by [`force_tier`] or the environment (0 = probe the environment, 255 = no cap).
 static CAP: AtomicU8 = AtomicU8::new(0);
 
-/// The most capable tier this CPU supports (probed once, then cached).
+/// The most capable tier this CPU supports (probed once, then cached): an x86-64 tier where the
+/// CPU has AVX2 and FMA, else [`Tier::Portable`].
 pub fn detected_tier() -> Tier {
     if let Some(t) = Tier::from_u8(DETECTED.load(Ordering::Relaxed)) {
         return t;
@@ -131,7 +174,7 @@ fn probe() -> Tier {
             return Tier::Avx2Fma;
         }
     }
-    Tier::Scalar
+    Tier::Portable
 }
 
 /// Caps the tier [`Kernels::best`] returns (`None` lifts the cap). Overrides
@@ -139,6 +182,10 @@ fn probe() -> Tier {
 pub fn force_tier(cap: Option<Tier>) {
     CAP.store(cap.map_or(255, |t| t as u8), Ordering::Relaxed);
 }
+
+/// Serialises the tests that set the process-wide cap and check what it selects.
+#[cfg(test)]
+pub(crate) static CAP_LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// The cap in force ([`force_tier`]'s, else `HOOD_KERNEL_TIER`'s), if any.
 pub(crate) fn tier_cap() -> Option<Tier> {
@@ -158,6 +205,7 @@ pub(crate) fn tier_cap() -> Option<Tier> {
 #[derive(Clone, Copy, Debug)]
 enum Backend {
     Scalar,
+    Portable(portable::Portable),
     #[cfg(target_arch = "x86_64")]
     Avx2(x86::Avx2Fma),
     #[cfg(target_arch = "x86_64")]
@@ -168,8 +216,9 @@ enum Backend {
     Amx(x86::AmxBf16),
 }
 
-/// A chosen kernel path. Holding one proves the CPU supports it (its SIMD variants are made only
-/// by checked constructors); copy it into the hot code once.
+/// A chosen kernel path. Holding one proves the CPU supports it (its x86 variants are made only
+/// by checked constructors; the scalar and portable paths run anywhere); copy it into the hot
+/// code once.
 #[derive(Clone, Copy, Debug)]
 pub struct Kernels {
     backend: Backend,
@@ -276,6 +325,7 @@ impl Kernels {
     pub fn with_tier(tier: Tier) -> Option<Kernels> {
         let backend = match tier {
             Tier::Scalar => Backend::Scalar,
+            Tier::Portable => Backend::Portable(portable::Portable::new()),
             #[cfg(target_arch = "x86_64")]
             Tier::Avx2Fma => Backend::Avx2(x86::Avx2Fma::new()?),
             #[cfg(target_arch = "x86_64")]
@@ -294,6 +344,7 @@ impl Kernels {
     pub fn tier(&self) -> Tier {
         match self.backend {
             Backend::Scalar => Tier::Scalar,
+            Backend::Portable(_) => Tier::Portable,
             #[cfg(target_arch = "x86_64")]
             Backend::Avx2(_) => Tier::Avx2Fma,
             #[cfg(target_arch = "x86_64")]
@@ -346,6 +397,7 @@ impl Kernels {
         check_at_least("linear scratch", scratch.len(), linear_scratch_len(ops, n))?;
         match self.backend {
             Backend::Scalar => scalar::linear(ops, bias, epilogue, out, scratch),
+            Backend::Portable(t) => t.linear(ops, bias, epilogue, out, scratch),
             #[cfg(target_arch = "x86_64")]
             Backend::Avx2(t) => t.linear(ops, bias, epilogue, out, scratch),
             #[cfg(target_arch = "x86_64")]
@@ -417,6 +469,7 @@ impl Kernels {
         check_at_least("edge MLP scratch", scratch.len(), edge_mlp_scratch_len(k_e, h))?;
         match self.backend {
             Backend::Scalar => scalar::edge_mlp(mlp, edges, latent, aggregate, scratch),
+            Backend::Portable(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
             #[cfg(target_arch = "x86_64")]
             Backend::Avx2(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
             #[cfg(target_arch = "x86_64")]

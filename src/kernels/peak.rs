@@ -2,10 +2,13 @@
 //! denominator of every efficiency figure in the benches and `hood bench`.
 //!
 //! f32: a loop of independent FMA chains (12 accumulators, enough to cover FMA latency × ports
-//! on current x86 cores) on the widest vectors the tier has. bf16: the same with `vdpbf16ps`
-//! where the CPU has AVX-512-BF16, four independent `tdpbf16ps` on the AMX tier; elsewhere the bf16 kernels run on f32 FMAs, so their peak is
-//! the f32 peak. Runs are timed on thread CPU time where available ([`Stopwatch`]), so other
-//! processes on a shared machine do not count against the loop. One FLOP is one multiply or one add (an FMA lane counts 2, a `vdpbf16ps` lane 4).
+//! on current x86 cores) on the widest vectors the tier has; on the portable tier the same chains
+//! of eight-lane multiply-adds in plain Rust, as its kernels compute them, vectorised by the
+//! compiler for the target. bf16: the same with `vdpbf16ps` where the CPU has AVX-512-BF16, four
+//! independent `tdpbf16ps` on the AMX tier; elsewhere the bf16 kernels run on f32 FMAs, so their
+//! peak is the f32 peak. Runs are timed on thread CPU time where available ([`Stopwatch`]), so
+//! other processes on a shared machine do not count against the loop. One FLOP is one multiply or
+//! one add (an FMA lane counts 2, a `vdpbf16ps` lane 4).
 
 pub use super::stopwatch::{thread_cpu_seconds, Stopwatch};
 use super::{Kernels, Tier};
@@ -61,6 +64,20 @@ fn scalar_loop(iters: usize, a: f32, b: f32) -> f32 {
     acc.iter().sum()
 }
 
+/// The portable tier's multiply-adds (a product then a sum, as its kernels compute them) on 12
+/// chains of eight lanes, which the compiler vectorises: `iters · 12 · 8 · 2` FLOPs.
+fn portable_loop(iters: usize, a: f32, b: f32) -> f32 {
+    let mut acc: [[f32; 8]; 12] = core::array::from_fn(|i| [i as f32; 8]);
+    for _ in 0..iters {
+        for c in acc.iter_mut() {
+            for v in c.iter_mut() {
+                *v = *v * a + b;
+            }
+        }
+    }
+    acc.iter().flatten().sum()
+}
+
 /// Measures the single-core peak of the path `k` runs (about `5 · target_ms` per precision).
 pub fn measure(k: Kernels, target_ms: f64) -> Peak {
     let (a, b) = (std::hint::black_box(0.999_f32), std::hint::black_box(1e-3_f32));
@@ -70,7 +87,7 @@ pub fn measure(k: Kernels, target_ms: f64) -> Peak {
     {
         use super::x86::{peak_loops, Avx2Fma, Avx512, Avx512Bf16};
         let f32_gflops = match tier {
-            Tier::Scalar => None,
+            Tier::Scalar | Tier::Portable => None,
             Tier::Avx2Fma => Avx2Fma::new()
                 .map(|t| best_gflops(12.0 * 8.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx2(t, n, a, b))),
             Tier::Avx512 | Tier::Avx512Bf16 | Tier::Amx => Avx512::new()
@@ -88,7 +105,10 @@ pub fn measure(k: Kernels, target_ms: f64) -> Peak {
             return Peak { tier, f32_gflops, bf16_gflops: native.unwrap_or(f32_gflops), bf16_native: native.is_some() };
         }
     }
-    let f = best_gflops(8.0 * 2.0, target_ms, reps, |n| scalar_loop(n, a, b));
+    let f = match tier {
+        Tier::Portable => best_gflops(12.0 * 8.0 * 2.0, target_ms, reps, |n| portable_loop(n, a, b)),
+        _ => best_gflops(8.0 * 2.0, target_ms, reps, |n| scalar_loop(n, a, b)),
+    };
     Peak { tier, f32_gflops: f, bf16_gflops: f, bf16_native: false }
 }
 

@@ -144,18 +144,47 @@ fn kernels_report_tiers() {
     }
     assert!(Kernels::with_tier(Tier::Scalar).is_some());
     assert!(Kernels::with_tier(detected_tier()).is_some());
+    // The portable tier runs everywhere and is the best off x86-64.
+    assert!(Kernels::with_tier(Tier::Portable).is_some());
+    assert!(detected_tier() >= Tier::Portable);
+    if cfg!(not(target_arch = "x86_64")) {
+        assert_eq!(detected_tier(), Tier::Portable);
+    }
+}
+
+/// Tiers order by capability, not by their numeric values (stable; the portable tier, added
+/// last, is 6): it sits between the scalar tier and every x86 tier, so `>= Tier::Avx2Fma` never
+/// takes it for AVX2, and a cap of `portable` on an x86 CPU selects it.
+#[test]
+fn kernels_tiers_order_by_capability() {
+    assert!(Tier::ALL.windows(2).all(|w| w[0] < w[1]), "Tier::ALL is lowest first");
+    assert_eq!(Tier::ALL.map(|t| t as u8), [1, 6, 2, 3, 4, 5]);
+    assert!(Tier::Scalar < Tier::Portable && Tier::Portable < Tier::Avx2Fma);
+    assert_eq!(Tier::Amx.min(Tier::Portable), Tier::Portable);
+    for t in Tier::ALL {
+        assert_eq!(Tier::from_name(t.name()), Some(t));
+        assert_eq!(Tier::from_u8(t as u8), Some(t));
+    }
+    assert_eq!(Tier::from_name(" Portable\n"), Some(Tier::Portable));
+    assert_eq!(Tier::from_name("AVX2"), Some(Tier::Avx2Fma));
 }
 
 #[test]
 fn kernels_force_tier_caps_best() {
+    let _guard = CAP_LOCK.lock().unwrap_or_else(|e| e.into_inner());
     // Restores the cap it found (a run under HOOD_KERNEL_TIER keeps it for the other tests).
     let before = super::tier_cap();
     force_tier(Some(Tier::Scalar));
     assert_eq!(Kernels::best().tier(), Tier::Scalar);
+    // Capped at portable: the kernels (bf16 weights too) and the trainer's products leave AVX2.
+    force_tier(Some(Tier::Portable));
+    assert_eq!(Kernels::best().tier(), Tier::Portable);
+    assert_eq!((bf16_choice().tier, Kernels::best_bf16().tier()), (Tier::Portable, Tier::Portable));
+    #[cfg(feature = "train")]
+    assert!(!crate::train::gemm::Gemm::best().is_simd(), "the trainer's GEMM uses AVX2 under the portable cap");
     force_tier(None);
     assert_eq!(Kernels::best().tier(), detected_tier());
     force_tier(before);
-    assert_eq!(Tier::from_name("AVX2"), Some(Tier::Avx2Fma));
 }
 
 #[test]
@@ -464,6 +493,51 @@ fn kernels_edge_mlp_tiers_match_scalar() {
                     }
                 }
             }
+        }
+    }
+}
+
+/// The portable tier, chosen through the public selection, against the scalar reference on small
+/// shapes that reach every path of the frame: row tails (1 to 5 rows past whole 6-row tiles),
+/// partial last panels (`n` not a multiple of 16), odd `k`, several operands, every epilogue with
+/// and without bias, f32 and bf16 weights, and the edge MLP and its aggregate across a block
+/// boundary. Small enough for Miri to check the frame's pointer arithmetic (docs/reliability.md).
+#[test]
+fn kernels_portable_tier_covers_the_frame() {
+    let k = Kernels::with_tier(Tier::Portable).expect("every CPU runs the portable tier");
+    assert_eq!(k.tier(), Tier::Portable);
+    let mut rng = Rng(0x9047);
+    // Between them the shapes have every row tail (0 to 5 rows past whole tiles).
+    let shapes = [(&[3usize][..], 3usize, [0usize, 3, 13]), (&[5, 16], 17, [2, 5, 6]), (&[9, 2, 7], 40, [1, 4, 17])];
+    for (widths, n, row_counts) in shapes {
+        let layers: Vec<Layer> = widths.iter().map(|&kw| Layer::new(&mut rng, kw, n)).collect();
+        let (bias, gamma, beta) = (rng.vec(n, 0.5), rng.vec(n, 1.0), rng.vec(n, 0.5));
+        for (r, rows) in row_counts.into_iter().enumerate() {
+            let xs: Vec<Vec<f32>> = widths.iter().map(|&kw| rng.vec(rows * kw, 1.0)).collect();
+            let out0 = rng.vec(rows * n, 1.0);
+            for bf in [false, true] {
+                let ops: Vec<Operand<'_>> =
+                    xs.iter().zip(&layers).map(|(x, l)| Operand { x, w: l.weights(bf) }).collect();
+                // Every epilogue, with and without bias in turn.
+                for (e, epi) in epilogues(&gamma, &beta).iter().enumerate() {
+                    let b = ((e + r) % 2 == 0).then_some(&bias[..]);
+                    let want = run_linear(&Kernels::scalar(), &ops, b, epi, &out0);
+                    let what =
+                        format!("portable k={widths:?} n={n} rows={rows} bf16={bf} bias={} {epi:?}", b.is_some());
+                    assert_close(&what, &run_linear(&k, &ops, b, epi, &out0), &want, 5e-5);
+                }
+            }
+        }
+    }
+    for (k_e, h, edges) in [(9, 20, 7), (4, 3, 1), (16, 33, 100), (9, 20, 0)] {
+        let case = EdgeCase::new(&mut rng, k_e, h, edges);
+        for (bf, ln) in [(false, true), (false, false), (true, true), (true, false)] {
+            let (want_l, want_a) = case.run(&Kernels::scalar(), bf, ln);
+            let (l, a) = case.run(&k, bf, ln);
+            let tol = if bf { 2e-3 } else { 5e-5 };
+            let what = format!("portable k_e={k_e} h={h} edges={edges} bf16={bf} ln={ln}");
+            assert_close(&format!("{what} latent"), &l, &want_l, tol);
+            assert_close(&format!("{what} aggregate"), &a, &want_a, tol * 4.0);
         }
     }
 }

@@ -176,6 +176,7 @@ unsafe fn epilogue_one(mut y: f32, c: usize, g: Option<*const f32>, o: *mut f32,
 ///
 /// # Safety
 /// As [`gemm`]'s; `sums` holds `PANEL` values and `c0 < n`.
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn epilogue_row<S: Simd>(
@@ -301,9 +302,9 @@ unsafe fn column_pass<S: Simd, const NV: usize>(
 /// blocks of at most ~100 rows, so the activations stay in L2 and each weight tile in L1).
 ///
 /// # Safety
-/// The CPU supports `S`; every operand has `rows` rows and packed weights with `ceil(n/16)`
-/// panels; `out` has `rows` rows of stride `ldo >= n`; the epilogue's pointers cover `n` columns
-/// (and, for a gather, `rows` valid indices).
+/// Every operand has `rows` rows and packed weights with `ceil(n/16)` panels; `out` has `rows`
+/// rows of stride `ldo >= n`; the epilogue's pointers cover `n` columns (and, for a gather, `rows`
+/// valid indices). (That the CPU runs `S` is proven by the token `s`.)
 #[inline(always)]
 pub(crate) unsafe fn gemm<S: Simd>(
     s: S,

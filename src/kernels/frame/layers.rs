@@ -11,10 +11,11 @@ fn bias_ptr(bias: Option<&[f32]>) -> *const f32 {
     bias.map_or(core::ptr::null(), |b| b.as_ptr())
 }
 
-/// [`crate::kernels::Kernels::linear`] on tier `S` (arguments validated by the caller).
+/// [`crate::kernels::Kernels::linear`] on tier `S`.
 ///
 /// # Safety
-/// The CPU supports `S`.
+/// The arguments passed the checks of [`crate::kernels::Kernels::linear`] (the tiles' pointer
+/// arithmetic relies on those shapes).
 #[inline(always)]
 pub(crate) unsafe fn linear<S: Simd>(
     s: S,
@@ -51,7 +52,9 @@ pub(crate) unsafe fn linear<S: Simd>(
         let br = (rows - b0).min(LINEAR_BLOCK_ROWS);
         let mut f32_segs = [SegF32 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), k: 0 }; MAX_OPERANDS];
         let mut bf_segs = [SegBf16 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), pairs: 0 }; MAX_OPERANDS];
-        let mut off = 0;
+        // Each bf16 operand's prepared rows are split off the rest of `prep`, so that preparing
+        // the next operand does not reborrow (and so invalidate the pointers into) this one's.
+        let mut free: &mut [f32] = &mut *prep;
         for (i, op) in ops.iter().enumerate() {
             let k = op.w.k();
             let x = &op.x[b0 * k..(b0 + br) * k];
@@ -59,14 +62,14 @@ pub(crate) unsafe fn linear<S: Simd>(
                 Weights::F32(w) => f32_segs[i] = SegF32 { x: x.as_ptr(), ldx: k, w: w.data().as_ptr(), k },
                 Weights::Bf16(w) => {
                     let kp = k.next_multiple_of(2);
-                    let area = &mut prep[off..off + br * kp];
+                    let (area, next) = core::mem::take(&mut free).split_at_mut(br * kp);
+                    free = next;
                     for (src, dst) in x.chunks_exact(k.max(1)).zip(area.chunks_exact_mut(kp.max(1))) {
                         s.prep_bf16(src, dst);
                     }
                     bf_segs[i] =
                         SegBf16 { x: area.as_ptr(), ldx: kp, w: w.data().as_ptr() as *const u16, pairs: kp / 2 };
                     f32_segs[i] = SegF32 { x: area.as_ptr(), ldx: kp, w: wide_ptr[i], k };
-                    off += br * kp;
                 }
             }
         }
@@ -80,7 +83,7 @@ pub(crate) unsafe fn linear<S: Simd>(
         match (&epi.layer_norm, epi.residual) {
             (None, residual) => {
                 let tepi = TileEpi { accumulate: residual, ..tepi };
-                // SAFETY: shapes validated by `Kernels::linear`; the CPU supports `S`.
+                // SAFETY: shapes validated by `Kernels::linear`.
                 unsafe { gemm(s, segs, br, n, out_blk.as_mut_ptr(), n, &tepi) };
             }
             (Some(ln), false) => {
@@ -126,7 +129,7 @@ unsafe fn chain_layer<S: Simd>(
     match w {
         Weights::F32(wf) => {
             let seg = [SegF32 { x: x.as_ptr(), ldx: k, w: wf.data().as_ptr(), k }];
-            // SAFETY: `x` has `br` rows of `k`, `out` `br` rows of `n`; the CPU supports `S`.
+            // SAFETY: `x` has `br` rows of `k`, `out` `br` rows of `n`.
             unsafe { gemm(s, Segs::F32(&seg), br, n, out.as_mut_ptr(), n, epi) };
         }
         Weights::Bf16(wb) => {
@@ -148,10 +151,11 @@ unsafe fn chain_layer<S: Simd>(
     }
 }
 
-/// [`crate::kernels::Kernels::edge_mlp`] on tier `S` (arguments validated by the caller).
+/// [`crate::kernels::Kernels::edge_mlp`] on tier `S`.
 ///
 /// # Safety
-/// The CPU supports `S`.
+/// The arguments passed the checks of [`crate::kernels::Kernels::edge_mlp`] (shapes, and node
+/// indices inside their projections).
 #[inline(always)]
 pub(crate) unsafe fn edge_mlp<S: Simd>(
     s: S,
@@ -214,7 +218,7 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
         let epi2 = TileEpi { bias: mlp.b2.as_ptr(), addend: none, relu: true, accumulate: false };
         let epi3 = TileEpi { bias: mlp.b3.as_ptr(), addend: none, relu: false, accumulate: false };
         // SAFETY: shapes validated by `Kernels::edge_mlp` (indices checked against the projection
-        // rows); scratch buffers hold `EDGE_BLOCK` rows of their widths; the CPU supports `S`.
+        // rows); scratch buffers hold `EDGE_BLOCK` rows of their widths.
         unsafe {
             chain_layer(s, &mlp.w1_edge, lat, br, prep, wide1, buf_a, &epi1);
             chain_layer(s, &mlp.w2, buf_a, br, prep, wide2, buf_b, &epi2);
