@@ -52,6 +52,41 @@ pub fn machine_peak() -> peak::Peak {
     peak::measure(Kernels::best(), 200.0)
 }
 
+/// Where two threads ran, as their one-way core-to-core latency ([`core_to_core_ns`]) places
+/// them. Two-thread step times depend on it: hyperthreads of one core share its FMA units, so a
+/// step's two halves barely overlap; cores on different chiplets pay for every hand-off.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Placement {
+    /// Two hardware threads of one core (under about 25 ns: the line stays in the core's caches).
+    SameCore,
+    /// Two cores that share a last-level cache (about 25–120 ns).
+    SharedCache,
+    /// Farther apart: different chiplets or sockets, or a host busy elsewhere (over 120 ns).
+    Distant,
+}
+
+impl Placement {
+    /// The placement a one-way latency of `ns` nanoseconds suggests.
+    pub fn from_latency_ns(ns: f64) -> Placement {
+        if ns < 25.0 {
+            Placement::SameCore
+        } else if ns <= 120.0 {
+            Placement::SharedCache
+        } else {
+            Placement::Distant
+        }
+    }
+
+    /// In words, for benchmark output.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Placement::SameCore => "two hardware threads of one core (expect little two-thread speed-up)",
+            Placement::SharedCache => "two cores sharing a last-level cache",
+            Placement::Distant => "cores on different chiplets or sockets, or a busy host (slower hand-offs)",
+        }
+    }
+}
+
 /// One-way latency of a cache line between two threads, ns (median over five rounds of up to
 /// 20,000 round trips through one atomic, 20 ms at most each), or `None` when a second thread
 /// cannot run.
@@ -169,6 +204,16 @@ pub fn bench_step(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bench_placement_follows_the_latency_bands() {
+        assert_eq!(Placement::from_latency_ns(11.0), Placement::SameCore);
+        assert_eq!(Placement::from_latency_ns(25.0), Placement::SharedCache);
+        assert_eq!(Placement::from_latency_ns(54.0), Placement::SharedCache);
+        assert_eq!(Placement::from_latency_ns(120.0), Placement::SharedCache);
+        assert_eq!(Placement::from_latency_ns(185.0), Placement::Distant);
+        assert_ne!(Placement::SameCore.describe(), Placement::Distant.describe());
+    }
 
     #[test]
     fn bench_core_to_core_latency_is_a_latency() {

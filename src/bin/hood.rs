@@ -1,11 +1,8 @@
 //! The `hood` command line (feature `cli`).
 
 use clap::{Args, Parser, Subcommand};
-use hood::bench::{bench_step, core_to_core_ns, machine_peak, BenchRow};
 use hood::model::{write_model, ModelBytes, ModelSpec, Params};
-use hood::sim::{Precision, StepMode};
-use hood::workloads::{workload, NAMES};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 /// `println!` for the command's output, without its panic: a closed stdout (`hood info m.hood |
@@ -24,6 +21,10 @@ macro_rules! say {
     }};
 }
 
+#[path = "cmd/bench.rs"]
+mod bench;
+#[path = "cmd/machine.rs"]
+mod machine;
 #[path = "cmd/objective.rs"]
 mod objective;
 #[path = "cmd/plot.rs"]
@@ -57,7 +58,7 @@ enum Command {
     /// Accuracy against time: variants x workloads -> docs/report.md and docs/report.svg.
     Report(report::ReportArgs),
     /// Step latency per workload, model size, precision and thread count (EVALUATION.md).
-    Bench(BenchArgs),
+    Bench(bench::BenchArgs),
     /// Convert a reference HOOD checkpoint's state dict (as safetensors) into a `.hood` file.
     Convert(ConvertArgs),
     /// Print a model file's shape, provenance and normaliser statistics.
@@ -175,57 +176,12 @@ fn average(a: AverageArgs) -> hood::Result<()> {
     Ok(())
 }
 
-#[derive(Args)]
-struct BenchArgs {
-    /// Workloads (comma-separated); default: every one whose files are present.
-    #[arg(long, value_delimiter = ',')]
-    workload: Vec<String>,
-    /// Latent widths of the HOOD architecture to time (random weights: timing does not depend
-    /// on their values).
-    #[arg(long, value_delimiter = ',', default_value = "128,64,32")]
-    latent: Vec<usize>,
-    /// A model file to time instead of random models.
-    #[arg(long)]
-    model: Option<PathBuf>,
-    /// The random models' block schedule instead of HOOD's (the form `TrainConfig`'s
-    /// `schedule` takes, e.g. `f,c0 | d:c0,c1 | d:c1 | c1 | u:c0,c1 | u:f,c0`), to time a
-    /// cheaper network before training it.
-    #[arg(long)]
-    schedule: Option<String>,
-    /// Coarse levels of the random models with `--schedule`.
-    #[arg(long, default_value_t = 3)]
-    levels: usize,
-    /// Also time the solver step mode (no network) at these L-BFGS iteration counts, on the
-    /// same workloads and threads (f32), for the network's cost against the solver's in one run.
-    #[arg(long, value_delimiter = ',')]
-    solver: Vec<u32>,
-    /// Precisions: f32, bf16.
-    #[arg(long, value_delimiter = ',', default_value = "f32,bf16")]
-    precision: Vec<String>,
-    /// Thread counts.
-    #[arg(long, value_delimiter = ',', default_value = "1,2")]
-    threads: Vec<usize>,
-    /// Timed steps per configuration (the median is reported).
-    #[arg(long, default_value_t = 15)]
-    steps: usize,
-    /// Untimed steps first.
-    #[arg(long, default_value_t = 3)]
-    warmup: usize,
-    /// The assets folder; the tee workloads read the parity fixtures beside it (default:
-    /// $HOOD_ASSETS, else `shared/assets` in the working directory or a parent).
-    #[arg(long)]
-    assets: Option<PathBuf>,
-    /// Print JSON instead of a table.
-    #[arg(long)]
-    json: bool,
-}
-
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Simulate(a) => simulate::simulate(a),
         Command::Report(a) => report::report(a),
-        Command::Bench(a) => bench(a),
+        Command::Bench(a) => bench::bench(a),
         Command::Convert(a) => convert(a),
         Command::Info(a) => info(a),
         Command::Average(a) => average(a),
@@ -247,200 +203,4 @@ fn random_model(spec: &ModelSpec) -> hood::Result<ModelBytes> {
     let mut p = Params::init(spec, 0)?;
     p.normalisers = hood::model::Normalisers::unit_scale(1);
     Ok(ModelBytes::new(&write_model(&p, true, &[("kind", "random, for timing")])?))
-}
-
-fn bench(a: BenchArgs) -> hood::Result<()> {
-    let assets = hood::assets::locate(a.assets.as_deref());
-    let names: Vec<String> =
-        if a.workload.is_empty() { NAMES.iter().map(|s| s.to_string()).collect() } else { a.workload.clone() };
-    let mut workloads = Vec::new();
-    for n in &names {
-        // Without an assets folder the procedural workloads still run.
-        let built = match &assets {
-            Ok(dir) => workload(n, dir),
-            Err(e) => workload(n, Path::new("")).map_err(|_| e.clone()),
-        };
-        match built {
-            Ok(w) => workloads.push(w),
-            Err(e) if a.workload.is_empty() => eprintln!("skipping {n}: {e}"),
-            Err(e) => return Err(e),
-        }
-    }
-    let precisions: Vec<Precision> = a
-        .precision
-        .iter()
-        .map(|p| match p.as_str() {
-            "bf16" => Ok(Precision::Bf16),
-            "f32" => Ok(Precision::F32),
-            _ => Err(hood::Error::parse("precision", 0, format!("'{p}' (use f32 or bf16)"))),
-        })
-        .collect::<hood::Result<_>>()?;
-    let models: Vec<ModelBytes> = match &a.model {
-        Some(p) => vec![ModelBytes::read(p)?],
-        None => a
-            .latent
-            .iter()
-            .map(|&h| match &a.schedule {
-                Some(s) => random_model(&ModelSpec::with_schedule(h, 2, a.levels, s)?),
-                None => random_model(&ModelSpec::hood(h)),
-            })
-            .collect::<hood::Result<_>>()?,
-    };
-    let peak = machine_peak();
-    eprintln!(
-        "peak per core ({}): f32 {:.1} GFLOP/s, bf16 {:.1} GFLOP/s",
-        peak.tier.name(),
-        peak.f32_gflops,
-        peak.bf16_gflops
-    );
-    if precisions.contains(&Precision::Bf16) {
-        eprintln!("{}", hood::kernels::bf16_choice().describe());
-    }
-    if a.threads.iter().any(|&t| t > 1) {
-        if let Some(ns) = core_to_core_ns() {
-            eprintln!("core-to-core latency: {ns:.0} ns one way (about 35: threads share an L3; 170-200: across chiplets, slower 2-thread steps; more: a busy machine)");
-        }
-    }
-    let mut rows: Vec<BenchRow> = Vec::new();
-    let mut push = |r: BenchRow| {
-        if !a.json {
-            print_row(&r, rows.is_empty());
-        }
-        rows.push(r);
-    };
-    for w in &workloads {
-        for mb in &models {
-            let model = mb.model()?;
-            for &p in &precisions {
-                for &t in &a.threads {
-                    push(bench_step(w, &model, StepMode::Network, p, t, a.warmup, a.steps, &peak)?);
-                }
-            }
-        }
-        if let Some(mb) = models.first() {
-            let model = mb.model()?;
-            for &iterations in &a.solver {
-                for &t in &a.threads {
-                    let solver = StepMode::Solver { iterations };
-                    push(bench_step(w, &model, solver, Precision::F32, t, a.warmup, a.steps, &peak)?);
-                }
-            }
-        }
-    }
-    if a.json {
-        say!("{}", to_json(&rows, &peak));
-    }
-    Ok(())
-}
-
-/// A row's step in words: `network`, or `solver K` for the solver step mode.
-fn step_name(step: StepMode) -> String {
-    match step {
-        StepMode::Solver { iterations } => format!("solver {iterations}"),
-        _ => "network".into(),
-    }
-}
-
-fn print_row(r: &BenchRow, header: bool) {
-    if header {
-        say!(
-            "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6}",
-            "workload",
-            "verts",
-            "bodyE",
-            "step",
-            "h",
-            "prec",
-            "tier",
-            "thr",
-            "median ms",
-            "GFLOP/step",
-            "GFLOP/s",
-            "peak",
-            "eff"
-        );
-    }
-    let network = r.step == StepMode::Network;
-    let (h, flops, gflops, peak, eff) = if network {
-        (
-            r.latent.to_string(),
-            format!("{:.3}", r.flops as f64 / 1e9),
-            format!("{:.1}", r.gflops),
-            format!("{:.1}", r.peak_gflops),
-            format!("{:.0}%", 100.0 * r.efficiency),
-        )
-    } else {
-        ("-".into(), "-".into(), "-".into(), "-".into(), "-".into())
-    };
-    say!(
-        "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10.2} {:>10} {:>9} {:>8} {:>6}",
-        r.workload,
-        r.vertices,
-        r.body_edges,
-        step_name(r.step),
-        h,
-        if r.precision == Precision::Bf16 { "bf16" } else { "f32" },
-        if network { r.tier.name() } else { "-" },
-        r.threads,
-        r.median_ms,
-        flops,
-        gflops,
-        peak,
-        eff
-    );
-}
-
-/// `hood bench --json`: the machine's peak and one object per row.
-fn to_json(rows: &[BenchRow], peak: &hood::kernels::peak::Peak) -> String {
-    #[derive(serde::Serialize)]
-    struct Peak {
-        tier: &'static str,
-        f32_gflops: f64,
-        bf16_gflops: f64,
-    }
-    #[derive(serde::Serialize)]
-    struct Row<'a> {
-        workload: &'a str,
-        step: String,
-        vertices: usize,
-        body_edges: usize,
-        latent: usize,
-        blocks: usize,
-        precision: &'static str,
-        tier: &'static str,
-        threads: usize,
-        median_ms: f64,
-        min_ms: f64,
-        flops: u64,
-        gflops: f64,
-        peak_gflops: f64,
-        efficiency: f64,
-    }
-    #[derive(serde::Serialize)]
-    struct Bench<'a> {
-        peak: Peak,
-        rows: Vec<Row<'a>>,
-    }
-    let rows = rows
-        .iter()
-        .map(|r| Row {
-            workload: &r.workload,
-            step: step_name(r.step),
-            vertices: r.vertices,
-            body_edges: r.body_edges,
-            latent: r.latent,
-            blocks: r.blocks,
-            precision: if r.precision == Precision::Bf16 { "bf16" } else { "f32" },
-            tier: r.tier.name(),
-            threads: r.threads,
-            median_ms: r.median_ms,
-            min_ms: r.min_ms,
-            flops: r.flops,
-            gflops: r.gflops,
-            peak_gflops: r.peak_gflops,
-            efficiency: r.efficiency,
-        })
-        .collect();
-    let peak = Peak { tier: peak.tier.name(), f32_gflops: peak.f32_gflops, bf16_gflops: peak.bf16_gflops };
-    hood::io::json::to_line(&Bench { peak, rows })
 }

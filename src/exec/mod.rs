@@ -1,6 +1,6 @@
 //! Intra-step parallelism: the step (network and solver alike) splits its loops into independent
 //! tasks and hands them to an [`Executor`]. An engine plugs in its job system (through the C ABI too);
-//! without one the step runs serially, and under `std` [`ThreadPool`] offers persistent worker
+//! without one the step runs serially, and under `std` `ThreadPool` offers persistent worker
 //! threads that run a step's tasks without allocating.
 
 /// Runs the independent tasks of a step.

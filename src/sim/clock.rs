@@ -1,7 +1,7 @@
 //! The clock of the solver's time budget ([`StepMode::SolverBudget`](super::StepMode)): the
 //! core has no clock of its own (it runs without `std`), so a step that must stop on time reads
 //! one the caller provides ([`Sim::set_clock`](super::Sim::set_clock)); with `std`, a sim starts
-//! with [`StdClock`].
+//! with `StdClock`.
 
 /// A monotonic clock.
 pub trait Clock: Send + Sync {
@@ -77,7 +77,7 @@ impl<'c> Deadline<'c> {
     }
 }
 
-/// The clock a new sim starts with: [`StdClock`] with `std`, none without.
+/// The clock a new sim starts with: `StdClock` with `std`, none without.
 pub(super) fn default_clock<'m>() -> Option<alloc::boxed::Box<dyn Clock + 'm>> {
     #[cfg(feature = "std")]
     {

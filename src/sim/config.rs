@@ -176,7 +176,7 @@ pub struct SimConfig {
     pub step: StepMode,
     /// Threads for the step's parallel parts when no executor is plugged in with
     /// [`Sim::set_executor`]: 1 runs serially; more (up to [`MAX_THREADS`]) starts a
-    /// [`ThreadPool`] (feature `std`) of at most the machine's hardware threads, with fewer
+    /// `ThreadPool` (feature `std`) of at most the machine's hardware threads, with fewer
     /// workers if the system refuses some. The
     /// network and the solver (step mode and refinement) both use them, and give the same bits
     /// for any number of threads.

@@ -320,7 +320,7 @@ impl<'m> Sim<'m> {
     }
 
     /// Plugs in the clock that [`StepMode::SolverBudget`] reads (an engine's frame timer; with
-    /// `std` a sim starts with [`StdClock`]).
+    /// `std` a sim starts with `StdClock`).
     pub fn set_clock(&mut self, clock: Box<dyn Clock + 'm>) {
         self.clock = Some(clock);
     }

@@ -34,10 +34,7 @@ pub(super) fn markdown(a: &ReportArgs, rows: &[Row], models: &[Candidate], train
         a.gap_every,
         a.objective.name()
     );
-    if let Some(load) = load_average() {
-        // Wall times mean little on a busy machine: say how busy it was.
-        let _ = writeln!(s, "Load average when the report was written (1, 5, 15 min): {load}.\n");
-    }
+    let _ = writeln!(s, "{}\n", crate::machine::machine_line());
     if !a.refine.is_empty() {
         let _ = writeln!(
             s,
@@ -248,13 +245,6 @@ fn table<'a>(s: &mut String, rows: impl Iterator<Item = &'a Row>) {
             );
         }
     }
-}
-
-/// The machine's load averages as `/proc/loadavg` gives them (Linux), if readable.
-fn load_average() -> Option<String> {
-    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
-    let fields: Vec<&str> = text.split_whitespace().take(3).collect();
-    (fields.len() == 3).then(|| fields.join(", "))
 }
 
 #[cfg(test)]
