@@ -57,6 +57,19 @@ impl<'a> GarmentDesc<'a> {
 }
 
 /// A validated garment mesh with its derived rest quantities.
+///
+/// # Examples
+///
+/// ```
+/// use hood::mesh::{Garment, GarmentDesc};
+///
+/// // Two triangles, metres, y up; a bad index is refused with an error, not a panic.
+/// let rest = [[0.0, 1.0, 0.0], [0.1, 1.0, 0.0], [0.0, 1.0, 0.1], [0.1, 1.0, 0.1]];
+/// let garment = Garment::new(GarmentDesc::new(&rest, &[[0, 2, 1], [1, 2, 3]]))?;
+/// assert_eq!(garment.n_vertices(), 4);
+/// assert!(Garment::new(GarmentDesc::new(&rest, &[[0, 2, 9]])).is_err());
+/// # Ok::<(), hood::Error>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct Garment {
     rest: Vec<[f32; 3]>,

@@ -462,6 +462,23 @@ impl<'a> Model<'a> {
 
 /// An owned, aligned copy of model bytes, for callers that do not manage alignment themselves
 /// (e.g. a model read from disk).
+///
+/// # Examples
+///
+/// ```
+/// use hood::model::ModelBytes;
+///
+/// // From a file, or from bytes already in memory (an engine's asset system): either way the
+/// // copy is aligned, and `model()` validates it once and then reads the weights in place.
+/// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/models/compact.hood");
+/// let from_file = ModelBytes::read(path)?;
+/// let in_memory = std::fs::read(path).map_err(|e| hood::Error::io(std::path::Path::new(path), e))?;
+/// let from_memory = ModelBytes::new(&in_memory);
+/// let model = from_memory.model()?;
+/// assert_eq!(model.spec(), from_file.model()?.spec());
+/// assert_eq!(model.spec().latent, 32); // the compact model
+/// # Ok::<(), hood::Error>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct ModelBytes {
     buf: rkyv::util::AlignedVec<ALIGN>,

@@ -111,6 +111,8 @@ impl Sleeping {
 /// change what differs with the `with_` methods; new fields may come, so there is no struct
 /// literal outside this crate. The fields stay public to read and to assign.
 ///
+/// # Examples
+///
 /// ```
 /// use hood::sim::{SimConfig, Sleeping};
 ///
