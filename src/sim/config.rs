@@ -69,6 +69,16 @@ pub enum Precision {
     Bf16,
 }
 
+impl Precision {
+    /// `"f32"` or `"bf16"`, as the command line and the reports spell it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::Bf16 => "bf16",
+        }
+    }
+}
+
 /// When to skip steps because nothing moves.
 ///
 /// Built with [`Sleeping::new`], or from [`Sleeping::default`] and the `with_` methods (new

@@ -248,7 +248,7 @@ pub fn report(a: ReportArgs) -> Result<()> {
                 if model.has_bf16() { &[Precision::F32, Precision::Bf16] } else { &[Precision::F32] };
             for &p in precisions {
                 let cfg = SimConfig::network().with_precision(p).with_threads(a.threads.max(1));
-                let prec = if p == Precision::Bf16 { "bf16" } else { "f32" };
+                let prec = p.name();
                 variants.push((format!("{} {prec}", c.label), Method::Network { model, cfg }));
             }
             for &k in &a.refine {
