@@ -560,10 +560,11 @@ fn runtime_solver_step_mode_is_the_implicit_step_without_the_network() {
 /// step's start at 0, the solve's at 1 ms, every iteration looks 1 ms long: after the second, at
 /// 3 ms, a third would end at 4 ms, past 2.5 ms; with 4.5 ms, three run) and is then the
 /// fixed-count solver step of as many iterations, bitwise; a clock that stands still leaves the
-/// iteration cap; a zero budget is refused.
+/// iteration cap; a zero budget is refused. Each step reports the time it used against its
+/// budget ([`Sim::last_budget`], `StepEffects::over_budget`), a budget it could not keep too.
 #[test]
 fn runtime_solver_budget_ends_each_solve_on_the_clock() {
-    use hood::sim::{Clock, StepMode};
+    use hood::sim::{BudgetUse, Clock, StepMode};
     use std::sync::atomic::{AtomicU64, Ordering};
     struct Ticking(AtomicU64, u64);
     impl Clock for Ticking {
@@ -583,20 +584,36 @@ fn runtime_solver_budget_ends_each_solve_on_the_clock() {
             sim.set_clock(Box::new(Ticking(AtomicU64::new(0), tick)));
         }
         let mut iterations = Vec::new();
+        let mut budgets = Vec::new();
         for t in 1..=8 {
             sim.step(&scene.body_at(t)).unwrap();
             iterations.push(sim.last_refinement().unwrap().iterations);
+            let used = sim.last_budget();
+            assert_eq!(sim.last_effects().over_budget, used.is_some_and(|b| !b.met()), "step {t}");
+            budgets.push(used);
         }
-        (iterations, sim.positions().to_vec())
+        if matches!(step, StepMode::Solver { .. }) {
+            assert!(budgets.iter().all(Option::is_none), "a fixed count has no budget: {budgets:?}");
+        }
+        // A placed garment has no solved step to report on.
+        sim.set_state(&sim.state().clone()).unwrap();
+        assert_eq!((sim.last_budget(), sim.last_effects().over_budget), (None, false));
+        (iterations, sim.positions().to_vec(), budgets)
     };
     let budget = StepMode::SolverBudget { micros: 2500, max_iterations: 50 };
-    let (its, x) = run(budget, Some(1_000_000));
+    let (its, x, used) = run(budget, Some(1_000_000));
     assert_eq!(its, vec![2; 8], "iterations per step within 2.5 ms of a 1 ms clock");
+    // Five readings a step (its start, the solve's, after each iteration, its end): 4 ms used,
+    // over the 2.5 ms budget, and the step says so.
+    let over = BudgetUse { budget_ns: 2_500_000, used_ns: 4_000_000 };
+    assert_eq!(used, vec![Some(over); 8]);
+    assert!(!over.met());
     assert_eq!(x, run(StepMode::Solver { iterations: 2 }, None).1, "the budgeted step differs from 2 iterations");
-    let (its, _) = run(StepMode::SolverBudget { micros: 4500, max_iterations: 50 }, Some(1_000_000));
+    let (its, _, _) = run(StepMode::SolverBudget { micros: 4500, max_iterations: 50 }, Some(1_000_000));
     assert_eq!(its, vec![3; 8], "iterations per step within 4.5 ms of a 1 ms clock");
-    let (its, x) = run(budget, Some(0));
+    let (its, x, used) = run(budget, Some(0));
     assert!(its.iter().all(|&k| k > 3 && k <= 50), "{its:?}");
+    assert_eq!(used, vec![Some(BudgetUse { budget_ns: 2_500_000, used_ns: 0 }); 8], "a clock standing still");
     assert_eq!(x, run(StepMode::Solver { iterations: 50 }, None).1, "a stopped clock differs from the cap");
     let cfg = SimConfig::network().with_step(StepMode::SolverBudget { micros: 0, max_iterations: 5 });
     let err = Sim::new(&model, &scene.garment, None, cfg).err();

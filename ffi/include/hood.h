@@ -378,12 +378,17 @@ HOOD_API hood_status HOOD_CALL hood_sim_free(hood_sim *sim);
 /* The last network step's solver refinement (HOOD_EFFECT_REFINE; HOOD_ERR_UNSUPPORTED_EFFECT when
  * it is off; also the solver step mode's solve): accepted L-BFGS iterations and the objective (J)
  * at the network's prediction and after. All zero before the first refined step; the start-up
- * step is not refined. */
+ * step is not refined. With a time budget (solver_budget_us), the step's wall time by the sim's
+ * clock from its start to the end of its solve: a budget too small for the set-up and one
+ * iteration cannot be kept (at least one iteration runs), and used_ns > budget_ns says so, as
+ * HOOD_STEP_OVER_BUDGET does. */
 typedef struct hood_refinement {
     uint32_t struct_size; /* sizeof(hood_refinement), set by the caller (see Conventions) */
     uint32_t iterations;
     float energy_before;
     float energy_after;
+    uint64_t budget_ns; /* the time budget of a step, ns (0: none) */
+    uint64_t used_ns;   /* the step's time, ns (0 without a budget) */
 } hood_refinement;
 HOOD_API hood_status HOOD_CALL hood_sim_last_refinement(const hood_sim *sim, hood_refinement *out);
 /* Garment vertices of the sim. */
@@ -432,6 +437,8 @@ HOOD_API hood_status HOOD_CALL hood_sim_step(hood_sim *sim, const float *body_ne
 #define HOOD_STEP_REFINED 16u      /* a refinement ran (HOOD_EFFECT_REFINE), or the solver step
                                       mode's solve */
 #define HOOD_STEP_PROJECTED 32u    /* the collision projection moved at least one vertex */
+#define HOOD_STEP_OVER_BUDGET 64u  /* the solver step mode's step took longer than its time budget
+                                      (solver_budget_us; hood_refinement says by how much) */
 HOOD_API hood_status HOOD_CALL hood_sim_last_effects(const hood_sim *sim, uint32_t *flags);
 
 /* Copies the current garment positions (3 * n_vertices floats). */

@@ -46,6 +46,8 @@ pub const HOOD_STEP_SPEED_LIMITED: u32 = 8;
 pub const HOOD_STEP_REFINED: u32 = 16;
 /// Step flag: the collision projection moved a vertex.
 pub const HOOD_STEP_PROJECTED: u32 = 32;
+/// Step flag: the step took longer than the solver's time budget.
+pub const HOOD_STEP_OVER_BUDGET: u32 = 64;
 
 /// Log level: an internal error (a panic caught at the boundary).
 pub const HOOD_LOG_ERROR: u32 = 1;

@@ -5,8 +5,8 @@ use crate::arrays::{disjoint, points, points_mut, require, write_out};
 use crate::body::{hood_body_desc, read_body};
 use crate::config::{hood_sim_config, sim_config};
 use crate::consts::{
-    HOOD_LOG_WARNING, HOOD_STEP_PROJECTED, HOOD_STEP_REFINED, HOOD_STEP_SLEPT, HOOD_STEP_SPEED_LIMITED,
-    HOOD_STEP_STARTUP, HOOD_STEP_TELEPORTED,
+    HOOD_LOG_WARNING, HOOD_STEP_OVER_BUDGET, HOOD_STEP_PROJECTED, HOOD_STEP_REFINED, HOOD_STEP_SLEPT,
+    HOOD_STEP_SPEED_LIMITED, HOOD_STEP_STARTUP, HOOD_STEP_TELEPORTED,
 };
 use crate::extensible::{read_struct, write_extensible, Extensible};
 use crate::garment::hood_garment;
@@ -251,6 +251,10 @@ pub struct hood_refinement {
     pub energy_before: f32,
     /// Objective after the refinement, J.
     pub energy_after: f32,
+    /// The time budget of a step, ns (0: none).
+    pub budget_ns: u64,
+    /// The step's time, ns (0 without a budget).
+    pub used_ns: u64,
 }
 
 // SAFETY: `#[repr(C)]`, `struct_size` first, only integers and floats.
@@ -274,11 +278,14 @@ pub unsafe extern "C" fn hood_sim_last_refinement(sim: *const hood_sim, out: *mu
             }
             .into());
         }
+        let budget = s.sim.last_budget();
         let r = s.sim.last_refinement().map_or(hood_refinement::default(), |r| hood_refinement {
             struct_size: 0,
             iterations: r.iterations as u32,
             energy_before: r.f_start as f32,
             energy_after: r.f as f32,
+            budget_ns: budget.map_or(0, |b| b.budget_ns),
+            used_ns: budget.map_or(0, |b| b.used_ns),
         });
         // SAFETY: `out` is a `hood_refinement` of its `struct_size` (caller).
         unsafe { write_extensible(out, r, "out") }
@@ -317,7 +324,8 @@ pub unsafe extern "C" fn hood_sim_last_effects(sim: *const hood_sim, flags: *mut
             | flag(e.startup, HOOD_STEP_STARTUP)
             | flag(e.carried, HOOD_STEP_SPEED_LIMITED)
             | flag(e.refined, HOOD_STEP_REFINED)
-            | flag(e.projected, HOOD_STEP_PROJECTED);
+            | flag(e.projected, HOOD_STEP_PROJECTED)
+            | flag(e.over_budget, HOOD_STEP_OVER_BUDGET);
         // SAFETY: `flags` non-null.
         unsafe { write_out(flags, v) };
         Ok(())

@@ -871,6 +871,7 @@ fn config_effects_are_honoured() {
         assert_eq!(hood_sim_step(sim, body.as_ptr().cast(), body.len(), buf.as_mut_ptr().cast(), n), HOOD_OK);
         assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_OK);
         assert!(rep.iterations >= 1 && rep.energy_after <= rep.energy_before, "{rep:?}");
+        assert_eq!((rep.budget_ns, rep.used_ns), (0, 0), "a fixed count has no budget");
         assert_eq!(hood_sim_free(sim), HOOD_OK);
         // Within a time budget (an hour: the iteration cap ends every solve here), and a budget
         // without the solver refused.
@@ -880,6 +881,17 @@ fn config_effects_are_honoured() {
         assert_eq!(hood_sim_step(sim, body.as_ptr().cast(), body.len(), buf.as_mut_ptr().cast(), n), HOOD_OK);
         assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_OK);
         assert!(rep.iterations >= 1 && rep.iterations <= 4, "{rep:?}");
+        assert_eq!(rep.budget_ns, 3_600_000_000_000);
+        assert!(rep.used_ns > 0 && rep.used_ns < rep.budget_ns, "{rep:?}");
+        assert_eq!(last_effects(sim) & HOOD_STEP_OVER_BUDGET, 0);
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        // A budget no step can keep (1 us): one iteration runs, and the step says it overran.
+        solver.solver_budget_us = 1;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &solver, &mut sim), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_step(sim, body.as_ptr().cast(), body.len(), buf.as_mut_ptr().cast(), n), HOOD_OK);
+        assert_eq!(hood_sim_last_refinement(sim, &mut rep), HOOD_OK);
+        assert!(rep.iterations <= 1 && rep.budget_ns == 1000 && rep.used_ns > 1000, "{rep:?}");
+        assert_ne!(last_effects(sim) & HOOD_STEP_OVER_BUDGET, 0);
         assert_eq!(hood_sim_free(sim), HOOD_OK);
         let mut budget_alone = cfg;
         budget_alone.solver_budget_us = 5000;

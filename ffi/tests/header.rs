@@ -333,6 +333,7 @@ fn checked_constants() -> Vec<(&'static str, u64)> {
         HOOD_STEP_SPEED_LIMITED,
         HOOD_STEP_REFINED,
         HOOD_STEP_PROJECTED,
+        HOOD_STEP_OVER_BUDGET,
         HOOD_LOG_ERROR,
         HOOD_LOG_WARNING,
         HOOD_PRECISION_F32,
@@ -408,7 +409,7 @@ fn compiler_checks_types_constants_and_layouts() {
         }
     );
     layout!(cpp, hood_body_desc { struct_size, positions, n_vertices, indices, n_faces, omitted });
-    layout!(cpp, hood_refinement { struct_size, iterations, energy_before, energy_after });
+    layout!(cpp, hood_refinement { struct_size, iterations, energy_before, energy_after, budget_ns, used_ns });
     layout!(cpp, hood_body_survey { struct_size, volume, median_edge, longest_edge, too_coarse });
     layout!(
         cpp,

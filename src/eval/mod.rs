@@ -193,6 +193,9 @@ pub struct FrameRecord {
     pub inside_percent: Option<f64>,
     /// How much of the garment has left the body ([`OffBody`]; `None` without a body).
     pub off_body: Option<OffBodyFrame>,
+    /// The step took longer than the time budget of its step mode
+    /// ([`StepEffects::over_budget`](crate::sim::StepEffects::over_budget)).
+    pub over_budget: bool,
 }
 
 /// A scored rollout.

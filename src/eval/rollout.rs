@@ -143,6 +143,7 @@ pub fn rollout_observed(
         let mut rec = scorer.record(t, kind, terms, penetrating_percent, step_ms, gap);
         rec.inside_percent = InsideCounter::count(&mut inside, anim, t, &after.pos)?;
         rec.off_body = off_body.as_mut().map(|o| o.measure(anim, t, &after.pos)).transpose()?;
+        rec.over_budget = sim.last_effects().over_budget;
         if options.keep.contains(&t) {
             out.kept.push((t, after.pos.clone()));
         }

@@ -180,6 +180,7 @@ impl Scorer {
             gap,
             inside_percent: None,
             off_body: None,
+            over_budget: false,
         }
     }
 

@@ -49,6 +49,8 @@ pub struct Summary {
     pub mean_step_ms: f64,
     /// Median step time, ms.
     pub median_step_ms: f64,
+    /// Steps that took longer than the time budget of their step mode (0 without one).
+    pub over_budget_frames: usize,
     /// Largest % of worn vertices off the body over the frames ([`OffBody`]; `None` without a
     /// body).
     ///
@@ -105,6 +107,7 @@ pub(super) fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
             s.max_speed = s.max_speed.max(f.max_speed);
         }
         s.mean_step_ms += f.step_ms / nf;
+        s.over_budget_frames += usize::from(f.over_budget);
     }
     let mut gaps: Vec<f64> = frames.iter().filter_map(|f| f.gap.and_then(|g| g.relative)).collect();
     s.gap_frames = gaps.len();

@@ -39,6 +39,27 @@ impl Clock for StdClock {
     }
 }
 
+/// How the last step of [`StepMode::SolverBudget`](super::StepMode) kept its time budget
+/// ([`Sim::last_budget`](super::Sim::last_budget)). A budget too small for the step's set-up and
+/// one iteration (a large garment, or a state whose first iteration is slow) cannot be met: at
+/// least one iteration runs, and the step says so here and in
+/// [`StepEffects::over_budget`](super::StepEffects::over_budget) rather than hiding it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BudgetUse {
+    /// The budget of one step, ns.
+    pub budget_ns: u64,
+    /// Wall time of the step by the sim's clock, from its start to the end of its solve
+    /// (the checks of the frame, the body's grids and the iterations), ns.
+    pub used_ns: u64,
+}
+
+impl BudgetUse {
+    /// Whether the step kept within its budget.
+    pub fn met(&self) -> bool {
+        self.used_ns <= self.budget_ns
+    }
+}
+
 /// A time budget over the iterations of one solve that stops before an iteration it predicts
 /// would end past the budget: an iteration starts only if the longest one so far still fits.
 /// (Stopping once the budget has passed overshoots it by up to a whole iteration.)

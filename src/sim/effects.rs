@@ -29,6 +29,10 @@ pub struct StepEffects {
     pub refined: bool,
     /// The collision projection moved at least one garment vertex.
     pub projected: bool,
+    /// The step took longer than the time budget of
+    /// [`StepMode::SolverBudget`](super::StepMode::SolverBudget) (see
+    /// [`Sim::last_budget`](super::Sim::last_budget)).
+    pub over_budget: bool,
 }
 
 impl Sim<'_> {
@@ -58,6 +62,7 @@ mod tests {
         carried: false,
         refined: false,
         projected: false,
+        over_budget: false,
     };
     const TELEPORTED: StepEffects = StepEffects { teleported: true, ..NONE };
     const STARTUP: StepEffects = StepEffects { startup: true, ..NONE };

@@ -44,9 +44,9 @@ use alloc::boxed::Box;
 use alloc::vec;
 use alloc::vec::Vec;
 use body_query::{BodyNeeds, BodyQuery};
-pub use clock::Clock;
 #[cfg(feature = "std")]
 pub use clock::StdClock;
+pub use clock::{BudgetUse, Clock};
 pub use config::{
     Precision, SimConfig, Sleeping, StepMode, DEFAULT_SOLVER_ITERATIONS, DEFAULT_SPEED_LIMIT, DEFAULT_TELEPORT,
     MAX_THREADS,
@@ -383,6 +383,13 @@ impl<'m> Sim<'m> {
         self.refiner.as_ref().and_then(|r| r.last())
     }
 
+    /// How the last step of [`StepMode::SolverBudget`] kept its time budget (`None` in other
+    /// step modes, before the first solved step and after calls that place the garment without
+    /// a solve, as [`Sim::last_refinement`]).
+    pub fn last_budget(&self) -> Option<BudgetUse> {
+        self.refiner.as_ref().and_then(|r| r.last_budget())
+    }
+
     /// The kernel path in use.
     pub fn tier(&self) -> Tier {
         self.net.kernels.tier()
@@ -564,6 +571,7 @@ impl<'m> Sim<'m> {
             carried: carry != [0.0; 3],
             refined: self.refiner.is_some(),
             projected: startup_projected || self.last_projected() > 0,
+            over_budget: self.last_budget().is_some_and(|b| !b.met()),
             ..StepEffects::default()
         };
         Ok(())

@@ -9,7 +9,7 @@
 //! move is added to the velocity too, so the next step starts from the refined state.
 
 use super::body_query::BodyFaces;
-use super::clock::{Clock, Deadline};
+use super::clock::{BudgetUse, Clock, Deadline};
 use crate::body::BodyMesh;
 use crate::error::{Error, Result};
 use crate::exec::Executor;
@@ -79,6 +79,10 @@ pub(super) struct Refiner {
     budget_ns: Option<u64>,
     /// Clock reading at the start of the current step, with a budget.
     step_start_ns: Option<u64>,
+    /// How the last committed step kept the budget (`None` without a budget or before a step).
+    last_budget: Option<BudgetUse>,
+    /// The same for a step whose solve has not been committed yet.
+    pending_budget: Option<BudgetUse>,
 }
 
 impl Refiner {
@@ -118,6 +122,8 @@ impl Refiner {
             pending: None,
             budget_ns,
             step_start_ns: None,
+            last_budget: None,
+            pending_budget: None,
         })
     }
 
@@ -133,6 +139,11 @@ impl Refiner {
     /// The last refinement's report (iterations, objective before and after, J).
     pub(super) fn last(&self) -> Option<&LbfgsReport> {
         self.last.as_ref()
+    }
+
+    /// How the last refined step kept its time budget (`None` without one).
+    pub(super) fn last_budget(&self) -> Option<BudgetUse> {
+        self.last_budget
     }
 
     /// Refines the prediction `new_pos` (m, world, pinned vertices at their targets) in place and
@@ -153,9 +164,10 @@ impl Refiner {
         new_vel: &mut [[f32; 3]],
     ) -> Result<()> {
         self.pending = None;
+        self.pending_budget = None;
         let mut deadline = match (self.budget_ns, clock) {
             (None, _) => None,
-            (Some(b), Some(c)) => Some(Deadline::new(c, self.step_start_ns.take(), b)),
+            (Some(b), Some(c)) => Some(Deadline::new(c, self.step_start_ns, b)),
             (Some(_), None) => {
                 return Err(Error::UnsupportedEffect { effect: "solver time budget without a clock (Sim::set_clock)" })
             }
@@ -200,6 +212,12 @@ impl Refiner {
             }
         }
         self.pending = Some(report);
+        self.pending_budget = match (self.budget_ns, self.step_start_ns, clock) {
+            (Some(budget_ns), Some(start), Some(c)) => {
+                Some(BudgetUse { budget_ns, used_ns: c.now_ns().saturating_sub(start) })
+            }
+            _ => None,
+        };
         Ok(())
     }
 
@@ -207,6 +225,7 @@ impl Refiner {
     /// teleported) or no step has run from its state.
     pub(super) fn forget_last(&mut self) {
         self.last = None;
+        self.last_budget = None;
     }
 
     /// Makes the last [`apply`](Self::apply)'s report the one [`last`](Self::last) gives, once
@@ -214,6 +233,7 @@ impl Refiner {
     pub(super) fn commit(&mut self) {
         if let Some(report) = self.pending.take() {
             self.last = Some(report);
+            self.last_budget = self.pending_budget.take();
         }
     }
 }

@@ -592,6 +592,15 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     if let Some(text) = s.off_body_text() {
         say!("{text}");
     }
+    if let StepMode::SolverBudget { micros, .. } = cfg.step {
+        say!(
+            "time budget {:.1} ms: kept on {} of {} steps, exceeded on {}",
+            micros as f64 / 1e3,
+            s.frames - s.over_budget_frames,
+            s.frames,
+            s.over_budget_frames
+        );
+    }
     print_gap_by_term("relative gap by term", s);
     if a.common_states && a.gap_every > 0 {
         let reference = Reference::Converged(ObjectiveArg::Training.objective());

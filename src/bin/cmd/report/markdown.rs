@@ -226,9 +226,14 @@ fn table<'a>(s: &mut String, rows: impl Iterator<Item = &'a Row>) {
         for (r, on_front) in cell.iter().zip(front) {
             let m = &r.summary;
             let on_body = crate::verdict::on_body_cell(m, "kept");
+            // A budget the step could not keep is said where the budget is named.
+            let over = match m.over_budget_frames {
+                0 => String::new(),
+                k => format!(" (over it on {k} of {} steps)", m.frames),
+            };
             let _ = writeln!(
                 s,
-                "| {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {:.2} | {} | {:.3} | {} |",
+                "| {}{over} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {:.2} | {} | {:.3} | {} |",
                 r.variant,
                 if on_front { "◆" } else { "" },
                 m.median_step_ms,
