@@ -187,6 +187,68 @@ fn fixture_tee(assets: &Path, subdivide: bool) -> Result<Workload> {
     })
 }
 
+/// The scene of a fixed-state workload (`tee`, `tee-sub`) in the layout of the parity fixture's
+/// `fixture_scene.safetensors` (positions in m, y up; edge indices `(2, E)` with both directions
+/// of each edge), as safetensors bytes: what `tools/reference/forward.py` reads to time the
+/// reference network's forward on the same garment, graph and body as `hood bench`. The coarse
+/// edges and vertex levels are this crate's (the fixture's own for `tee`).
+///
+/// # Errors
+/// [`Error::UnsupportedEffect`] for a workload without a body or a fixed start state (the
+/// procedural ones); errors of the garment's hierarchy.
+pub fn reference_scene(w: &Workload) -> Result<Vec<u8>> {
+    use crate::hierarchy::{Hierarchy, HierarchyConfig};
+    use crate::io::safetensors::{to_bytes, TensorData};
+    let (Some((mesh, frames)), Some(state)) = (&w.body, &w.fixed_state) else {
+        return Err(Error::UnsupportedEffect { effect: "reference scene of a workload without a fixed state" });
+    };
+    let graph = match &w.graph {
+        Some(g) => g.clone(),
+        None => Graph::new(&w.garment, &Hierarchy::build(&w.garment, &HierarchyConfig::default())?)?,
+    };
+    let flat = |rows: &[[f32; 3]]| -> Vec<f32> { rows.iter().flatten().copied().collect() };
+    let faces = |f: &[[u32; 3]]| -> Vec<i64> { f.iter().flatten().map(|&v| v as i64).collect() };
+    let edges =
+        |e: &[[u32; 2]]| -> Vec<i64> { e.iter().map(|p| p[0] as i64).chain(e.iter().map(|p| p[1] as i64)).collect() };
+    let prev: Vec<[f32; 3]> =
+        state.pos.iter().zip(&state.velocity).map(|(p, v)| [p[0] - v[0], p[1] - v[1], p[2] - v[2]]).collect();
+    let material = w.garment.materials().first().copied().unwrap_or_default();
+    let (v, b) = (w.garment.n_vertices(), state.body_pos.len());
+    let (rest, pos, prev) = (flat(w.garment.rest()), flat(&state.pos), flat(&prev));
+    let (body_prev, body_pos, body_next) = (flat(&state.body_prev), flat(&state.body_pos), flat(&frames[1]));
+    let (cloth_faces, body_faces) = (faces(w.garment.faces()), faces(mesh.faces()));
+    let level: Vec<i64> = graph.vertex_level.iter().map(|&l| l as i64).collect();
+    let mesh_edges = edges(&graph.mesh.global);
+    let coarse: Vec<Vec<i64>> = graph.coarse.iter().map(|c| edges(&c.edges.global)).collect();
+    let names: Vec<String> = (0..coarse.len()).map(|l| std::format!("coarse_edge_index{l}")).collect();
+    let inputs = material.network_inputs();
+    let dt = [crate::features::DT];
+    // Owned shapes first: the tensor list borrows them.
+    let (v3, b3, v1) = ([v, 3], [b, 3], [v]);
+    let (cf, bf) = ([cloth_faces.len() / 3, 3], [body_faces.len() / 3, 3]);
+    let (three, one, mesh_shape) = ([3], [1], [2, mesh_edges.len() / 2]);
+    let coarse_shapes: Vec<[usize; 2]> = coarse.iter().map(|c| [2, c.len() / 2]).collect();
+    let mut tensors: Vec<(&str, &[usize], TensorData<'_>)> = std::vec![
+        ("cloth_rest_pos", &v3, TensorData::F32(&rest)),
+        ("cloth_pos", &v3, TensorData::F32(&pos)),
+        ("cloth_prev_pos", &v3, TensorData::F32(&prev)),
+        ("cloth_faces", &cf, TensorData::I64(&cloth_faces)),
+        ("cloth_v_mass", &v1, TensorData::F32(w.garment.vertex_mass())),
+        ("cloth_vertex_level", &v1, TensorData::I64(&level)),
+        ("body_pos", &b3, TensorData::F32(&body_pos)),
+        ("body_prev_pos", &b3, TensorData::F32(&body_prev)),
+        ("body_target_pos", &b3, TensorData::F32(&body_next)),
+        ("body_faces", &bf, TensorData::I64(&body_faces)),
+        ("material_inputs_bending_mu_lambda", &three, TensorData::F32(&inputs)),
+        ("timestep", &one, TensorData::F32(&dt)),
+        ("mesh_edge_index", &mesh_shape, TensorData::I64(&mesh_edges)),
+    ];
+    for ((name, c), shape) in names.iter().zip(&coarse).zip(&coarse_shapes) {
+        tensors.push((name, shape, TensorData::I64(c)));
+    }
+    to_bytes(&tensors, &[("source", "hood::workloads::reference_scene")])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -115,3 +115,42 @@ fn runtime_parity_bf16_and_every_tier() {
         }
     }
 }
+
+/// The scene `hood bench --reference` hands the reference forward is the fixture's own on `tee`:
+/// positions, faces, body frames, the directed mesh and coarse edges (as sets: the order may
+/// differ) and vertex levels; the subdivided `tee-sub` has the same keys at its own size.
+#[test]
+fn runtime_parity_reference_scene_is_the_fixture_scene() {
+    use hood::io::safetensors::SafeTensors;
+    use std::collections::BTreeSet;
+    let Some(f) = fixture("runtime_parity_reference_scene_is_the_fixture_scene") else { return };
+    let assets = shared_dir().join("assets");
+    let tee = hood::workloads::workload("tee", &assets).unwrap();
+    let ours = SafeTensors::from_bytes(hood::workloads::reference_scene(&tee).unwrap()).unwrap();
+    let close = |name: &str, tol: f32| {
+        let (a, b) = (ours.f32(name).unwrap(), f.scene.f32(name).unwrap());
+        assert_eq!(a.shape, b.shape, "{name}");
+        assert!(max_abs(&a.data, &b.data) <= tol as f64, "{name}: {}", max_abs(&a.data, &b.data));
+    };
+    for name in ["cloth_rest_pos", "cloth_pos", "body_pos", "body_prev_pos", "body_target_pos"] {
+        close(name, 0.0);
+    }
+    // The previous positions come back as pos - (pos - prev): within rounding.
+    close("cloth_prev_pos", 1e-7);
+    assert_eq!(faces(&ours, "cloth_faces"), faces(&f.scene, "cloth_faces"));
+    assert_eq!(faces(&ours, "body_faces"), faces(&f.scene, "body_faces"));
+    assert_eq!(ours.i64("cloth_vertex_level").unwrap().data, f.scene.i64("cloth_vertex_level").unwrap().data);
+    let set = |st: &SafeTensors, name: &str| edge_pairs(st, name).into_iter().collect::<BTreeSet<_>>();
+    for name in ["mesh_edge_index", "coarse_edge_index0", "coarse_edge_index1", "coarse_edge_index2"] {
+        assert_eq!(set(&ours, name), set(&f.scene, name), "{name}");
+        assert_eq!(edge_pairs(&ours, name).len(), edge_pairs(&f.scene, name).len(), "{name}: no duplicates");
+    }
+    let sub = hood::workloads::workload("tee-sub", &assets).unwrap();
+    let sub = SafeTensors::from_bytes(hood::workloads::reference_scene(&sub).unwrap()).unwrap();
+    let names = |st: &SafeTensors| st.tensors().iter().map(|(n, _)| n.clone()).collect::<BTreeSet<_>>();
+    assert_eq!(names(&sub), names(&ours));
+    assert_eq!(sub.f32("cloth_pos").unwrap().shape, vec![5148, 3]);
+    // A procedural workload has no fixed state to hand over.
+    let walk = hood::workloads::workload("grid-1k", &assets).unwrap();
+    assert!(hood::workloads::reference_scene(&walk).is_err());
+}

@@ -31,6 +31,8 @@ mod objective;
 mod plot;
 #[path = "cmd/progress.rs"]
 mod progress;
+#[path = "cmd/reference.rs"]
+mod reference;
 #[path = "cmd/report.rs"]
 mod report;
 #[path = "cmd/simulate.rs"]

@@ -3,6 +3,7 @@
 
 use crate::machine::machine_line;
 use crate::random_model;
+use crate::reference::{Reference, ReferenceTime, DEFAULT_SCRIPT};
 use clap::Args;
 use hood::bench::{bench_step, core_to_core_ns, machine_peak, BenchRow, Placement};
 use hood::kernels::peak::Peak;
@@ -59,6 +60,18 @@ pub(crate) struct BenchArgs {
     /// machine and its load (as `docs/bench/report.md`).
     #[arg(long)]
     markdown: Option<PathBuf>,
+    /// Also time the reference network's forward with this Python interpreter (torch, numpy
+    /// and safetensors installed; `pip install torch==2.2.2 "numpy<2" safetensors`), on the
+    /// workloads with the fixture's scene (`tee`, `tee-sub`) at the same threads, after the
+    /// runtime's rows: the "x reference" column is its median over the row's.
+    #[arg(long)]
+    reference: Option<PathBuf>,
+    /// The reference's script.
+    #[arg(long, default_value = DEFAULT_SCRIPT)]
+    reference_script: PathBuf,
+    /// Timed forwards of the reference per thread count (after 3 untimed ones).
+    #[arg(long, default_value_t = 10)]
+    reference_runs: usize,
 }
 
 pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
@@ -119,6 +132,18 @@ pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
     // two threads between placements during a run.
     let mut rows: Vec<BenchRow> = Vec::new();
     let mut latencies: Vec<Option<f64>> = Vec::new();
+    let reference = match (&a.reference, &assets) {
+        (Some(python), Ok(dir)) => Some(Reference {
+            python,
+            script: &a.reference_script,
+            weights: hood::assets::fixtures(dir).join("hood-parity/fixture_weights.safetensors"),
+            runs: a.reference_runs.max(1),
+            warmup: 3,
+        }),
+        (Some(_), Err(e)) => return Err(e.clone()),
+        (None, _) => None,
+    };
+    let mut references: Vec<ReferenceTime> = Vec::new();
     let mut run = |w: &Workload, model: &Model<'_>, step, precision, threads: usize| -> hood::Result<()> {
         let latency = if threads > 1 { core_to_core_ns() } else { None };
         let r = bench_step(w, model, step, precision, threads, a.warmup, a.steps, &peak)?;
@@ -146,13 +171,29 @@ pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
                 }
             }
         }
+        if let (Some(r), Some(_)) = (&reference, &w.fixed_state) {
+            for t in r.time(w, &a.threads)? {
+                if !a.json {
+                    say!(
+                        "{:<9} {:>6} reference forward (PyTorch {}), {} thread(s): median {:.2} ms, fastest {:.2} ms",
+                        t.workload,
+                        t.vertices,
+                        t.torch,
+                        t.threads,
+                        t.median_ms,
+                        t.min_ms
+                    );
+                }
+                references.push(t);
+            }
+        }
     }
     if a.json {
-        say!("{}", to_json(&rows, &peak));
+        say!("{}", to_json(&rows, &references, &peak));
     }
     if let Some(path) = &a.markdown {
         let bf16 = precisions.contains(&Precision::Bf16).then(|| hood::kernels::bf16_choice().describe());
-        let text = markdown(&rows, &latencies, &peak, bf16.as_deref(), core_to_core);
+        let text = markdown(&rows, &latencies, &references, &peak, bf16.as_deref(), core_to_core);
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| hood::Error::io(dir, e))?;
         }
@@ -220,7 +261,7 @@ fn print_row(r: &BenchRow, header: bool) {
 }
 
 /// `hood bench --json`: the machine's peak and one object per row.
-fn to_json(rows: &[BenchRow], peak: &Peak) -> String {
+fn to_json(rows: &[BenchRow], references: &[ReferenceTime], peak: &Peak) -> String {
     #[derive(serde::Serialize)]
     struct PeakJson {
         tier: &'static str,
@@ -246,9 +287,19 @@ fn to_json(rows: &[BenchRow], peak: &Peak) -> String {
         efficiency: f64,
     }
     #[derive(serde::Serialize)]
+    struct Reference<'a> {
+        workload: &'a str,
+        vertices: usize,
+        threads: usize,
+        median_ms: f64,
+        min_ms: f64,
+        torch: &'a str,
+    }
+    #[derive(serde::Serialize)]
     struct Bench<'a> {
         peak: PeakJson,
         rows: Vec<Row<'a>>,
+        reference: Vec<Reference<'a>>,
     }
     let rows = rows
         .iter()
@@ -270,8 +321,19 @@ fn to_json(rows: &[BenchRow], peak: &Peak) -> String {
             efficiency: r.efficiency,
         })
         .collect();
+    let reference = references
+        .iter()
+        .map(|t| Reference {
+            workload: &t.workload,
+            vertices: t.vertices,
+            threads: t.threads,
+            median_ms: t.median_ms,
+            min_ms: t.min_ms,
+            torch: &t.torch,
+        })
+        .collect();
     let peak = PeakJson { tier: peak.tier.name(), f32_gflops: peak.f32_gflops, bf16_gflops: peak.bf16_gflops };
-    hood::io::json::to_line(&Bench { peak, rows })
+    hood::io::json::to_line(&Bench { peak, rows, reference })
 }
 
 /// The report `--markdown` writes: the command, the machine, the peaks, then one row per step
@@ -279,6 +341,7 @@ fn to_json(rows: &[BenchRow], peak: &Peak) -> String {
 fn markdown(
     rows: &[BenchRow],
     latencies: &[Option<f64>],
+    references: &[ReferenceTime],
     peak: &Peak,
     bf16: Option<&str>,
     core_to_core_ns: Option<f64>,
@@ -320,13 +383,14 @@ fn markdown(
          (matrix products); efficiency: achieved GFLOP/s over the peak times the threads; x 1 thread: the \
          same step on one thread over this one; latency: the core-to-core latency measured just before a \
          multi-thread row (under about 25 ns: one core's two hardware threads; over 120 ns: farther \
-         apart than a shared cache).\n"
+         apart than a shared cache); x reference: the reference forward's median at the same threads \
+         over this row's (below the table).\n"
     );
     let _ = writeln!(
         s,
-        "| workload | vertices | body edges | step | h | precision | tier | threads | median ms | fastest ms | GFLOP/step | GFLOP/s | efficiency | x 1 thread | latency ns |"
+        "| workload | vertices | body edges | step | h | precision | tier | threads | median ms | fastest ms | GFLOP/step | GFLOP/s | efficiency | x 1 thread | latency ns | x reference |"
     );
-    let _ = writeln!(s, "|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(s, "|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for (r, latency) in rows.iter().zip(latencies) {
         let network = r.step == StepMode::Network;
         let single = rows.iter().find(|o| {
@@ -342,9 +406,14 @@ fn markdown(
             _ => "-".into(),
         };
         let dash = || "-".to_string();
+        let reference = references.iter().find(|t| t.workload == r.workload && t.threads == r.threads);
+        let vs_reference = match reference {
+            Some(t) if network && r.median_ms > 0.0 => format!("{:.1}", t.median_ms / r.median_ms),
+            _ => dash(),
+        };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} |",
             r.workload,
             r.vertices,
             r.body_edges,
@@ -359,8 +428,28 @@ fn markdown(
             if network { format!("{:.1}", r.gflops) } else { dash() },
             if network { format!("{:.0} %", 100.0 * r.efficiency) } else { dash() },
             speedup,
-            latency.map_or_else(dash, |ns| format!("{ns:.0}"))
+            latency.map_or_else(dash, |ns| format!("{ns:.0}")),
+            vs_reference
         );
+    }
+    if !references.is_empty() {
+        let _ = writeln!(
+            s,
+            "\nThe reference: HOOD's network forward in PyTorch {} (`tools/reference/forward.py`, checked against \
+             the parity fixtures; the work of HOOD's `model(batch)`, every body vertex through every block's node \
+             MLP), with the fixture's weights (h = 128) on the same scene, timed in the same run after the rows \
+             above.\n",
+            references[0].torch
+        );
+        let _ = writeln!(s, "| workload | vertices | threads | median ms | fastest ms |");
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|");
+        for t in references {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {:.1} | {:.1} |",
+                t.workload, t.vertices, t.threads, t.median_ms, t.min_ms
+            );
+        }
     }
     s
 }
@@ -368,6 +457,7 @@ fn markdown(
 #[cfg(test)]
 mod tests {
     use super::markdown;
+    use crate::reference::ReferenceTime;
     use hood::bench::BenchRow;
     use hood::kernels::peak::Peak;
     use hood::kernels::Tier;
@@ -419,16 +509,27 @@ mod tests {
         ];
         let peak = Peak { tier: Tier::Scalar, f32_gflops: 100.0, bf16_gflops: 100.0, bf16_native: false };
         let latencies = [None, Some(11.0), Some(60.0), None, None, Some(60.0)];
-        let text = markdown(&rows, &latencies, &peak, Some("bf16 widened"), Some(40.0));
+        let reference = |threads, median_ms| ReferenceTime {
+            workload: "tee".into(),
+            vertices: 1311,
+            threads,
+            median_ms,
+            min_ms: median_ms,
+            torch: "2.2.2".into(),
+        };
+        let references = [reference(1, 1000.0), reference(2, 750.0)];
+        let text = markdown(&rows, &latencies, &references, &peak, Some("bf16 widened"), Some(40.0));
         assert!(text.starts_with("# Step latency\n"));
         assert!(text.contains("\nMachine: "), "{text}");
         assert!(text.contains("f32 100.0 GFLOP/s") && text.contains("bf16 widened.") && text.contains("40 ns"));
-        assert!(line(&text, "tee", "network", "f32", 1).ends_with("| - | - |"));
-        assert!(line(&text, "tee", "network", "f32", 2).ends_with("| 1.60 | 11 |"));
+        // The reference's median over the row's, at the row's threads.
+        assert!(line(&text, "tee", "network", "f32", 1).ends_with("| - | - | 5.0 |"));
+        assert!(line(&text, "tee", "network", "f32", 2).ends_with("| 1.60 | 11 | 6.0 |"));
         // Matched by precision, whatever the order of the rows.
-        assert!(line(&text, "tee", "network", "bf16", 2).ends_with("| 3.00 | 60 |"));
-        // A solver row has no network figures and its own one-thread row.
+        assert!(line(&text, "tee", "network", "bf16", 2).ends_with("| 3.00 | 60 | 7.5 |"));
+        // A solver row has no network figures (nor a reference) and its own one-thread row.
         let solver = line(&text, "tee", "solver 30", "f32", 2);
-        assert!(solver.ends_with("| - | f32 | - | 2 | 50.00 | 50.00 | - | - | - | 1.60 | 60 |"), "{solver}");
+        assert!(solver.ends_with("| - | f32 | - | 2 | 50.00 | 50.00 | - | - | - | 1.60 | 60 | - |"), "{solver}");
+        assert!(text.contains("| tee | 1311 | 2 | 750.0 | 750.0 |"), "{text}");
     }
 }
