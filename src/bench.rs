@@ -3,11 +3,13 @@
 //! peak measured in the same run.
 
 use crate::error::Result;
+use crate::exec::{Executor, ThreadPool};
 use crate::kernels::{peak, Kernels, Tier};
 use crate::model::file::Model;
 use crate::sim::{BodyDesc, Precision, Sim, SimConfig, StepMode};
 use crate::workloads::Workload;
 use std::string::String;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 use std::vec::Vec;
 
@@ -45,6 +47,29 @@ pub struct BenchRow {
     pub peak_gflops: f64,
     /// `gflops / peak_gflops`.
     pub efficiency: f64,
+    /// Jobs of two or more tasks the step handed to its threads (each wakes or signals the
+    /// other threads and waits for the last task): the synchronisation points of a step, whose
+    /// cost grows with the core-to-core latency. 0 on one thread.
+    pub handoffs: u64,
+}
+
+/// A [`ThreadPool`] that counts the jobs of more than one task it is given.
+struct CountingPool {
+    pool: ThreadPool,
+    handoffs: AtomicU64,
+}
+
+// SAFETY: runs every job on the pool, whose contract is the executor's.
+unsafe impl Executor for CountingPool {
+    fn parallelism(&self) -> usize {
+        self.pool.parallelism()
+    }
+    fn run(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
+        if n > 1 {
+            self.handoffs.fetch_add(1, Ordering::Relaxed);
+        }
+        self.pool.run(n, task);
+    }
 }
 
 /// Measures the machine's single-core peak (f32, bf16) once.
@@ -163,11 +188,23 @@ pub fn bench_step(
         Some(g) => Sim::with_graph(model, &w.garment, g.clone(), body, cfg)?,
         None => Sim::new(model, &w.garment, body, cfg)?,
     };
+    // The sim's pool, counting its hand-offs (those of the last timed step are reported).
+    let counting = (threads > 1).then(|| {
+        let pool = ThreadPool::new(crate::limits::cap_threads(threads));
+        std::sync::Arc::new(CountingPool { pool, handoffs: AtomicU64::new(0) })
+    });
+    if let Some(c) = &counting {
+        sim.set_executor(std::boxed::Box::new(SharedPool(c.clone())));
+    }
+    let count = || counting.as_ref().map_or(0, |c| c.handoffs.load(Ordering::Relaxed));
     let mut times = Vec::with_capacity(steps);
+    let mut handoffs = 0;
     for t in 0..warmup + steps {
         let next = w.prepare_step(&mut sim, t)?;
+        let before = count();
         let start = Instant::now();
         sim.step(next)?;
+        handoffs = count() - before;
         let ms = start.elapsed().as_secs_f64() * 1e3;
         if t >= warmup {
             times.push(ms);
@@ -198,7 +235,21 @@ pub fn bench_step(
         gflops,
         peak_gflops,
         efficiency: gflops / peak_gflops,
+        handoffs,
     })
+}
+
+/// The counting pool as the sim's executor, shared with the bench that reads its count.
+struct SharedPool(std::sync::Arc<CountingPool>);
+
+// SAFETY: the pool's contract.
+unsafe impl Executor for SharedPool {
+    fn parallelism(&self) -> usize {
+        self.0.parallelism()
+    }
+    fn run(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
+        self.0.run(n, task);
+    }
 }
 
 #[cfg(test)]

@@ -736,3 +736,48 @@ fn runtime_saved_state_continues_bitwise_and_bad_bytes_change_nothing() {
     assert!(matches!(d.save_state(&mut [0u8; 8]).unwrap_err(), Error::SizeMismatch { .. }));
     assert_eq!(c.state(), &before);
 }
+
+/// The network step's hand-offs (jobs split between threads, each a synchronisation) stay within
+/// two per edge set (the pair of node projections in one job, then the fused edge kernel), one
+/// for the sum of the garment-to-body messages, one to zero the block's message slots and one
+/// for the node MLP (which copies its residual in the same job), besides the encoders and the
+/// decoder. Counted by an executor that claims two threads and runs the tasks in order.
+#[test]
+fn runtime_network_step_hands_off_few_jobs() {
+    use hood::sim::Executor;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    struct Counting(std::sync::Arc<AtomicUsize>);
+    // SAFETY: every index once, in order, on the calling thread.
+    unsafe impl Executor for Counting {
+        fn parallelism(&self) -> usize {
+            2
+        }
+        fn run(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
+            if n > 1 {
+                self.0.fetch_add(1, Ordering::Relaxed);
+            }
+            (0..n).for_each(task);
+        }
+    }
+    let scene = Scene::new(24, 24);
+    let bytes = random_model(32, 5, false);
+    let model = bytes.model().unwrap();
+    let mut sim = scene.sim(&model, SimConfig::network().with_startup(false)).unwrap();
+    let count = std::sync::Arc::new(AtomicUsize::new(0));
+    sim.set_executor(Box::new(Counting(count.clone())));
+    for t in 1..=3 {
+        let before = count.load(Ordering::Relaxed);
+        sim.step(&scene.body_at(t)).unwrap();
+        let handoffs = count.load(Ordering::Relaxed) - before;
+        let spec = model.spec();
+        // Body edges split between tasks only past 64 of them (both directions, and the sum).
+        let body_jobs = if sim.last_body_counts().0 > 64 { 2 * 2 + 1 } else { 0 };
+        let per_block: usize = spec.blocks.iter().map(|b| 2 * b.keys.len() + body_jobs + 1 + 1).sum();
+        let encoders =
+            1 + spec.blocks.iter().flat_map(|b| &b.keys).collect::<std::collections::BTreeSet<_>>().len() + 1;
+        let bound = per_block + encoders + 1;
+        assert!(handoffs > spec.blocks.len(), "step {t}: {handoffs} hand-offs: the step should split its work");
+        println!("step {t}: {handoffs} hand-offs (at most {bound})");
+        assert!(handoffs <= bound, "step {t}: {handoffs} hand-offs, more than {bound}");
+    }
+}

@@ -214,7 +214,7 @@ fn step_name(step: StepMode) -> String {
 fn print_row(r: &BenchRow, header: bool) {
     if header {
         say!(
-            "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6}",
+            "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6} {:>9}",
             "workload",
             "verts",
             "bodyE",
@@ -227,7 +227,8 @@ fn print_row(r: &BenchRow, header: bool) {
             "GFLOP/step",
             "GFLOP/s",
             "peak",
-            "eff"
+            "eff",
+            "hand-offs"
         );
     }
     let network = r.step == StepMode::Network;
@@ -243,7 +244,7 @@ fn print_row(r: &BenchRow, header: bool) {
         ("-".into(), "-".into(), "-".into(), "-".into(), "-".into())
     };
     say!(
-        "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10.2} {:>10} {:>9} {:>8} {:>6}",
+        "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10.2} {:>10} {:>9} {:>8} {:>6} {:>9}",
         r.workload,
         r.vertices,
         r.body_edges,
@@ -256,7 +257,8 @@ fn print_row(r: &BenchRow, header: bool) {
         flops,
         gflops,
         peak,
-        eff
+        eff,
+        r.handoffs
     );
 }
 
@@ -285,6 +287,7 @@ fn to_json(rows: &[BenchRow], references: &[ReferenceTime], peak: &Peak) -> Stri
         gflops: f64,
         peak_gflops: f64,
         efficiency: f64,
+        handoffs: u64,
     }
     #[derive(serde::Serialize)]
     struct Reference<'a> {
@@ -319,6 +322,7 @@ fn to_json(rows: &[BenchRow], references: &[ReferenceTime], peak: &Peak) -> Stri
             gflops: r.gflops,
             peak_gflops: r.peak_gflops,
             efficiency: r.efficiency,
+            handoffs: r.handoffs,
         })
         .collect();
     let reference = references
@@ -383,14 +387,15 @@ fn markdown(
          (matrix products); efficiency: achieved GFLOP/s over the peak times the threads; x 1 thread: the \
          same step on one thread over this one; latency: the core-to-core latency measured just before a \
          multi-thread row (under about 25 ns: one core's two hardware threads; over 120 ns: farther \
-         apart than a shared cache); x reference: the reference forward's median at the same threads \
-         over this row's (below the table).\n"
+         apart than a shared cache); hand-offs: jobs of the step split between threads (each a \
+         synchronisation, costlier the farther apart the cores); x reference: the reference forward's \
+         median at the same threads over this row's (below the table).\n"
     );
     let _ = writeln!(
         s,
-        "| workload | vertices | body edges | step | h | precision | tier | threads | median ms | fastest ms | GFLOP/step | GFLOP/s | efficiency | x 1 thread | latency ns | x reference |"
+        "| workload | vertices | body edges | step | h | precision | tier | threads | median ms | fastest ms | GFLOP/step | GFLOP/s | efficiency | x 1 thread | latency ns | hand-offs | x reference |"
     );
-    let _ = writeln!(s, "|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(s, "|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for (r, latency) in rows.iter().zip(latencies) {
         let network = r.step == StepMode::Network;
         let single = rows.iter().find(|o| {
@@ -413,7 +418,7 @@ fn markdown(
         };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} | {} |",
             r.workload,
             r.vertices,
             r.body_edges,
@@ -429,6 +434,7 @@ fn markdown(
             if network { format!("{:.0} %", 100.0 * r.efficiency) } else { dash() },
             speedup,
             latency.map_or_else(dash, |ns| format!("{ns:.0}")),
+            if r.threads > 1 { r.handoffs.to_string() } else { dash() },
             vs_reference
         );
     }
@@ -480,6 +486,7 @@ mod tests {
             gflops: 23.851 / median_ms * 1e3,
             peak_gflops: 100.0 * threads as f64,
             efficiency: 0.5,
+            handoffs: if threads > 1 { 180 } else { 0 },
         }
     }
 
@@ -523,13 +530,13 @@ mod tests {
         assert!(text.contains("\nMachine: "), "{text}");
         assert!(text.contains("f32 100.0 GFLOP/s") && text.contains("bf16 widened.") && text.contains("40 ns"));
         // The reference's median over the row's, at the row's threads.
-        assert!(line(&text, "tee", "network", "f32", 1).ends_with("| - | - | 5.0 |"));
-        assert!(line(&text, "tee", "network", "f32", 2).ends_with("| 1.60 | 11 | 6.0 |"));
+        assert!(line(&text, "tee", "network", "f32", 1).ends_with("| - | - | - | 5.0 |"));
+        assert!(line(&text, "tee", "network", "f32", 2).ends_with("| 1.60 | 11 | 180 | 6.0 |"));
         // Matched by precision, whatever the order of the rows.
-        assert!(line(&text, "tee", "network", "bf16", 2).ends_with("| 3.00 | 60 | 7.5 |"));
+        assert!(line(&text, "tee", "network", "bf16", 2).ends_with("| 3.00 | 60 | 180 | 7.5 |"));
         // A solver row has no network figures (nor a reference) and its own one-thread row.
         let solver = line(&text, "tee", "solver 30", "f32", 2);
-        assert!(solver.ends_with("| - | f32 | - | 2 | 50.00 | 50.00 | - | - | - | 1.60 | 60 | - |"), "{solver}");
+        assert!(solver.ends_with("| - | f32 | - | 2 | 50.00 | 50.00 | - | - | - | 1.60 | 60 | 180 | - |"), "{solver}");
         assert!(text.contains("| tee | 1311 | 2 | 750.0 | 750.0 |"), "{text}");
     }
 }

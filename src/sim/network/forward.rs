@@ -27,7 +27,7 @@ impl Workspace {
             None => &mut self.mesh_latents[..n * self.h],
         };
         let mut p = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors, flops: &mut self.flops };
-        p.mlp(net, &net.model.mlps.edge_encoders[enc_i], &[Some(&self.edge_features[..n * EDGE_WIDTH])], n, out, false)
+        p.mlp(net, &net.model.mlps.edge_encoders[enc_i], &[Some(&self.edge_features[..n * EDGE_WIDTH])], n, out, None)
     }
 
     /// The forward pass after the edge latents are encoded: nodes (features already in
@@ -60,7 +60,7 @@ impl Workspace {
             &[Some(&self.node_features[..rows * NODE_WIDTH])],
             rows,
             &mut self.latents[..rows * h],
-            false,
+            None,
         )?;
         // Body edges: both directions, one normaliser, one encoder.
         if nb > 0 {
@@ -70,7 +70,7 @@ impl Workspace {
                 [(&mut self.g2b_features, &mut self.g2b_latents), (&mut self.b2g_features, &mut self.b2g_latents)]
             {
                 normalise_rows(&mut f[..nb * BODY_EDGE_WIDTH], BODY_EDGE_WIDTH, mean, std);
-                par.mlp(net, enc, &[Some(&f[..nb * BODY_EDGE_WIDTH])], nb, &mut lat[..nb * h], false)?;
+                par.mlp(net, enc, &[Some(&f[..nb * BODY_EDGE_WIDTH])], nb, &mut lat[..nb * h], None)?;
             }
         }
         observer(Probe {
@@ -81,9 +81,7 @@ impl Workspace {
 
         for (bi, (bspec, bview)) in model.spec().blocks.iter().zip(&model.mlps.blocks).enumerate() {
             let n_slots = bspec.keys.len() + usize::from(nb > 0);
-            for s in &mut self.slots[..n_slots] {
-                par.fill(&mut s[..rows * h]);
-            }
+            par.fill_each(&mut self.slots[..n_slots], rows * h);
             for (ki, (&key, mlp)) in bspec.keys.iter().zip(&bview.edges).enumerate() {
                 let slot = &mut self.slots[ki][..rows * h];
                 match key.coarse_level() {
@@ -166,8 +164,7 @@ impl Workspace {
                     par.reduce_rows(&self.local_agg[..n * h], offsets, perm, h, &mut slot[v * h..rows * h]);
                 }
             }
-            // Node update from the latents at the start of the block.
-            par.copy(&mut self.next_latents[..rows * h], &self.latents[..rows * h]);
+            // Node update from the latents at the start of the block (the residual).
             let mut inputs: [Option<&[f32]>; MAX_OPERANDS] = [None; MAX_OPERANDS];
             inputs[0] = Some(&self.latents[..rows * h]);
             for s in 0..n_slots {
@@ -175,7 +172,8 @@ impl Workspace {
             }
             // A model trained with a body but run without one: the body slot is zero and skipped.
             let n_inputs = model.spec().node_inputs(bspec);
-            par.mlp(net, &bview.node, &inputs[..n_inputs], rows, &mut self.next_latents[..rows * h], true)?;
+            let base = Some(&self.latents[..rows * h]);
+            par.mlp(net, &bview.node, &inputs[..n_inputs], rows, &mut self.next_latents[..rows * h], base)?;
             core::mem::swap(&mut self.latents, &mut self.next_latents);
             observer(Probe {
                 stage: Stage::Block(bi),
@@ -183,7 +181,7 @@ impl Workspace {
                 body: &self.latents[v * h..rows * h],
             });
         }
-        par.mlp(net, &model.mlps.decoder, &[Some(&self.latents[..v * h])], v, &mut self.decoded, false)?;
+        par.mlp(net, &model.mlps.decoder, &[Some(&self.latents[..v * h])], v, &mut self.decoded, None)?;
         observer(Probe { stage: Stage::Decoded, garment: &self.decoded, body: &[] });
         Ok(())
     }

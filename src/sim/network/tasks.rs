@@ -9,6 +9,7 @@ use crate::exec::Executor;
 use crate::kernels::{self, EdgeInputs, EdgeMlp, Epilogue, Operand, MAX_OPERANDS};
 use crate::model::file::MlpView;
 use crate::sim::graph::EdgeList;
+use alloc::vec::Vec;
 use core::ops::Range;
 
 /// Floats below which a fill or copy is not worth splitting between tasks.
@@ -80,20 +81,36 @@ impl Par<'_> {
         });
     }
 
-    /// `dst.copy_from_slice(src)` (same lengths), split between tasks.
-    pub(super) fn copy(&mut self, dst: &mut [f32], src: &[f32]) {
-        let len = dst.len().min(src.len());
+    /// Zeroes the first `len` floats of each of `bufs` in one job (one hand-off for a block's
+    /// message slots), each task its share of every buffer.
+    pub(super) fn fill_each(&mut self, bufs: &mut [Vec<f32>], len: usize) {
+        if bufs.len() > MAX_OPERANDS {
+            // More buffers than a block has slots: one job each.
+            for b in bufs.iter_mut() {
+                let l = len.min(b.len());
+                self.fill(&mut b[..l]);
+            }
+            return;
+        }
+        // Split as one buffer's fill would be (small buffers are zeroed on the calling thread).
         let n = self.tasks.len().min(len.div_ceil(PAR_FLOATS)).max(1);
-        let dst = Disjoint::new(dst);
+        let mut parts: [Option<Disjoint<'_, f32>>; MAX_OPERANDS] = [const { None }; MAX_OPERANDS];
+        for (p, b) in parts.iter_mut().zip(bufs.iter_mut()) {
+            let l = len.min(b.len());
+            *p = Some(Disjoint::new(&mut b[..l]));
+        }
         let _ = self.run(n, &|t, _| {
-            let r = split(len, n, t);
-            // SAFETY: ranges of different tasks are disjoint.
-            unsafe { dst.range(r.clone()) }.copy_from_slice(&src[r]);
+            for b in parts.iter().flatten() {
+                // SAFETY: ranges of different tasks are disjoint (out-of-bounds ranges are empty).
+                unsafe { b.range(split(len, n, t)) }.fill(0.0);
+            }
             Ok(())
         });
     }
 
-    /// `mlp` over `rows` rows, split into row ranges per task (see [`Net::mlp_rows`]).
+    /// `mlp` over `rows` rows, split into row ranges per task (see [`Net::mlp_rows`]); with
+    /// `residual`, `out = residual + mlp(inputs)` (each task copies its rows of `residual` first,
+    /// in the same job).
     pub(super) fn mlp(
         &mut self,
         net: &Net<'_>,
@@ -101,7 +118,7 @@ impl Par<'_> {
         inputs: &[Option<&[f32]>],
         rows: usize,
         out: &mut [f32],
-        residual: bool,
+        residual: Option<&[f32]>,
     ) -> Result<()> {
         if rows == 0 {
             return Ok(());
@@ -124,7 +141,15 @@ impl Par<'_> {
             let r = split(rows, n, t);
             // SAFETY: row ranges of different tasks are disjoint.
             let o = unsafe { out.range(r.start * w..r.end * w) };
-            net.mlp_rows(mlp, inputs, r, o, residual, tb)
+            if let Some(base) = residual {
+                let b = base.get(r.start * w..r.end * w).ok_or(Error::SizeMismatch {
+                    what: "residual rows",
+                    expected: r.end * w,
+                    got: base.len(),
+                })?;
+                o.copy_from_slice(b);
+            }
+            net.mlp_rows(mlp, inputs, r, o, residual.is_some(), tb)
         })
     }
 
@@ -146,8 +171,7 @@ impl Par<'_> {
         let h = l[0].out;
         let (nt, ns) = (x.0.len() / h, x.1.len() / h);
         let (pt, ps) = (&mut proj.0[..nt * h], &mut proj.1[..ns * h]);
-        self.linear(net, x.0, p1[0], pt)?;
-        self.linear(net, x.1, p1[1], ps)?;
+        self.linear_pair(net, [(x.0, p1[0]), (x.1, p1[1])], pt, ps)?;
         let pt: &[f32] = match edges {
             Edges::PerEdge { target_rows: Some(rows), .. } => {
                 let per_edge = &mut proj.2[..rows.len() * h];
@@ -212,19 +236,38 @@ impl Par<'_> {
         }
     }
 
-    /// `out = x · Wᵀ` (no bias), row-split.
-    fn linear(&mut self, net: &Net<'_>, x: &[f32], w: kernels::Weights<'_>, out: &mut [f32]) -> Result<()> {
-        let (k, n_out) = (w.k(), w.n());
-        let rows = x.len() / k.max(1);
-        *self.flops += 2 * (rows * k * n_out) as u64;
+    /// `out_a = x_a · W_aᵀ` and `out_b = x_b · W_bᵀ` (no bias; both of the same output width),
+    /// in one job: the rows of both, one after the other, split evenly between the tasks (a task
+    /// may take the end of one and the start of the other). One hand-off instead of two; rows
+    /// are independent, so the split changes no bit.
+    fn linear_pair(
+        &mut self,
+        net: &Net<'_>,
+        [(xa, wa), (xb, wb)]: [(&[f32], kernels::Weights<'_>); 2],
+        out_a: &mut [f32],
+        out_b: &mut [f32],
+    ) -> Result<()> {
+        let n_out = wa.n();
+        let (rows_a, rows_b) = (xa.len() / wa.k().max(1), xb.len() / wb.k().max(1));
+        *self.flops += 2 * ((rows_a * wa.k() + rows_b * wb.k()) * n_out) as u64;
+        let rows = rows_a + rows_b;
         let n = self.tasks.len().min(rows.div_ceil(64)).max(1);
-        let out = Disjoint::new(out);
+        let (out_a, out_b) = (Disjoint::new(out_a), Disjoint::new(out_b));
         self.run(n, &|t, tb| {
             let r = split(rows, n, t);
-            // SAFETY: row ranges of different tasks are disjoint.
-            let o = unsafe { out.range(r.start * n_out..r.end * n_out) };
-            let op = [Operand { x: &x[r.start * k..r.end * k], w }];
-            net.kernels.linear(&op, None, &Epilogue::default(), o, &mut tb.lin)
+            let a = r.start.min(rows_a)..r.end.min(rows_a);
+            let b = r.start.max(rows_a) - rows_a..r.end.max(rows_a) - rows_a;
+            for (range, x, w, out) in [(a, xa, wa, &out_a), (b, xb, wb, &out_b)] {
+                if range.is_empty() {
+                    continue;
+                }
+                let k = w.k();
+                // SAFETY: row ranges of different tasks are disjoint, in each output.
+                let o = unsafe { out.range(range.start * n_out..range.end * n_out) };
+                let op = [Operand { x: &x[range.start * k..range.end * k], w }];
+                net.kernels.linear(&op, None, &Epilogue::default(), o, &mut tb.lin)?;
+            }
+            Ok(())
         })
     }
 
