@@ -237,9 +237,11 @@ impl Par<'_> {
     }
 
     /// `out_a = x_a · W_aᵀ` and `out_b = x_b · W_bᵀ` (no bias; both of the same output width),
-    /// in one job: the rows of both, one after the other, split evenly between the tasks (a task
-    /// may take the end of one and the start of the other). One hand-off instead of two; rows
-    /// are independent, so the split changes no bit.
+    /// in one job: task `t` computes its share of the rows of each, the rows it would have in
+    /// either product alone, so that each thread keeps the rows its edge kernel then reads
+    /// (rather than one thread writing all of one product, whose rows the other would pull
+    /// across cores). One hand-off instead of two; rows are independent, so the split changes
+    /// no bit.
     fn linear_pair(
         &mut self,
         net: &Net<'_>,
@@ -250,13 +252,10 @@ impl Par<'_> {
         let n_out = wa.n();
         let (rows_a, rows_b) = (xa.len() / wa.k().max(1), xb.len() / wb.k().max(1));
         *self.flops += 2 * ((rows_a * wa.k() + rows_b * wb.k()) * n_out) as u64;
-        let rows = rows_a + rows_b;
-        let n = self.tasks.len().min(rows.div_ceil(64)).max(1);
+        let n = self.tasks.len().min(rows_a.max(rows_b).div_ceil(64)).max(1);
         let (out_a, out_b) = (Disjoint::new(out_a), Disjoint::new(out_b));
         self.run(n, &|t, tb| {
-            let r = split(rows, n, t);
-            let a = r.start.min(rows_a)..r.end.min(rows_a);
-            let b = r.start.max(rows_a) - rows_a..r.end.max(rows_a) - rows_a;
+            let (a, b) = (split(rows_a, n, t), split(rows_b, n, t));
             for (range, x, w, out) in [(a, xa, wa, &out_a), (b, xb, wb, &out_b)] {
                 if range.is_empty() {
                     continue;
