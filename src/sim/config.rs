@@ -48,9 +48,11 @@ pub enum StepMode {
     /// from the start of [`Sim::step`] (the frame's checks and the body's grids are in it):
     /// after each iteration, the solve ends if the longest iteration so far would not end within
     /// the budget, or after `max_iterations` (1 ..= [`MAX_REFINE_ITERATIONS`]); at least one
-    /// iteration runs, so a step whose set-up and one iteration take longer overruns. The step
-    /// that fits a frame's time budget. The result then depends on the machine and its load (not
-    /// bitwise reproducible). Reads the sim's clock ([`Sim::set_clock`]; with `std` one is there).
+    /// iteration runs, so a step whose set-up and one iteration take longer overruns, and says
+    /// so ([`Sim::last_budget`], [`StepEffects::over_budget`](super::StepEffects::over_budget)).
+    /// The step that fits a frame's time budget. The result then depends on the machine and its
+    /// load (not bitwise reproducible). Reads the sim's clock ([`Sim::set_clock`]; with `std`
+    /// one is there).
     SolverBudget {
         /// Wall time of one step, µs (at least 1).
         micros: u32,
