@@ -10,6 +10,7 @@ use crate::sim::{BodyDesc, Precision, Sim, SimConfig, StepMode};
 use crate::workloads::Workload;
 use std::string::String;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 use std::vec::Vec;
 
@@ -53,10 +54,11 @@ pub struct BenchRow {
     pub handoffs: u64,
 }
 
-/// A [`ThreadPool`] that counts the jobs of more than one task it is given.
+/// A [`ThreadPool`] that counts the jobs of more than one task it is given, into a counter the
+/// bench keeps while the sim owns the pool.
 struct CountingPool {
     pool: ThreadPool,
-    handoffs: AtomicU64,
+    handoffs: Arc<AtomicU64>,
 }
 
 // SAFETY: runs every job on the pool, whose contract is the executor's.
@@ -122,8 +124,6 @@ impl Placement {
 /// hand data between threads (the trainer's above all) then run up to 1.6 times slower, so print
 /// this beside two-thread figures.
 pub fn core_to_core_ns() -> Option<f64> {
-    use std::sync::atomic::{AtomicU64, Ordering};
-    use std::sync::Arc;
     use std::time::Duration;
     const TRIPS: u64 = 20_000;
     const ROUNDS: usize = 5;
@@ -189,14 +189,12 @@ pub fn bench_step(
         None => Sim::new(model, &w.garment, body, cfg)?,
     };
     // The sim's pool, counting its hand-offs (those of the last timed step are reported).
-    let counting = (threads > 1).then(|| {
+    let handoffs_so_far = Arc::new(AtomicU64::new(0));
+    if threads > 1 {
         let pool = ThreadPool::new(crate::limits::cap_threads(threads));
-        std::sync::Arc::new(CountingPool { pool, handoffs: AtomicU64::new(0) })
-    });
-    if let Some(c) = &counting {
-        sim.set_executor(std::boxed::Box::new(SharedPool(c.clone())));
+        sim.set_executor(std::boxed::Box::new(CountingPool { pool, handoffs: handoffs_so_far.clone() }));
     }
-    let count = || counting.as_ref().map_or(0, |c| c.handoffs.load(Ordering::Relaxed));
+    let count = || handoffs_so_far.load(Ordering::Relaxed);
     let mut times = Vec::with_capacity(steps);
     let mut handoffs = 0;
     for t in 0..warmup + steps {
@@ -237,19 +235,6 @@ pub fn bench_step(
         efficiency: gflops / peak_gflops,
         handoffs,
     })
-}
-
-/// The counting pool as the sim's executor, shared with the bench that reads its count.
-struct SharedPool(std::sync::Arc<CountingPool>);
-
-// SAFETY: the pool's contract.
-unsafe impl Executor for SharedPool {
-    fn parallelism(&self) -> usize {
-        self.0.parallelism()
-    }
-    fn run(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
-        self.0.run(n, task);
-    }
 }
 
 #[cfg(test)]

@@ -197,14 +197,14 @@ fn fixture_tee(assets: &Path, subdivide: bool) -> Result<Workload> {
 /// [`Error::UnsupportedEffect`] for a workload without a body or a fixed start state (the
 /// procedural ones); errors of the garment's hierarchy.
 pub fn reference_scene(w: &Workload) -> Result<Vec<u8>> {
-    use crate::hierarchy::{Hierarchy, HierarchyConfig};
     use crate::io::safetensors::{to_bytes, TensorData};
     let (Some((mesh, frames)), Some(state)) = (&w.body, &w.fixed_state) else {
         return Err(Error::UnsupportedEffect { effect: "reference scene of a workload without a fixed state" });
     };
     let graph = match &w.graph {
         Some(g) => g.clone(),
-        None => Graph::new(&w.garment, &Hierarchy::build(&w.garment, &HierarchyConfig::default())?)?,
+        // As the bench's sim builds it for HOOD's architecture.
+        None => Graph::build(&w.garment, crate::hierarchy::DEFAULT_LEVELS)?,
     };
     let flat = |rows: &[[f32; 3]]| -> Vec<f32> { rows.iter().flatten().copied().collect() };
     let faces = |f: &[[u32; 3]]| -> Vec<i64> { f.iter().flatten().map(|&v| v as i64).collect() };

@@ -50,6 +50,18 @@ impl Graph {
         Graph::from_parts(garment, &coarse, hierarchy.vertex_level())
     }
 
+    /// From a garment, with its hierarchy of `levels` coarse levels built by the default
+    /// [`HierarchyConfig`](crate::hierarchy::HierarchyConfig) (as [`Sim::new`](super::Sim::new)
+    /// builds it).
+    ///
+    /// # Errors
+    /// Errors of the hierarchy.
+    pub fn build(garment: &Garment, levels: usize) -> Result<Graph> {
+        use crate::hierarchy::HierarchyConfig;
+        let hierarchy = Hierarchy::build(garment, &HierarchyConfig { levels, ..HierarchyConfig::default() })?;
+        Graph::new(garment, &hierarchy)
+    }
+
     /// From a garment, undirected coarse edges per level and vertex levels (e.g. a reference
     /// fixture's graph).
     ///

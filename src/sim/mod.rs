@@ -35,7 +35,6 @@ use crate::error::{Error, Result};
 pub use crate::exec::ThreadPool;
 pub use crate::exec::{Executor, Serial};
 use crate::features::{DT, DT_STARTUP};
-use crate::hierarchy::{Hierarchy, HierarchyConfig};
 use crate::kernels::{Kernels, Tier};
 use crate::math::finite3;
 use crate::mesh::{vertex_normals, Garment};
@@ -178,15 +177,13 @@ fn check_finite(what: &'static str, p: &[[f32; 3]]) -> Result<()> {
 
 impl<'m> Sim<'m> {
     /// A simulation of `garment` (starting at its rest positions) on `body` (or none), with the
-    /// garment's hierarchy built by the default [`HierarchyConfig`].
+    /// garment's graph built by [`Graph::build`] (the default hierarchy, the model's levels).
     ///
     /// # Errors
     /// [`Error::UnsupportedEffect`] for an effect the model was not trained with or a bf16 run
     /// of an f32-only file; [`Error::IncompatibleModel`]; errors of the hierarchy.
     pub fn new(model: &'m Model<'m>, garment: &Garment, body: Option<BodyDesc<'_>>, cfg: SimConfig) -> Result<Sim<'m>> {
-        let levels = model.spec().levels;
-        let hierarchy = Hierarchy::build(garment, &HierarchyConfig { levels, ..HierarchyConfig::default() })?;
-        let graph = Graph::new(garment, &hierarchy)?;
+        let graph = Graph::build(garment, model.spec().levels)?;
         Sim::with_graph(model, garment, graph, body, cfg)
     }
 

@@ -61,6 +61,13 @@ pub(super) struct RefineBody<'a> {
     pub next: BodyFaces<'a>,
 }
 
+/// What one refinement reports: the solver's report and, with a time budget, how the step kept it.
+#[derive(Clone, Copy, Debug)]
+struct Solved {
+    report: LbfgsReport,
+    budget: Option<BudgetUse>,
+}
+
 /// Buffers of the refinement, sized once for one garment (and body).
 #[derive(Clone, Debug)]
 pub(super) struct Refiner {
@@ -72,17 +79,13 @@ pub(super) struct Refiner {
     coast: Vec<[f32; 3]>,
     /// The network's prediction (pinned vertices at their targets).
     predicted: Vec<[f32; 3]>,
-    last: Option<LbfgsReport>,
+    last: Option<Solved>,
     /// The report of a refinement whose step has not been committed yet.
-    pending: Option<LbfgsReport>,
+    pending: Option<Solved>,
     /// Wall time of one step, ns (`None`: the iteration count alone ends its refinement).
     budget_ns: Option<u64>,
     /// Clock reading at the start of the current step, with a budget.
     step_start_ns: Option<u64>,
-    /// How the last committed step kept the budget (`None` without a budget or before a step).
-    last_budget: Option<BudgetUse>,
-    /// The same for a step whose solve has not been committed yet.
-    pending_budget: Option<BudgetUse>,
 }
 
 impl Refiner {
@@ -122,8 +125,6 @@ impl Refiner {
             pending: None,
             budget_ns,
             step_start_ns: None,
-            last_budget: None,
-            pending_budget: None,
         })
     }
 
@@ -138,12 +139,12 @@ impl Refiner {
 
     /// The last refinement's report (iterations, objective before and after, J).
     pub(super) fn last(&self) -> Option<&LbfgsReport> {
-        self.last.as_ref()
+        self.last.as_ref().map(|s| &s.report)
     }
 
     /// How the last refined step kept its time budget (`None` without one).
     pub(super) fn last_budget(&self) -> Option<BudgetUse> {
-        self.last_budget
+        self.last.as_ref().and_then(|s| s.budget)
     }
 
     /// Refines the prediction `new_pos` (m, world, pinned vertices at their targets) in place and
@@ -164,7 +165,6 @@ impl Refiner {
         new_vel: &mut [[f32; 3]],
     ) -> Result<()> {
         self.pending = None;
-        self.pending_budget = None;
         let mut deadline = match (self.budget_ns, clock) {
             (None, _) => None,
             (Some(b), Some(c)) => Some(Deadline::new(c, self.step_start_ns, b)),
@@ -211,13 +211,13 @@ impl Refiner {
                 v[k] += x[k] - p[k];
             }
         }
-        self.pending = Some(report);
-        self.pending_budget = match (self.budget_ns, self.step_start_ns, clock) {
+        let budget = match (self.budget_ns, self.step_start_ns, clock) {
             (Some(budget_ns), Some(start), Some(c)) => {
                 Some(BudgetUse { budget_ns, used_ns: c.now_ns().saturating_sub(start) })
             }
             _ => None,
         };
+        self.pending = Some(Solved { report, budget });
         Ok(())
     }
 
@@ -225,15 +225,13 @@ impl Refiner {
     /// teleported) or no step has run from its state.
     pub(super) fn forget_last(&mut self) {
         self.last = None;
-        self.last_budget = None;
     }
 
     /// Makes the last [`apply`](Self::apply)'s report the one [`last`](Self::last) gives, once
     /// its step is committed (a refused step leaves the previous report).
     pub(super) fn commit(&mut self) {
-        if let Some(report) = self.pending.take() {
-            self.last = Some(report);
-            self.last_budget = self.pending_budget.take();
+        if let Some(solved) = self.pending.take() {
+            self.last = Some(solved);
         }
     }
 }

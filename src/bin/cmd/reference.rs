@@ -36,8 +36,9 @@ pub(crate) struct Reference<'a> {
     pub script: &'a Path,
     /// The fixture's weights (`fixture_weights.safetensors`).
     pub weights: PathBuf,
-    /// Timed forwards per thread count (the median is reported) and untimed ones first.
+    /// Timed forwards per thread count (the median is reported).
     pub runs: usize,
+    /// Untimed forwards before them.
     pub warmup: usize,
 }
 

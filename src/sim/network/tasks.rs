@@ -68,44 +68,26 @@ impl Par<'_> {
         first_error(&mut self.errors[..n])
     }
 
-    /// Zeroes `buf`, split between tasks (megabytes per block at h = 128: serially it would
-    /// hold back the second thread).
-    pub(super) fn fill(&mut self, buf: &mut [f32]) {
-        let len = buf.len();
-        let n = self.tasks.len().min(len.div_ceil(PAR_FLOATS)).max(1);
-        let buf = Disjoint::new(buf);
-        let _ = self.run(n, &|t, _| {
-            // SAFETY: ranges of different tasks are disjoint.
-            unsafe { buf.range(split(len, n, t)) }.fill(0.0);
-            Ok(())
-        });
-    }
-
-    /// Zeroes the first `len` floats of each of `bufs` in one job (one hand-off for a block's
-    /// message slots), each task its share of every buffer.
+    /// Zeroes the first `len` floats of each of `bufs`, split between tasks (megabytes per block
+    /// at h = 128: serially it would hold back the second thread), in one job for a block's
+    /// message slots (one per [`MAX_OPERANDS`] buffers), each task its share of every buffer.
     pub(super) fn fill_each(&mut self, bufs: &mut [Vec<f32>], len: usize) {
-        if bufs.len() > MAX_OPERANDS {
-            // More buffers than a block has slots: one job each.
-            for b in bufs.iter_mut() {
-                let l = len.min(b.len());
-                self.fill(&mut b[..l]);
-            }
-            return;
-        }
         // Split as one buffer's fill would be (small buffers are zeroed on the calling thread).
         let n = self.tasks.len().min(len.div_ceil(PAR_FLOATS)).max(1);
-        let mut parts: [Option<Disjoint<'_, f32>>; MAX_OPERANDS] = [const { None }; MAX_OPERANDS];
-        for (p, b) in parts.iter_mut().zip(bufs.iter_mut()) {
-            let l = len.min(b.len());
-            *p = Some(Disjoint::new(&mut b[..l]));
-        }
-        let _ = self.run(n, &|t, _| {
-            for b in parts.iter().flatten() {
-                // SAFETY: ranges of different tasks are disjoint (out-of-bounds ranges are empty).
-                unsafe { b.range(split(len, n, t)) }.fill(0.0);
+        for group in bufs.chunks_mut(MAX_OPERANDS) {
+            let mut parts: [Option<Disjoint<'_, f32>>; MAX_OPERANDS] = [const { None }; MAX_OPERANDS];
+            for (p, b) in parts.iter_mut().zip(group.iter_mut()) {
+                let l = len.min(b.len());
+                *p = Some(Disjoint::new(&mut b[..l]));
             }
-            Ok(())
-        });
+            let _ = self.run(n, &|t, _| {
+                for b in parts.iter().flatten() {
+                    // SAFETY: ranges of different tasks are disjoint (out-of-bounds ranges are empty).
+                    unsafe { b.range(split(len, n, t)) }.fill(0.0);
+                }
+                Ok(())
+            });
+        }
     }
 
     /// `mlp` over `rows` rows, split into row ranges per task (see [`Net::mlp_rows`]); with
