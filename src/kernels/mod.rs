@@ -26,9 +26,14 @@
 mod choose;
 mod frame;
 
+/// The vector vocabulary and the x86 tokens, for the trainer's products.
+#[cfg(feature = "train")]
+pub(crate) use frame::Simd;
 /// Row statistics shared with the trainer, so both normalise with the same arithmetic.
 #[cfg(feature = "train")]
 pub(crate) use frame::{lane_dot, lane_sum, layer_norm_stats};
+#[cfg(all(feature = "train", target_arch = "x86_64"))]
+pub(crate) use x86::{Avx2Fma, Avx512};
 #[cfg(target_arch = "x86_64")]
 mod amx;
 mod pack;

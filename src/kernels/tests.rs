@@ -181,7 +181,14 @@ fn kernels_force_tier_caps_best() {
     assert_eq!(Kernels::best().tier(), Tier::Portable);
     assert_eq!((bf16_choice().tier, Kernels::best_bf16().tier()), (Tier::Portable, Tier::Portable));
     #[cfg(feature = "train")]
-    assert!(!crate::train::gemm::Gemm::best().is_simd(), "the trainer's GEMM uses AVX2 under the portable cap");
+    assert!(!crate::train::gemm::Gemm::best().is_simd(), "the trainer's GEMM uses SIMD under the portable cap");
+    #[cfg(feature = "train")]
+    if detected_tier() >= Tier::Avx512 {
+        force_tier(Some(Tier::Avx2Fma));
+        assert_eq!(crate::train::gemm::Gemm::best().tier(), Tier::Avx2Fma, "the trainer's GEMM above the AVX2 cap");
+        force_tier(None);
+        assert_eq!(crate::train::gemm::Gemm::best().tier(), Tier::Avx512);
+    }
     force_tier(None);
     assert_eq!(Kernels::best().tier(), detected_tier());
     force_tier(before);

@@ -1,11 +1,13 @@
 //! The trainer's f32 matrix products on strided row-major operands: `C += A·B` (forward
 //! products against transposed weights, and `dX = dY·W` in the backward) and `C += Aᵀ·B`
-//! (weight gradients `dW += dYᵀ·X`). An AVX2+FMA path chosen at run time (by
-//! [`crate::kernels::Kernels::best`], so `HOOD_KERNEL_TIER` caps it too) and a scalar twin.
+//! (weight gradients `dW += dYᵀ·X`). AVX-512 and AVX2+FMA paths chosen at run time (by
+//! [`crate::kernels::Kernels::best`], so `HOOD_KERNEL_TIER` caps them too), written once over the
+//! kernels' vector vocabulary, and a scalar twin.
 //!
-//! Every output element is one sum in a fixed order whatever the row position (a tile of six
-//! rows and a tail tile of fewer run the same chain of operations), so splitting rows between
-//! threads never changes a result. Column remainders run masked vectors (the same fused
+//! Every output element is one chain of fused multiply-adds in a fixed order whatever the row
+//! position and the vector width (a tile of six rows and a tail tile of fewer, a 512-bit and a
+//! 256-bit vector, run the same chain), so splitting rows between threads never changes a result
+//! and the two SIMD paths agree bitwise. Column remainders run masked vectors (the same fused
 //! multiply-adds as the full vectors), not scalar loops: the narrow inputs of the encoders (3 to
 //! 14 features) made those loops a visible share of a training step.
 
@@ -14,7 +16,16 @@ use crate::kernels::{Kernels, Tier};
 /// A chosen product path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Gemm {
-    avx2: bool,
+    path: Path,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Path {
+    Scalar,
+    #[cfg(target_arch = "x86_64")]
+    Avx2(crate::kernels::Avx2Fma),
+    #[cfg(target_arch = "x86_64")]
+    Avx512(crate::kernels::Avx512),
 }
 
 /// What a product [`Gemm::nn_out`] does with `C` (the epilogue of each output tile: fusing it
@@ -62,19 +73,51 @@ fn needed(rows: usize, cols: usize, ld: usize) -> usize {
 }
 
 impl Gemm {
-    /// The best path for this CPU (AVX2+FMA when [`Kernels::best`] reaches that tier).
+    /// The best path for this CPU within [`Kernels::best`]'s tier.
     pub fn best() -> Gemm {
-        Gemm { avx2: Kernels::best().tier() >= Tier::Avx2Fma && cfg!(target_arch = "x86_64") }
+        Gemm::at_most(Kernels::best().tier())
+    }
+
+    /// The best path on this CPU at or below `tier` (AVX-512 for the AVX-512 tiers and above,
+    /// AVX2+FMA for [`Tier::Avx2Fma`], scalar below).
+    pub fn at_most(tier: Tier) -> Gemm {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use crate::kernels::{Avx2Fma, Avx512};
+            if tier >= Tier::Avx512 {
+                if let Some(t) = Avx512::new() {
+                    return Gemm { path: Path::Avx512(t) };
+                }
+            }
+            if tier >= Tier::Avx2Fma {
+                if let Some(t) = Avx2Fma::new() {
+                    return Gemm { path: Path::Avx2(t) };
+                }
+            }
+        }
+        let _ = tier;
+        Gemm::scalar()
     }
 
     /// The scalar reference.
     pub fn scalar() -> Gemm {
-        Gemm { avx2: false }
+        Gemm { path: Path::Scalar }
     }
 
-    /// True for the SIMD path.
+    /// True for a SIMD path.
     pub fn is_simd(&self) -> bool {
-        self.avx2
+        self.path != Path::Scalar
+    }
+
+    /// The tier of the path: [`Tier::Scalar`], [`Tier::Avx2Fma`] or [`Tier::Avx512`].
+    pub fn tier(&self) -> Tier {
+        match self.path {
+            Path::Scalar => Tier::Scalar,
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx2(_) => Tier::Avx2Fma,
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx512(_) => Tier::Avx512,
+        }
     }
 
     /// `C[m×n] += A[m×k] · B[k×n]`.
@@ -114,12 +157,14 @@ impl Gemm {
         if m == 0 || n == 0 {
             return;
         }
-        #[cfg(target_arch = "x86_64")]
-        if self.avx2 {
-            // SAFETY: `avx2` is set only when `Kernels::best()` found AVX2+FMA on this CPU; the
-            // asserts above bound every index the kernel reads or writes.
-            unsafe { avx2::nn(m, n, k, a, b, out, c, ldc) };
-            return;
+        match self.path {
+            // SAFETY (both): the token proves the instructions; the asserts above bound every
+            // index the kernel reads or writes.
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx2(t) => return unsafe { entry::nn_avx2(t, m, n, k, a, b, out, c, ldc) },
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx512(t) => return unsafe { entry::nn_avx512(t, m, n, k, a, b, out, c, ldc) },
+            Path::Scalar => {}
         }
         for r in 0..m {
             for j in 0..n {
@@ -146,11 +191,13 @@ impl Gemm {
         if m == 0 || n == 0 || ka == 0 {
             return;
         }
-        #[cfg(target_arch = "x86_64")]
-        if self.avx2 {
-            // SAFETY: as in `nn`.
-            unsafe { avx2::tn(m, ka, n, a, b, c, ldc) };
-            return;
+        match self.path {
+            // SAFETY (both): as in `nn_out`.
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx2(t) => return unsafe { entry::tn_avx2(t, m, ka, n, a, b, c, ldc) },
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx512(t) => return unsafe { entry::tn_avx512(t, m, ka, n, a, b, c, ldc) },
+            Path::Scalar => {}
         }
         for o in 0..ka {
             for j in 0..n {
@@ -164,83 +211,79 @@ impl Gemm {
     }
 }
 
+/// The register tiles, generic over the vector width.
 #[cfg(target_arch = "x86_64")]
-mod avx2 {
+mod tiles {
     use super::{Mat, Out};
-    use core::arch::x86_64::*;
+    use crate::kernels::Simd;
 
-    /// Rows of `B` streamed per pass of [`tn`] (keeps a 16-column strip in L1).
+    /// Rows of `B` streamed per pass of [`tn`] (keeps a strip of columns in L1).
     const TN_ROWS: usize = 128;
 
-    /// Lanes below `cols` set: the mask of a last, partial vector of columns.
-    #[inline(always)]
-    unsafe fn lanes(cols: usize) -> __m256i {
-        // SAFETY: plain AVX2 integer operations (the caller enabled AVX2).
-        unsafe { _mm256_cmpgt_epi32(_mm256_set1_epi32(cols as i32), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7)) }
-    }
+    /// Row tile height: six rows, with at most four vectors of columns (24 accumulators) on
+    /// 32-register AVX-512 and two (12) on 16-register AVX2.
+    const ROWS: usize = 6;
 
-    /// 8 floats at `p`, only the lanes of `mask` when `M` (the others read as 0, not touched).
+    /// `LANES` floats at `p`, or with `M` only the first `cols` (the others read as 0).
     #[inline(always)]
-    unsafe fn load<const M: bool>(p: *const f32, mask: __m256i) -> __m256 {
-        // SAFETY: `p` addresses 8 valid elements, or (masked) the masked ones (caller).
+    unsafe fn load<S: Simd, const M: bool>(s: S, p: *const f32, cols: usize) -> S::V {
+        // SAFETY: `p` addresses `LANES` valid elements, or (masked) `cols` (caller).
         unsafe {
             if M {
-                _mm256_maskload_ps(p, mask)
+                s.load_part(p, cols)
             } else {
-                _mm256_loadu_ps(p)
+                s.load(p)
             }
         }
     }
 
     /// The epilogue of a tile's vector `x` into `p`, bias vector at `bias` (see [`Out`]); with
-    /// `M`, only the lanes of `mask` are read and written.
+    /// `M`, only the first `cols` lanes are read and written.
     #[inline(always)]
-    unsafe fn store<const M: bool>(out: Out<'_>, p: *mut f32, bias: *const f32, x: __m256, mask: __m256i) {
+    unsafe fn store<S: Simd, const M: bool>(s: S, out: Out<'_>, p: *mut f32, bias: *const f32, x: S::V, cols: usize) {
         // SAFETY: `p` and (for the bias forms) `bias` address the lanes used (caller).
         unsafe {
             let v = match out {
-                Out::Add => _mm256_add_ps(load::<M>(p, mask), x),
+                Out::Add => s.add(load::<S, M>(s, p, cols), x),
                 Out::Set => x,
-                Out::Bias(_) => _mm256_add_ps(load::<M>(bias, mask), x),
-                Out::BiasRelu(_) => _mm256_max_ps(_mm256_add_ps(load::<M>(bias, mask), x), _mm256_setzero_ps()),
+                Out::Bias(_) => s.add(load::<S, M>(s, bias, cols), x),
+                Out::BiasRelu(_) => s.max(s.add(load::<S, M>(s, bias, cols), x), s.zero()),
             };
             if M {
-                _mm256_maskstore_ps(p, mask, v);
+                s.store_part(p, cols, v);
             } else {
-                _mm256_storeu_ps(p, v);
+                s.store(p, v);
             }
         }
     }
 
-    /// One tile of `C (op)= A·B`: `R` rows (1..=6) × `V` vectors of 8 columns at column `j`.
+    /// One tile of `C (op)= A·B`: `R` rows (1..=6) × `V` vectors of columns at column `j`.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn nn_tile<const R: usize, const V: usize, const M: bool>(
+    unsafe fn nn_tile<S: Simd, const R: usize, const V: usize, const M: bool>(
+        s: S,
         k: usize,
-        a: *const f32,
-        lda: usize,
-        b: *const f32,
-        ldb: usize,
+        (a, lda): (*const f32, usize),
+        (b, ldb): (*const f32, usize),
         out: Out<'_>,
         j: usize,
-        c: *mut f32,
-        ldc: usize,
-        mask: __m256i,
+        (c, ldc): (*mut f32, usize),
+        cols: usize,
     ) {
         // SAFETY (whole body): the caller passes pointers to the tile's first elements with
-        // `R` rows of `k` (A), `k` rows of `8V` (B) and `R` rows of `8V` (C) in bounds (with
-        // `M`, V = 1 and only the lanes of `mask`).
+        // `R` rows of `k` (A), `k` rows of `V · LANES` (B) and `R` rows of `V · LANES` (C) in
+        // bounds (with `M`, V = 1 and only the first `cols` lanes).
         unsafe {
-            let mut acc = [[_mm256_setzero_ps(); V]; R];
+            let mut acc = [[s.zero(); V]; R];
             for kk in 0..k {
-                let mut bv = [_mm256_setzero_ps(); V];
+                let mut bv = [s.zero(); V];
                 for (v, x) in bv.iter_mut().enumerate() {
-                    *x = load::<M>(b.add(kk * ldb + 8 * v), mask);
+                    *x = load::<S, M>(s, b.add(kk * ldb + S::LANES * v), cols);
                 }
                 for (i, row) in acc.iter_mut().enumerate() {
-                    let av = _mm256_broadcast_ss(&*a.add(i * lda + kk));
+                    let av = s.splat(*a.add(i * lda + kk));
                     for (x, &w) in row.iter_mut().zip(&bv) {
-                        *x = _mm256_fmadd_ps(av, w, *x);
+                        *x = s.fma(av, w, *x);
                     }
                 }
             }
@@ -250,15 +293,18 @@ mod avx2 {
             };
             for (i, row) in acc.iter().enumerate() {
                 for (v, x) in row.iter().enumerate() {
-                    store::<M>(out, c.add(i * ldc + 8 * v), bias.wrapping_add(8 * v), *x, mask);
+                    let o = S::LANES * v;
+                    store::<S, M>(s, out, c.add(i * ldc + o), bias.wrapping_add(o), *x, cols);
                 }
             }
         }
     }
 
+    /// Rows `r..r + R` of `C (op)= A·B`, the widest tiles first.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn nn_rows<const R: usize>(
+    unsafe fn nn_rows<S: Simd, const R: usize>(
+        s: S,
         n: usize,
         k: usize,
         a: Mat<'_>,
@@ -269,30 +315,45 @@ mod avx2 {
         r: usize,
     ) {
         // SAFETY: rows r..r+R exist (caller), columns stay below n; the bounds were checked by
-        // `Gemm::nn`.
+        // `Gemm::nn_out`.
         unsafe {
-            let ap = a.data.as_ptr().add(r * a.ld);
-            let cp = c.add(r * ldc);
+            let a = (a.data.as_ptr().add(r * a.ld), a.ld);
+            let (bp, cp, w) = (b.data.as_ptr(), c.add(r * ldc), S::LANES);
             let mut j = 0;
-            let full = lanes(8);
-            while j + 16 <= n {
-                nn_tile::<R, 2, false>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, out, j, cp.add(j), ldc, full);
-                j += 16;
+            if w >= 16 {
+                while j + 4 * w <= n {
+                    nn_tile::<S, R, 4, false>(s, k, a, (bp.add(j), b.ld), out, j, (cp.add(j), ldc), w);
+                    j += 4 * w;
+                }
+                if j + 2 * w <= n {
+                    nn_tile::<S, R, 2, false>(s, k, a, (bp.add(j), b.ld), out, j, (cp.add(j), ldc), w);
+                    j += 2 * w;
+                }
+            } else {
+                while j + 2 * w <= n {
+                    nn_tile::<S, R, 2, false>(s, k, a, (bp.add(j), b.ld), out, j, (cp.add(j), ldc), w);
+                    j += 2 * w;
+                }
             }
-            if j + 8 <= n {
-                nn_tile::<R, 1, false>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, out, j, cp.add(j), ldc, full);
-                j += 8;
+            if j + w <= n {
+                nn_tile::<S, R, 1, false>(s, k, a, (bp.add(j), b.ld), out, j, (cp.add(j), ldc), w);
+                j += w;
             }
             if j < n {
-                let mask = lanes(n - j);
-                nn_tile::<R, 1, true>(k, ap, a.ld, b.data.as_ptr().add(j), b.ld, out, j, cp.add(j), ldc, mask);
+                nn_tile::<S, R, 1, true>(s, k, a, (bp.add(j), b.ld), out, j, (cp.add(j), ldc), n - j);
             }
         }
     }
 
-    #[target_feature(enable = "avx2,fma")]
+    /// `C (op)= A·B` (see [`super::Gemm::nn_out`]).
+    ///
+    /// # Safety
+    /// The operands hold their shapes and strides (checked by the caller); the CPU has the
+    /// instructions of `S` and the calling function enables them.
+    #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    pub(super) unsafe fn nn(
+    pub(super) unsafe fn nn<S: Simd>(
+        s: S,
         m: usize,
         n: usize,
         k: usize,
@@ -304,63 +365,62 @@ mod avx2 {
     ) {
         let cp = c.as_mut_ptr();
         let mut r = 0;
-        // SAFETY: bounds checked by `Gemm::nn_out`; AVX2+FMA enabled by the caller's token.
+        // SAFETY: as the contract above.
         unsafe {
-            while r + 6 <= m {
-                nn_rows::<6>(n, k, a, b, out, cp, ldc, r);
-                r += 6;
+            while r + ROWS <= m {
+                nn_rows::<S, ROWS>(s, n, k, a, b, out, cp, ldc, r);
+                r += ROWS;
             }
             match m - r {
-                5 => nn_rows::<5>(n, k, a, b, out, cp, ldc, r),
-                4 => nn_rows::<4>(n, k, a, b, out, cp, ldc, r),
-                3 => nn_rows::<3>(n, k, a, b, out, cp, ldc, r),
-                2 => nn_rows::<2>(n, k, a, b, out, cp, ldc, r),
-                1 => nn_rows::<1>(n, k, a, b, out, cp, ldc, r),
+                5 => nn_rows::<S, 5>(s, n, k, a, b, out, cp, ldc, r),
+                4 => nn_rows::<S, 4>(s, n, k, a, b, out, cp, ldc, r),
+                3 => nn_rows::<S, 3>(s, n, k, a, b, out, cp, ldc, r),
+                2 => nn_rows::<S, 2>(s, n, k, a, b, out, cp, ldc, r),
+                1 => nn_rows::<S, 1>(s, n, k, a, b, out, cp, ldc, r),
                 _ => {}
             }
         }
     }
 
-    /// One tile of `C += Aᵀ·B` over rows `r0..r1`: `R` outputs (A columns) × `V` vectors.
+    /// One tile of `C += Aᵀ·B` over rows `rows`: `R` outputs (A columns) × `V` vectors.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
-    unsafe fn tn_tile<const R: usize, const V: usize, const M: bool>(
+    unsafe fn tn_tile<S: Simd, const R: usize, const V: usize, const M: bool>(
+        s: S,
         rows: core::ops::Range<usize>,
-        a: *const f32,
-        lda: usize,
-        b: *const f32,
-        ldb: usize,
-        c: *mut f32,
-        ldc: usize,
-        mask: __m256i,
+        (a, lda): (*const f32, usize),
+        (b, ldb): (*const f32, usize),
+        (c, ldc): (*mut f32, usize),
+        cols: usize,
     ) {
         // SAFETY (whole body): pointers at the tile's first column/row; rows in bounds (with
-        // `M`, V = 1 and only the lanes of `mask`).
+        // `M`, V = 1 and only the first `cols` lanes).
         unsafe {
-            let mut acc = [[_mm256_setzero_ps(); V]; R];
+            let mut acc = [[s.zero(); V]; R];
             for r in rows {
-                let mut bv = [_mm256_setzero_ps(); V];
+                let mut bv = [s.zero(); V];
                 for (v, x) in bv.iter_mut().enumerate() {
-                    *x = load::<M>(b.add(r * ldb + 8 * v), mask);
+                    *x = load::<S, M>(s, b.add(r * ldb + S::LANES * v), cols);
                 }
                 for (i, row) in acc.iter_mut().enumerate() {
-                    let av = _mm256_broadcast_ss(&*a.add(r * lda + i));
+                    let av = s.splat(*a.add(r * lda + i));
                     for (x, &w) in row.iter_mut().zip(&bv) {
-                        *x = _mm256_fmadd_ps(av, w, *x);
+                        *x = s.fma(av, w, *x);
                     }
                 }
             }
             for (i, row) in acc.iter().enumerate() {
                 for (v, x) in row.iter().enumerate() {
-                    store::<M>(Out::Add, c.add(i * ldc + 8 * v), core::ptr::null(), *x, mask);
+                    store::<S, M>(s, Out::Add, c.add(i * ldc + S::LANES * v), core::ptr::null(), *x, cols);
                 }
             }
         }
     }
 
+    /// Outputs `o..o + R` of `C += Aᵀ·B` over rows `rows`, the widest tiles first.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn tn_outs<const R: usize>(
+    unsafe fn tn_outs<S: Simd, const R: usize>(
+        s: S,
         rows: core::ops::Range<usize>,
         n: usize,
         a: Mat<'_>,
@@ -371,51 +431,125 @@ mod avx2 {
     ) {
         // SAFETY: outputs o..o+R exist (caller); bounds checked by `Gemm::tn`.
         unsafe {
-            let ap = a.data.as_ptr().add(o);
-            let cp = c.add(o * ldc);
+            let a = (a.data.as_ptr().add(o), a.ld);
+            let (bp, cp, w) = (b.data.as_ptr(), c.add(o * ldc), S::LANES);
             let mut j = 0;
-            let full = lanes(8);
-            let bp = b.data.as_ptr();
-            while j + 16 <= n {
-                tn_tile::<R, 2, false>(rows.clone(), ap, a.ld, bp.add(j), b.ld, cp.add(j), ldc, full);
-                j += 16;
+            if w >= 16 {
+                while j + 4 * w <= n {
+                    tn_tile::<S, R, 4, false>(s, rows.clone(), a, (bp.add(j), b.ld), (cp.add(j), ldc), w);
+                    j += 4 * w;
+                }
+                if j + 2 * w <= n {
+                    tn_tile::<S, R, 2, false>(s, rows.clone(), a, (bp.add(j), b.ld), (cp.add(j), ldc), w);
+                    j += 2 * w;
+                }
+            } else {
+                while j + 2 * w <= n {
+                    tn_tile::<S, R, 2, false>(s, rows.clone(), a, (bp.add(j), b.ld), (cp.add(j), ldc), w);
+                    j += 2 * w;
+                }
             }
-            if j + 8 <= n {
-                tn_tile::<R, 1, false>(rows.clone(), ap, a.ld, bp.add(j), b.ld, cp.add(j), ldc, full);
-                j += 8;
+            if j + w <= n {
+                tn_tile::<S, R, 1, false>(s, rows.clone(), a, (bp.add(j), b.ld), (cp.add(j), ldc), w);
+                j += w;
             }
             if j < n {
-                tn_tile::<R, 1, true>(rows.clone(), ap, a.ld, bp.add(j), b.ld, cp.add(j), ldc, lanes(n - j));
+                tn_tile::<S, R, 1, true>(s, rows, a, (bp.add(j), b.ld), (cp.add(j), ldc), n - j);
             }
         }
     }
 
-    #[target_feature(enable = "avx2,fma")]
+    /// `C += Aᵀ·B` (see [`super::Gemm::tn`]).
+    ///
+    /// # Safety
+    /// As [`nn`].
+    #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    pub(super) unsafe fn tn(m: usize, ka: usize, n: usize, a: Mat<'_>, b: Mat<'_>, c: &mut [f32], ldc: usize) {
+    pub(super) unsafe fn tn<S: Simd>(
+        s: S,
+        m: usize,
+        ka: usize,
+        n: usize,
+        a: Mat<'_>,
+        b: Mat<'_>,
+        c: &mut [f32],
+        ldc: usize,
+    ) {
         let cp = c.as_mut_ptr();
         let mut r0 = 0;
-        // SAFETY: bounds checked by `Gemm::tn`; AVX2+FMA enabled by the caller's token.
+        // SAFETY: as the contract above.
         unsafe {
             while r0 < m {
                 let rows = r0..(r0 + TN_ROWS).min(m);
                 let mut o = 0;
-                while o + 6 <= ka {
-                    tn_outs::<6>(rows.clone(), n, a, b, cp, ldc, o);
-                    o += 6;
+                while o + ROWS <= ka {
+                    tn_outs::<S, ROWS>(s, rows.clone(), n, a, b, cp, ldc, o);
+                    o += ROWS;
                 }
                 match ka - o {
-                    5 => tn_outs::<5>(rows.clone(), n, a, b, cp, ldc, o),
-                    4 => tn_outs::<4>(rows.clone(), n, a, b, cp, ldc, o),
-                    3 => tn_outs::<3>(rows.clone(), n, a, b, cp, ldc, o),
-                    2 => tn_outs::<2>(rows.clone(), n, a, b, cp, ldc, o),
-                    1 => tn_outs::<1>(rows.clone(), n, a, b, cp, ldc, o),
+                    5 => tn_outs::<S, 5>(s, rows.clone(), n, a, b, cp, ldc, o),
+                    4 => tn_outs::<S, 4>(s, rows.clone(), n, a, b, cp, ldc, o),
+                    3 => tn_outs::<S, 3>(s, rows.clone(), n, a, b, cp, ldc, o),
+                    2 => tn_outs::<S, 2>(s, rows.clone(), n, a, b, cp, ldc, o),
+                    1 => tn_outs::<S, 1>(s, rows.clone(), n, a, b, cp, ldc, o),
                     _ => {}
                 }
                 r0 = rows.end;
             }
         }
     }
+}
+
+/// The `#[target_feature]` entry points: each instantiates the tiles for its vector width.
+#[cfg(target_arch = "x86_64")]
+mod entry {
+    use super::{tiles, Mat, Out};
+    use crate::kernels::{Avx2Fma, Avx512};
+
+    macro_rules! entries {
+        ($nn:ident, $tn:ident, $token:ty, $features:literal) => {
+            /// # Safety
+            /// The operands hold their shapes and strides (checked by the caller).
+            #[target_feature(enable = $features)]
+            #[allow(clippy::too_many_arguments)]
+            pub(super) unsafe fn $nn(
+                t: $token,
+                m: usize,
+                n: usize,
+                k: usize,
+                a: Mat<'_>,
+                b: Mat<'_>,
+                out: Out<'_>,
+                c: &mut [f32],
+                ldc: usize,
+            ) {
+                // SAFETY: the token proves the features this function enables; the caller the
+                // shapes.
+                unsafe { tiles::nn(t, m, n, k, a, b, out, c, ldc) }
+            }
+
+            /// # Safety
+            /// The operands hold their shapes and strides (checked by the caller).
+            #[target_feature(enable = $features)]
+            #[allow(clippy::too_many_arguments)]
+            pub(super) unsafe fn $tn(
+                t: $token,
+                m: usize,
+                ka: usize,
+                n: usize,
+                a: Mat<'_>,
+                b: Mat<'_>,
+                c: &mut [f32],
+                ldc: usize,
+            ) {
+                // SAFETY: as above.
+                unsafe { tiles::tn(t, m, ka, n, a, b, c, ldc) }
+            }
+        };
+    }
+
+    entries!(nn_avx2, tn_avx2, Avx2Fma, "avx2,fma");
+    entries!(nn_avx512, tn_avx512, Avx512, "avx512f,avx2,fma");
 }
 
 #[cfg(test)]
@@ -435,14 +569,28 @@ mod tests {
             .collect()
     }
 
-    /// The SIMD products against the scalar twin on fresh random data, odd shapes and strides.
+    /// The SIMD paths this CPU has, narrowest first.
+    fn simd_paths() -> Vec<Gemm> {
+        let mut paths: Vec<Gemm> = [Tier::Avx2Fma, Tier::Avx512].iter().map(|&t| Gemm::at_most(t)).collect();
+        paths.dedup();
+        paths.retain(|g| g.is_simd());
+        paths
+    }
+
+    /// Every SIMD path against the scalar twin on fresh random data, odd shapes and strides.
     #[test]
     fn train_gemm_simd_matches_scalar() {
-        let simd = Gemm::best();
-        if !simd.is_simd() {
-            std::println!("train_gemm_simd_matches_scalar: no SIMD path on this CPU, skipped");
-            return;
+        let paths = simd_paths();
+        if paths.is_empty() {
+            std::println!("train_gemm_simd_matches_scalar: no SIMD path on this CPU, SKIPPED");
         }
+        for simd in paths {
+            std::println!("train_gemm_simd_matches_scalar: {}", simd.tier().name());
+            simd_matches_scalar(simd);
+        }
+    }
+
+    fn simd_matches_scalar(simd: Gemm) {
         let mut seed = 11u64;
         for &(m, n, k) in &[
             (1, 1, 1),
@@ -454,6 +602,9 @@ mod tests {
             (9, 8, 1),
             (11, 13, 64),
             (8, 14, 32),
+            (13, 64, 192),
+            (7, 100, 5),
+            (6, 48, 64),
         ] {
             let (lda, ldb, ldc) = (k + 3, n + 5, n + 2);
             let a = rand(m * lda, &mut seed);
@@ -500,6 +651,40 @@ mod tests {
             for i in 0..c1.len() {
                 assert!((c1[i] - c2[i]).abs() <= 1e-5 * (1.0 + m as f32), "tn {m}x{n}x{k} at {i}: {} {}", c1[i], c2[i]);
             }
+        }
+    }
+
+    /// The AVX-512 and AVX2 paths agree bitwise (the same chain of fused multiply-adds per
+    /// element), on every shape and epilogue: a run may resume on a machine of the other kind.
+    #[test]
+    fn train_gemm_avx512_equals_avx2_bitwise() {
+        let (wide, narrow) = (Gemm::at_most(Tier::Avx512), Gemm::at_most(Tier::Avx2Fma));
+        if wide.tier() != Tier::Avx512 || narrow.tier() != Tier::Avx2Fma {
+            std::println!("train_gemm_avx512_equals_avx2_bitwise: no AVX-512 on this CPU, SKIPPED");
+            return;
+        }
+        let mut seed = 23u64;
+        for &(m, n, k) in &[(1, 1, 1), (7, 15, 3), (13, 64, 192), (25, 200, 64), (130, 33, 14), (6, 80, 128)] {
+            let (lda, ldb, ldc) = (k + 1, n + 3, n + 4);
+            let a = rand(m * lda, &mut seed);
+            let b = rand(k * ldb, &mut seed);
+            let c0 = rand(m * ldc, &mut seed);
+            let bias = rand(n, &mut seed);
+            for out in [Out::Add, Out::Set, Out::Bias(&bias), Out::BiasRelu(&bias)] {
+                let (mut c1, mut c2) = (c0.clone(), c0.clone());
+                wide.nn_out(m, n, k, Mat { data: &a, ld: lda }, Mat { data: &b, ld: ldb }, out, &mut c1, ldc);
+                narrow.nn_out(m, n, k, Mat { data: &a, ld: lda }, Mat { data: &b, ld: ldb }, out, &mut c2, ldc);
+                assert!(c1.iter().zip(&c2).all(|(x, y)| x.to_bits() == y.to_bits()), "nn {out:?} {m}x{n}x{k}");
+            }
+            // tn over more rows than one streamed pass.
+            let rows = 3 * m + 131;
+            let at = rand(rows * lda, &mut seed);
+            let bt = rand(rows * ldb, &mut seed);
+            let c0 = rand(k * ldc, &mut seed);
+            let (mut c1, mut c2) = (c0.clone(), c0.clone());
+            wide.tn(rows, k, n, Mat { data: &at, ld: lda }, Mat { data: &bt, ld: ldb }, &mut c1, ldc);
+            narrow.tn(rows, k, n, Mat { data: &at, ld: lda }, Mat { data: &bt, ld: ldb }, &mut c2, ldc);
+            assert!(c1.iter().zip(&c2).all(|(x, y)| x.to_bits() == y.to_bits()), "tn {rows}x{n}x{k}");
         }
     }
 
