@@ -379,12 +379,13 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     truncate_log(&vlog, t.iteration + 1)?;
     write_atomic(&dir.join("config.json"), t.cfg.to_json().as_bytes())?;
     eprintln!(
-        "training h = {}, {} parameters, {} scenes, to iteration {} in {}",
+        "training h = {}, {} parameters, {} scenes, to iteration {} in {}; matrix products on {}",
         t.cfg.latent,
         t.parameter_count(),
         t.data.scenes.len(),
         t.cfg.iterations,
-        dir.display()
+        dir.display(),
+        hood::train::Gemm::best().tier().name()
     );
     let started = Instant::now();
     let deadline = a.hours.map(|h| h * 3600.0);
