@@ -111,6 +111,11 @@ pub struct Workspace {
     proj_t: Vec<f32>,
     proj_s: Vec<f32>,
     proj_edge: Vec<f32>,
+    /// The garment -> body direction's node projections (target: body rows, source: garment
+    /// rows), beside `proj_t` and `proj_s`, which hold the body -> garment direction's: all four
+    /// are computed in one job.
+    g2b_proj_t: Vec<f32>,
+    g2b_proj_s: Vec<f32>,
     gathered: Vec<f32>,
     local_agg: Vec<f32>,
     g2b_offsets: Vec<u32>,
@@ -216,6 +221,8 @@ impl Workspace {
             proj_t: vec![0.0; v.max(max_active) * h],
             proj_s: vec![0.0; v.max(max_active) * h],
             proj_edge: vec![0.0; b * h],
+            g2b_proj_t: vec![0.0; max_active * h],
+            g2b_proj_s: vec![0.0; b * h],
             gathered: vec![0.0; v * h],
             local_agg: vec![0.0; v * h],
             g2b_offsets: vec![0; max_active + 1],

@@ -127,28 +127,40 @@ impl Workspace {
                     gather(&self.latents, &body.garment[..n], h, &mut self.gathered[..n * h]);
                     let xg = &self.gathered[..n * h];
                     let xb = &self.latents[v * h..rows * h];
+                    // Both directions' node projections (the same weights on swapped ends) in
+                    // one job.
+                    let [b2g_t, b2g_s, g2b_t, g2b_s] = par.node_projections(
+                        net,
+                        mlp,
+                        [
+                            (xg, 0, &mut self.proj_t[..]),
+                            (xb, 1, &mut self.proj_s[..]),
+                            (xb, 0, &mut self.g2b_proj_t[..]),
+                            (xg, 1, &mut self.g2b_proj_s[..]),
+                        ],
+                    )?;
                     // body -> garment: each garment end has one body edge, so the per-edge
                     // messages are its aggregate: compute them in edge order, then scatter.
                     let msgs = &mut self.local_agg[..n * h];
                     msgs.fill(0.0);
-                    par.edge_mlp(
+                    par.edge_kernel(
                         net,
                         mlp,
-                        (xg, xb),
+                        (b2g_t, b2g_s),
                         Edges::PerEdge { source: &body.body[..n], iota: graph.iota(), target_rows: None },
                         &mut self.b2g_latents[..n * h],
                         msgs,
-                        (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
+                        &mut self.proj_edge,
                     )?;
                     scatter(&self.local_agg[..n * h], &body.garment[..n], h, slot);
                     // garment -> body: per-edge messages, then a sum per active body node in
                     // edge order (independent of the task split).
                     let msgs = &mut self.local_agg[..n * h];
                     msgs.fill(0.0);
-                    par.edge_mlp(
+                    par.edge_kernel(
                         net,
                         mlp,
-                        (xb, xg),
+                        (g2b_t, g2b_s),
                         Edges::PerEdge {
                             source: &graph.iota()[..n],
                             iota: graph.iota(),
@@ -156,7 +168,7 @@ impl Workspace {
                         },
                         &mut self.g2b_latents[..n * h],
                         msgs,
-                        (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
+                        &mut self.proj_edge,
                     )?;
                     let offsets = &mut self.g2b_offsets[..a + 1];
                     let perm = &mut self.g2b_perm[..n];

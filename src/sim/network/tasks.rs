@@ -135,8 +135,8 @@ impl Par<'_> {
         })
     }
 
-    /// One edge set through an edge MLP: both node projections (row-split), then the fused
-    /// kernel (edge-split so that no target's sum spans two tasks).
+    /// One edge set through an edge MLP: both node projections (row-split, one job), then the
+    /// fused kernel ([`Par::edge_kernel`]).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn edge_mlp(
         &mut self,
@@ -148,21 +148,55 @@ impl Par<'_> {
         aggregate: &mut [f32],
         proj: (&mut [f32], &mut [f32], &mut [f32]),
     ) -> Result<()> {
+        let (pt, ps) = (proj.0, proj.1);
+        let [pt, ps] = self.node_projections(net, mlp, [(x.0, 0, pt), (x.1, 1, ps)])?;
+        self.edge_kernel(net, mlp, (pt, ps), edges, latent, aggregate, proj.2)
+    }
+
+    /// The first layer's node projections of an edge MLP, in one job: product `i` is
+    /// `x_i · W_{part_i}ᵀ` (part 0 the target's weights, 1 the source's), written to the start
+    /// of `out_i`, which is returned cut to its rows.
+    pub(super) fn node_projections<'o, const N: usize>(
+        &mut self,
+        net: &Net<'_>,
+        mlp: &MlpView<'_>,
+        products: [(&[f32], usize, &'o mut [f32]); N],
+    ) -> Result<[&'o [f32]; N]> {
+        let l0 = &mlp.layers[0];
+        let (parts, h) = (l0.parts(net.bf16), l0.out);
+        let outs = products.map(|(x, part, out)| {
+            let n = x.len() / h;
+            (x, parts[part], &mut out[..n * h])
+        });
+        self.linear_each(net, outs)
+    }
+
+    /// The fused edge kernel of `mlp` on node projections `pt` (target rows; per node when
+    /// `edges` has `target_rows`, gathered per edge into `per_edge` first) and `ps` (source
+    /// rows): split by target ranges (a static list) or edge ranges (per-edge messages), so that
+    /// no target's sum spans two tasks.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn edge_kernel(
+        &mut self,
+        net: &Net<'_>,
+        mlp: &MlpView<'_>,
+        (pt, ps): (&[f32], &[f32]),
+        edges: Edges<'_>,
+        latent: &mut [f32],
+        aggregate: &mut [f32],
+        per_edge: &mut [f32],
+    ) -> Result<()> {
         let l = &mlp.layers;
         let p1 = l[0].parts(net.bf16);
         let h = l[0].out;
-        let (nt, ns) = (x.0.len() / h, x.1.len() / h);
-        let (pt, ps) = (&mut proj.0[..nt * h], &mut proj.1[..ns * h]);
-        self.linear_pair(net, [(x.0, p1[0]), (x.1, p1[1])], pt, ps)?;
         let pt: &[f32] = match edges {
             Edges::PerEdge { target_rows: Some(rows), .. } => {
-                let per_edge = &mut proj.2[..rows.len() * h];
+                let per_edge = &mut per_edge[..rows.len() * h];
                 gather(pt, rows, h, per_edge);
                 per_edge
             }
             _ => pt,
         };
-        let ps = &*ps;
         let em = EdgeMlp {
             w1_edge: p1[2],
             b1: l[0].bias,
@@ -218,38 +252,39 @@ impl Par<'_> {
         }
     }
 
-    /// `out_a = x_a · W_aᵀ` and `out_b = x_b · W_bᵀ` (no bias; both of the same output width),
-    /// in one job: task `t` computes its share of the rows of each, the rows it would have in
-    /// either product alone, so that each thread keeps the rows its edge kernel then reads
-    /// (rather than one thread writing all of one product, whose rows the other would pull
-    /// across cores). One hand-off instead of two; rows are independent, so the split changes
-    /// no bit.
-    fn linear_pair(
+    /// `out_i = x_i · W_iᵀ` for each product (no bias), in one job: task `t` computes its share
+    /// of the rows of each, the rows it would have in that product alone, so that each thread
+    /// keeps the rows its edge kernel then reads (rather than one thread writing all of one
+    /// product, whose rows the other would pull across cores). One hand-off instead of `N`;
+    /// rows are independent, so the split changes no bit. Returns the outputs.
+    fn linear_each<'o, const N: usize>(
         &mut self,
         net: &Net<'_>,
-        [(xa, wa), (xb, wb)]: [(&[f32], kernels::Weights<'_>); 2],
-        out_a: &mut [f32],
-        out_b: &mut [f32],
-    ) -> Result<()> {
-        let n_out = wa.n();
-        let (rows_a, rows_b) = (xa.len() / wa.k().max(1), xb.len() / wb.k().max(1));
-        *self.flops += 2 * ((rows_a * wa.k() + rows_b * wb.k()) * n_out) as u64;
-        let n = self.tasks.len().min(rows_a.max(rows_b).div_ceil(64)).max(1);
-        let (out_a, out_b) = (Disjoint::new(out_a), Disjoint::new(out_b));
+        mut products: [(&[f32], kernels::Weights<'_>, &'o mut [f32]); N],
+    ) -> Result<[&'o [f32]; N]> {
+        let mut max_rows = 0;
+        for (x, w, _) in &products {
+            let rows = x.len() / w.k().max(1);
+            max_rows = max_rows.max(rows);
+            *self.flops += 2 * (rows * w.k() * w.n()) as u64;
+        }
+        let n = self.tasks.len().min(max_rows.div_ceil(64)).max(1);
+        let outs = products.each_mut().map(|(x, w, out)| (*x, *w, Disjoint::new(out)));
         self.run(n, &|t, tb| {
-            let (a, b) = (split(rows_a, n, t), split(rows_b, n, t));
-            for (range, x, w, out) in [(a, xa, wa, &out_a), (b, xb, wb, &out_b)] {
+            for (x, w, out) in &outs {
+                let (k, n_out) = (w.k(), w.n());
+                let range = split(x.len() / k.max(1), n, t);
                 if range.is_empty() {
                     continue;
                 }
-                let k = w.k();
                 // SAFETY: row ranges of different tasks are disjoint, in each output.
                 let o = unsafe { out.range(range.start * n_out..range.end * n_out) };
-                let op = [Operand { x: &x[range.start * k..range.end * k], w }];
+                let op = [Operand { x: &x[range.start * k..range.end * k], w: *w }];
                 net.kernels.linear(&op, None, &Epilogue::default(), o, &mut tb.lin)?;
             }
             Ok(())
-        })
+        })?;
+        Ok(products.map(|(_, _, out)| -> &'o [f32] { out }))
     }
 
     /// `out[r] = Σ src[perm[k]]` for `k` in `offsets[r]..offsets[r+1]`, row-split.
