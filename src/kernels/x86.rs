@@ -4,6 +4,9 @@
 //! one proves the instructions exist: the register-only methods of [`Simd`] are safe on that
 //! proof, and the entry points' only `unsafe` is the call into the feature-enabled function.
 
+// Without std, `has!` is a compile-time constant, and a conjunction of two can be `false && false`.
+#![cfg_attr(not(feature = "std"), allow(clippy::nonminimal_bool, clippy::eq_op))]
+
 use core::arch::x86_64::*;
 
 use super::frame::{self, Simd};
