@@ -70,7 +70,7 @@ pub(crate) trait Simd: Copy {
     ///
     /// # Safety
     /// `cols` floats are readable at `p`.
-    #[cfg(feature = "train")]
+    #[cfg(all(feature = "train", target_arch = "x86_64"))]
     #[inline(always)]
     unsafe fn load_part(self, p: *const f32, cols: usize) -> Self::V {
         let mut t = [0.0f32; 16];
@@ -85,7 +85,7 @@ pub(crate) trait Simd: Copy {
     ///
     /// # Safety
     /// `cols` floats are writable at `p`.
-    #[cfg(feature = "train")]
+    #[cfg(all(feature = "train", target_arch = "x86_64"))]
     #[inline(always)]
     unsafe fn store_part(self, p: *mut f32, cols: usize, v: Self::V) {
         let mut t = [0.0f32; 16];

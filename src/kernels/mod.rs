@@ -27,7 +27,7 @@ mod choose;
 mod frame;
 
 /// The vector vocabulary and the x86 tokens, for the trainer's products.
-#[cfg(feature = "train")]
+#[cfg(all(feature = "train", target_arch = "x86_64"))]
 pub(crate) use frame::Simd;
 /// Row statistics shared with the trainer, so both normalise with the same arithmetic.
 #[cfg(feature = "train")]
