@@ -148,8 +148,7 @@ impl Par<'_> {
         aggregate: &mut [f32],
         proj: (&mut [f32], &mut [f32], &mut [f32]),
     ) -> Result<()> {
-        let (pt, ps) = (proj.0, proj.1);
-        let [pt, ps] = self.node_projections(net, mlp, [(x.0, 0, pt), (x.1, 1, ps)])?;
+        let [pt, ps] = self.node_projections(net, mlp, [(x.0, 0, proj.0), (x.1, 1, proj.1)])?;
         self.edge_kernel(net, mlp, (pt, ps), edges, latent, aggregate, proj.2)
     }
 
