@@ -65,36 +65,6 @@ pub(crate) trait Simd: Copy {
     /// # Safety
     /// `LANES` floats are writable at `p`.
     unsafe fn store(self, p: *mut f32, v: Self::V);
-    /// Reads the first `cols` (below `LANES`) floats at `p`; the other lanes are 0 and their
-    /// memory is not touched.
-    ///
-    /// # Safety
-    /// `cols` floats are readable at `p`.
-    #[cfg(all(feature = "train", target_arch = "x86_64"))]
-    #[inline(always)]
-    unsafe fn load_part(self, p: *const f32, cols: usize) -> Self::V {
-        let mut t = [0.0f32; 16];
-        // SAFETY: the caller guarantees `cols` readable floats at `p`; `t` holds 16 ≥ LANES.
-        unsafe {
-            core::ptr::copy_nonoverlapping(p, t.as_mut_ptr(), cols.min(Self::LANES));
-            self.load(t.as_ptr())
-        }
-    }
-    /// Writes the first `cols` (below `LANES`) lanes of `v` at `p`; the memory after them is
-    /// not touched.
-    ///
-    /// # Safety
-    /// `cols` floats are writable at `p`.
-    #[cfg(all(feature = "train", target_arch = "x86_64"))]
-    #[inline(always)]
-    unsafe fn store_part(self, p: *mut f32, cols: usize, v: Self::V) {
-        let mut t = [0.0f32; 16];
-        // SAFETY: `t` holds 16 ≥ LANES floats; the caller guarantees `cols` writable at `p`.
-        unsafe {
-            self.store(t.as_mut_ptr(), v);
-            core::ptr::copy_nonoverlapping(t.as_ptr(), p, cols.min(Self::LANES));
-        }
-    }
     /// A hint to fetch the cache line at `p`.
     ///
     /// # Safety

@@ -152,16 +152,6 @@ macro_rules! ln_stats_avx {
 // the token's features enabled, so the intrinsics inline; pointers come from the frame, which
 // keeps them in bounds.
 
-#[cfg(feature = "train")]
-impl Avx2Fma {
-    /// The lanes below `cols` of a 256-bit vector set: the mask of a partial vector.
-    #[inline(always)]
-    fn lanes(self, cols: usize) -> __m256i {
-        // SAFETY: AVX2 integer operations on no memory; the token proves AVX2.
-        unsafe { _mm256_cmpgt_epi32(_mm256_set1_epi32(cols as i32), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7)) }
-    }
-}
-
 // SAFETY (the `unsafe` of every register-only method of this impl: `zero`, `splat`, `fma`, `add`,
 // `max`, `dot2`): AVX, AVX2 and FMA instructions on no memory. `self` is an `Avx2Fma`, which
 // only `Avx2Fma::new` makes, after checking that the CPU has AVX2 and FMA (AVX2 implies AVX).
@@ -191,19 +181,6 @@ impl Simd for Avx2Fma {
     unsafe fn store(self, p: *mut f32, v: __m256) {
         // SAFETY: the caller guarantees 8 writable floats at `p`.
         unsafe { _mm256_storeu_ps(p, v) }
-    }
-    #[cfg(feature = "train")]
-    #[inline(always)]
-    unsafe fn load_part(self, p: *const f32, cols: usize) -> __m256 {
-        // SAFETY: the masked load reads only the lanes below `cols`, which the caller
-        // guarantees readable.
-        unsafe { _mm256_maskload_ps(p, self.lanes(cols)) }
-    }
-    #[cfg(feature = "train")]
-    #[inline(always)]
-    unsafe fn store_part(self, p: *mut f32, cols: usize, v: __m256) {
-        // SAFETY: the masked store writes only the lanes below `cols` (caller: writable).
-        unsafe { _mm256_maskstore_ps(p, self.lanes(cols), v) }
     }
     #[inline(always)]
     fn fma(self, a: __m256, b: __m256, c: __m256) -> __m256 {
@@ -277,18 +254,6 @@ macro_rules! avx512_f32_ops {
         unsafe fn store(self, p: *mut f32, v: __m512) {
             // SAFETY: the caller guarantees 16 writable floats at `p`.
             unsafe { _mm512_storeu_ps(p, v) }
-        }
-        #[cfg(feature = "train")]
-        #[inline(always)]
-        unsafe fn load_part(self, p: *const f32, cols: usize) -> __m512 {
-            // SAFETY: the masked load reads only the lanes below `cols` (caller: readable).
-            unsafe { _mm512_maskz_loadu_ps(((1u32 << cols) - 1) as __mmask16, p) }
-        }
-        #[cfg(feature = "train")]
-        #[inline(always)]
-        unsafe fn store_part(self, p: *mut f32, cols: usize, v: __m512) {
-            // SAFETY: the masked store writes only the lanes below `cols` (caller: writable).
-            unsafe { _mm512_mask_storeu_ps(p, ((1u32 << cols) - 1) as __mmask16, v) }
         }
         #[inline(always)]
         fn fma(self, a: __m512, b: __m512, c: __m512) -> __m512 {

@@ -215,7 +215,58 @@ impl Gemm {
 #[cfg(target_arch = "x86_64")]
 mod tiles {
     use super::{Mat, Out};
-    use crate::kernels::Simd;
+    use crate::kernels::{Avx2Fma, Avx512, Simd};
+    use core::arch::x86_64::*;
+
+    /// The kernels' vector vocabulary plus the masked partial vectors of column remainders.
+    pub(super) trait Partial: Simd {
+        /// Reads the first `cols` (1 to `LANES - 1`) floats at `p`; the other lanes are 0 and
+        /// their memory is not touched.
+        ///
+        /// # Safety
+        /// `cols` floats are readable at `p`.
+        unsafe fn load_part(self, p: *const f32, cols: usize) -> Self::V;
+        /// Writes the first `cols` (1 to `LANES - 1`) lanes of `v` at `p`, nothing after them.
+        ///
+        /// # Safety
+        /// `cols` floats are writable at `p`.
+        unsafe fn store_part(self, p: *mut f32, cols: usize, v: Self::V);
+    }
+
+    /// The lanes below `cols` of a 256-bit vector set.
+    #[inline(always)]
+    fn lanes8(_t: Avx2Fma, cols: usize) -> __m256i {
+        // SAFETY: AVX2 integer operations on no memory; the token proves AVX2.
+        unsafe { _mm256_cmpgt_epi32(_mm256_set1_epi32(cols as i32), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7)) }
+    }
+
+    impl Partial for Avx2Fma {
+        #[inline(always)]
+        unsafe fn load_part(self, p: *const f32, cols: usize) -> __m256 {
+            // SAFETY: the masked load reads only the lanes below `cols` (caller: readable); the
+            // token proves AVX2.
+            unsafe { _mm256_maskload_ps(p, lanes8(self, cols)) }
+        }
+        #[inline(always)]
+        unsafe fn store_part(self, p: *mut f32, cols: usize, v: __m256) {
+            // SAFETY: the masked store writes only the lanes below `cols` (caller: writable).
+            unsafe { _mm256_maskstore_ps(p, lanes8(self, cols), v) }
+        }
+    }
+
+    impl Partial for Avx512 {
+        #[inline(always)]
+        unsafe fn load_part(self, p: *const f32, cols: usize) -> __m512 {
+            // SAFETY: the masked load reads only the lanes below `cols` (caller: readable); the
+            // token proves AVX-512F.
+            unsafe { _mm512_maskz_loadu_ps(((1u32 << cols) - 1) as __mmask16, p) }
+        }
+        #[inline(always)]
+        unsafe fn store_part(self, p: *mut f32, cols: usize, v: __m512) {
+            // SAFETY: the masked store writes only the lanes below `cols` (caller: writable).
+            unsafe { _mm512_mask_storeu_ps(p, ((1u32 << cols) - 1) as __mmask16, v) }
+        }
+    }
 
     /// Rows of `B` streamed per pass of [`tn`] (keeps a strip of columns in L1).
     const TN_ROWS: usize = 128;
@@ -226,7 +277,7 @@ mod tiles {
 
     /// `LANES` floats at `p`, or with `M` only the first `cols` (the others read as 0).
     #[inline(always)]
-    unsafe fn load<S: Simd, const M: bool>(s: S, p: *const f32, cols: usize) -> S::V {
+    unsafe fn load<S: Partial, const M: bool>(s: S, p: *const f32, cols: usize) -> S::V {
         // SAFETY: `p` addresses `LANES` valid elements, or (masked) `cols` (caller).
         unsafe {
             if M {
@@ -240,7 +291,14 @@ mod tiles {
     /// The epilogue of a tile's vector `x` into `p`, bias vector at `bias` (see [`Out`]); with
     /// `M`, only the first `cols` lanes are read and written.
     #[inline(always)]
-    unsafe fn store<S: Simd, const M: bool>(s: S, out: Out<'_>, p: *mut f32, bias: *const f32, x: S::V, cols: usize) {
+    unsafe fn store<S: Partial, const M: bool>(
+        s: S,
+        out: Out<'_>,
+        p: *mut f32,
+        bias: *const f32,
+        x: S::V,
+        cols: usize,
+    ) {
         // SAFETY: `p` and (for the bias forms) `bias` address the lanes used (caller).
         unsafe {
             let v = match out {
@@ -260,7 +318,7 @@ mod tiles {
     /// One tile of `C (op)= A·B`: `R` rows (1..=6) × `V` vectors of columns at column `j`.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn nn_tile<S: Simd, const R: usize, const V: usize, const M: bool>(
+    unsafe fn nn_tile<S: Partial, const R: usize, const V: usize, const M: bool>(
         s: S,
         k: usize,
         (a, lda): (*const f32, usize),
@@ -303,7 +361,7 @@ mod tiles {
     /// Rows `r..r + R` of `C (op)= A·B`, the widest tiles first.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn nn_rows<S: Simd, const R: usize>(
+    unsafe fn nn_rows<S: Partial, const R: usize>(
         s: S,
         n: usize,
         k: usize,
@@ -352,7 +410,7 @@ mod tiles {
     /// instructions of `S` and the calling function enables them.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    pub(super) unsafe fn nn<S: Simd>(
+    pub(super) unsafe fn nn<S: Partial>(
         s: S,
         m: usize,
         n: usize,
@@ -384,7 +442,7 @@ mod tiles {
 
     /// One tile of `C += Aᵀ·B` over rows `rows`: `R` outputs (A columns) × `V` vectors.
     #[inline(always)]
-    unsafe fn tn_tile<S: Simd, const R: usize, const V: usize, const M: bool>(
+    unsafe fn tn_tile<S: Partial, const R: usize, const V: usize, const M: bool>(
         s: S,
         rows: core::ops::Range<usize>,
         (a, lda): (*const f32, usize),
@@ -419,7 +477,7 @@ mod tiles {
     /// Outputs `o..o + R` of `C += Aᵀ·B` over rows `rows`, the widest tiles first.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn tn_outs<S: Simd, const R: usize>(
+    unsafe fn tn_outs<S: Partial, const R: usize>(
         s: S,
         rows: core::ops::Range<usize>,
         n: usize,
@@ -465,7 +523,7 @@ mod tiles {
     /// As [`nn`].
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    pub(super) unsafe fn tn<S: Simd>(
+    pub(super) unsafe fn tn<S: Partial>(
         s: S,
         m: usize,
         ka: usize,
