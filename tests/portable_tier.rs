@@ -28,9 +28,9 @@ fn portable_tier_steps_like_scalar() {
     #[cfg(feature = "train")]
     assert!(!hood::train::gemm::Gemm::best().is_simd());
     let bytes = random_model(32, 4, true);
-    // bf16: another summation order can flip the bf16 rounding of a hidden activation, which
-    // moves the x86 tiers as far from the scalar reference.
-    for (precision, tol) in [(Precision::F32, 1e-5), (Precision::Bf16, 1e-2)] {
+    // bf16 on these tiers runs its weights widened to f32 once, with f32 activations: as close
+    // to the scalar tier as f32 is.
+    for (precision, tol) in [(Precision::F32, 1e-5), (Precision::Bf16, 1e-5)] {
         // No tier in the config: the step takes the capped best (for bf16, `Kernels::best_bf16`).
         let (tier, got) = rollout(&bytes, precision, None);
         assert_eq!(tier, Tier::Portable, "{precision:?}");

@@ -43,6 +43,49 @@ fn runtime_threads_give_bitwise_identical_results() {
     }
 }
 
+/// On a kernel path without bf16 products, bf16 runs its weights widened to f32 once: the
+/// same bits as an f32 run of a model whose f32 weights are the bf16 ones. Where the path has
+/// bf16 products nothing is widened.
+#[test]
+fn runtime_bf16_without_bf16_products_is_f32_on_the_bf16_weights() {
+    use hood::kernels::{Kernels, Tier};
+    use hood::model::{write_model, ModelBytes, ModelSpec, Params};
+    let spec = ModelSpec::hood(32);
+    let mut p = Params::init(&spec, 9).unwrap();
+    p.normalisers = hood::model::Normalisers::unit_scale(9);
+    let bytes = ModelBytes::new(&write_model(&p, true, &[]).unwrap());
+    for m in p.mlps.iter_mut() {
+        for l in &mut m.layers {
+            l.weight.iter_mut().for_each(|w| *w = half::bf16::from_f32(*w).to_f32());
+        }
+    }
+    let rounded = ModelBytes::new(&write_model(&p, false, &[]).unwrap());
+    let scene = Scene::new(12, 12);
+    let run = |bytes: &ModelBytes, precision: Precision, tier: Tier| {
+        let model = bytes.model().unwrap();
+        let cfg = SimConfig::network().with_precision(precision).with_tier(Some(tier)).with_threads(2);
+        let mut sim = scene.sim(&model, cfg).unwrap();
+        for t in 1..=3 {
+            sim.step(&scene.body_at(t)).unwrap();
+        }
+        (sim.positions().to_vec(), sim.widened_weight_bytes(), sim.tier())
+    };
+    let best = Kernels::best().tier();
+    for tier in Tier::ALL.into_iter().filter(|t| *t <= best) {
+        let (bf16, widened, ran) = run(&bytes, Precision::Bf16, tier);
+        assert_eq!(ran, tier);
+        if tier.has_bf16_products() {
+            assert_eq!(widened, 0, "{}: native bf16 widens nothing", tier.name());
+            continue;
+        }
+        assert!(widened > 0, "{}", tier.name());
+        let (f32_on_bf16_weights, none, _) = run(&rounded, Precision::F32, tier);
+        assert_eq!(none, 0, "f32 widens nothing");
+        assert_eq!(bf16, f32_on_bf16_weights, "{}", tier.name());
+        println!("{}: bf16 = f32 on the bf16 weights, {widened} bytes widened", tier.name());
+    }
+}
+
 #[test]
 fn runtime_refuses_non_finite_body_and_keeps_state() {
     let scene = Scene::new(8, 8);

@@ -2,14 +2,15 @@
 //!
 //! On a CPU with AVX-512-BF16, bf16 weights run either natively, with `vdpbf16ps`
 //! ([`Tier::Avx512Bf16`]) or on the AMX tiles where the CPU has them ([`Tier::Amx`]), or widened
-//! onto f32 FMAs ([`Tier::Avx512`]); all compute the same products, exactly, and differ
-//! only in summation order. Which is faster depends on the core: where `vdpbf16ps` issues at half
-//! the FMA rate (Intel server cores with two FMA units) the widened path wins, where it issues at
-//! the FMA rate (AMD Zen 4) the native one does. So the first call times the edge MLP both ways
-//! (about 20 ms, on thread CPU time) and keeps the answer for the process. The widened path must be
-//! faster by [`WIDEN_MARGIN`], so that timing noise cannot flip the choice from run to run on a
-//! core where the two are close. A tier cap (`HOOD_KERNEL_TIER`, [`force_tier`](super::force_tier))
-//! skips the measurement: the capped tier runs, natively where it can.
+//! to f32 once and run on the f32 FMAs ([`Tier::Avx512`]; a simulation keeps the widened copy,
+//! and its activations stay f32). Which is faster depends on the core: where `vdpbf16ps` issues
+//! at half the FMA rate (Intel server cores with two FMA units) the widened path wins, where it
+//! issues at the FMA rate (AMD Zen 4) the native one does. So the first call times the edge MLP
+//! both ways (about 20 ms, on thread CPU time) and keeps the answer for the process. The widened
+//! path must be faster by [`WIDEN_MARGIN`], so that timing noise cannot flip the choice from run
+//! to run on a core where the two are close. A tier cap (`HOOD_KERNEL_TIER`,
+//! [`force_tier`](super::force_tier)) skips the measurement: the capped tier runs, natively where
+//! it can.
 
 use super::{detected_tier, tier_cap, Kernels, Tier};
 
@@ -46,7 +47,7 @@ pub struct Bf16Choice {
 impl Bf16Choice {
     /// Whether bf16 products use a native bf16 instruction on this tier.
     pub fn native(&self) -> bool {
-        self.tier >= Tier::Avx512Bf16
+        self.tier.has_bf16_products()
     }
 
     /// One line for people: the tier and why.
@@ -55,8 +56,8 @@ impl Bf16Choice {
         let how = match self.tier {
             Tier::Amx => "AMX tiles",
             Tier::Avx512Bf16 => "vdpbf16ps",
-            Tier::Avx2Fma | Tier::Avx512 => "widened onto f32 FMAs",
-            Tier::Scalar | Tier::Portable => "widened to f32",
+            Tier::Avx2Fma | Tier::Avx512 => "widened once onto f32 FMAs",
+            Tier::Scalar | Tier::Portable => "widened once to f32",
         };
         let why = match self.reason {
             Bf16Reason::Capped => std::string::String::from("the tier cap (HOOD_KERNEL_TIER)"),
@@ -92,9 +93,9 @@ fn measured() -> Bf16Choice {
 fn measured() -> Bf16Choice {
     static CHOICE: std::sync::OnceLock<Bf16Choice> = std::sync::OnceLock::new();
     *CHOICE.get_or_init(|| {
-        let time = |tier| Kernels::with_tier(tier).and_then(|k| bench::edge_mlp_bf16_us(k).ok());
+        let time = |tier, widen| Kernels::with_tier(tier).and_then(|k| bench::edge_mlp_bf16_us(k, widen).ok());
         let native = detected_tier();
-        match (time(native), time(Tier::Avx512)) {
+        match (time(native, false), time(Tier::Avx512, true)) {
             (Some(native_us), Some(widened_us)) => {
                 let tier = if widened_us * WIDEN_MARGIN < native_us { Tier::Avx512 } else { native };
                 Bf16Choice { tier, reason: Bf16Reason::Measured { native_us, widened_us } }
@@ -115,7 +116,8 @@ impl Kernels {
 mod bench {
     use super::super::stopwatch::Stopwatch;
     use super::super::{
-        edge_mlp_scratch_len, pack_bf16, packed_len_bf16, EdgeInputs, EdgeMlp, Kernels, LayerNorm, PackedBf16, Weights,
+        edge_mlp_scratch_len, pack_bf16, packed_len_bf16, packed_len_f32, EdgeInputs, EdgeMlp, Kernels, LayerNorm,
+        PackedBf16, Weights,
     };
     use crate::error::Result;
     use crate::rng::Rng;
@@ -135,6 +137,17 @@ mod bench {
         PackedBf16::new(w, H, H).map(Weights::Bf16)
     }
 
+    /// `w` widened to f32 once (as a simulation keeps it), or as it is.
+    fn run_as<'a>(w: Weights<'a>, widened: &'a mut Vec<f32>, widen: bool) -> Result<Weights<'a>> {
+        match w {
+            Weights::Bf16(b) if widen => {
+                *widened = vec![0.0; packed_len_f32(b.k(), b.n())];
+                b.widen_into(widened).map(Weights::F32)
+            }
+            w => Ok(w),
+        }
+    }
+
     fn packed(rng: &mut Rng, k: usize, n: usize) -> Result<Vec<bf16>> {
         let w: Vec<f32> = (0..k * n).map(|_| rng.uniform(-1.0, 1.0) as f32 / (k as f32).sqrt()).collect();
         let mut b = vec![bf16::ZERO; packed_len_bf16(k, n)];
@@ -142,8 +155,9 @@ mod bench {
         Ok(b)
     }
 
-    /// Fastest of [`RUNS`] edge-MLP runs (h = 64, bf16 weights) on `k`, microseconds.
-    pub(super) fn edge_mlp_bf16_us(k: Kernels) -> Result<f64> {
+    /// Fastest of [`RUNS`] edge-MLP runs (h = 64, bf16 weights, widened to f32 first when
+    /// `widen`) on `k`, microseconds.
+    pub(super) fn edge_mlp_bf16_us(k: Kernels, widen: bool) -> Result<f64> {
         let mut rng = Rng::new(7);
         let mut vec_of = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.uniform(-1.0, 1.0) as f32).collect() };
         let (b1, b2, b3, gamma, beta) = (vec_of(H), vec_of(H), vec_of(H), vec_of(H), vec_of(H));
@@ -151,12 +165,13 @@ mod bench {
         let latent0 = vec_of(EDGES * H);
         let mut rng = Rng::new(8);
         let (w1, w2, w3) = (packed(&mut rng, H, H)?, packed(&mut rng, H, H)?, packed(&mut rng, H, H)?);
+        let (mut v1, mut v2, mut v3) = (Vec::new(), Vec::new(), Vec::new());
         let mlp = EdgeMlp {
-            w1_edge: weights(&w1)?,
+            w1_edge: run_as(weights(&w1)?, &mut v1, widen)?,
             b1: &b1,
-            w2: weights(&w2)?,
+            w2: run_as(weights(&w2)?, &mut v2, widen)?,
             b2: &b2,
-            w3: weights(&w3)?,
+            w3: run_as(weights(&w3)?, &mut v3, widen)?,
             b3: &b3,
             layer_norm: Some(LayerNorm { gamma: &gamma, beta: &beta }),
         };
@@ -204,8 +219,10 @@ mod bench {
             }
             // The timing runs on every tier this CPU has (the scalar one too).
             for t in Tier::ALL.into_iter().filter(|t| *t <= detected_tier()) {
-                let us = edge_mlp_bf16_us(Kernels::with_tier(t).unwrap()).unwrap();
-                assert!(us.is_finite() && us > 0.0, "{}: {us}", t.name());
+                for widen in [false, true] {
+                    let us = edge_mlp_bf16_us(Kernels::with_tier(t).unwrap(), widen).unwrap();
+                    assert!(us.is_finite() && us > 0.0, "{} widened {widen}: {us}", t.name());
+                }
             }
         }
     }

@@ -19,7 +19,8 @@
 //! bf16 weights on a tier without AVX-512-BF16 (the portable one included) run on f32
 //! multiply-adds: the weights are widened once per call into caller scratch and the activations
 //! rounded to bf16 first, so every tier computes the same products (exact in f32) and differs
-//! only in summation order.
+//! only in summation order. A simulation does not take this path: it widens the weights once
+//! ([`PackedBf16::widen_into`]) and runs them as f32 weights, with f32 activations.
 //!
 //! All kernels write into caller buffers and never allocate.
 
@@ -115,6 +116,12 @@ impl Tier {
     /// Parses a [`Tier::name`].
     pub fn from_name(name: &str) -> Option<Tier> {
         Tier::ALL.into_iter().find(|t| t.name().eq_ignore_ascii_case(name.trim()))
+    }
+
+    /// Whether bf16 weights multiply natively on this tier (`vdpbf16ps` or AMX tiles); the
+    /// others widen them to f32.
+    pub fn has_bf16_products(self) -> bool {
+        self >= Tier::Avx512Bf16
     }
 
     /// Position in the capability order (the index in [`Tier::ALL`]).

@@ -186,6 +186,20 @@ impl<'a> PackedBf16<'a> {
     pub fn data(&self) -> &'a [bf16] {
         self.data
     }
+    /// Widens these weights into `dst` in the f32 layout (same `k` and `n`): every weight is
+    /// exact in f32, so the f32 kernels then compute with bf16-exact weights. For CPUs without
+    /// bf16 products, which would otherwise widen them on every call.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] unless `dst.len() == packed_len_f32(k, n)`.
+    pub fn widen_into<'d>(&self, dst: &'d mut [f32]) -> Result<PackedF32<'d>> {
+        let len = packed_len_f32(self.k, self.n);
+        if dst.len() != len {
+            return Err(Error::SizeMismatch { what: "widened bf16 weights", expected: len, got: dst.len() });
+        }
+        super::frame::widen_bf16(self, dst);
+        PackedF32::new(dst, self.k, self.n)
+    }
     /// Weight for input `kk`, output `o` (slow; for reference code and tests).
     pub fn get(&self, kk: usize, o: usize) -> f32 {
         let kp = self.k.next_multiple_of(2);

@@ -220,6 +220,16 @@ fn kernels_pack_layout_matches_definition() {
         }
         assert!(f.iter().all(|v| v.is_finite()) && b.iter().all(|v| v.is_finite()));
         assert_eq!(pb.get(0, 0), bf16::from_f32(w[cols.start]).to_f32());
+        // Widened once: the f32 layout of exactly the bf16 values, padding zero.
+        let mut wide = vec![f32::NAN; packed_len_f32(k, n_out)];
+        let pw = pb.widen_into(&mut wide).unwrap();
+        assert_eq!((pw.k(), pw.n()), (k, n_out));
+        for o in 0..padded_cols(n_out) {
+            for kk in 0..k {
+                assert_eq!(pw.get(kk, o).to_bits(), pb.get(kk, o).to_bits(), "widened o={o} kk={kk}");
+            }
+        }
+        assert!(pb.widen_into(&mut wide[1..]).is_err());
     }
     // Bad inputs are errors.
     let w = vec![1.0; 12];

@@ -207,6 +207,9 @@ fn with_header(archive: &[u8]) -> Vec<u8> {
 /// all borrowed from the model buffer.
 #[derive(Clone, Debug)]
 pub struct LinearView<'a> {
+    /// Position among the model's layers (MLPs in [`Mlps::iter`] order, layers in order), so
+    /// that per-layer data can be kept beside the model.
+    pub index: usize,
     /// Input width.
     pub inp: usize,
     /// Output width.
@@ -292,7 +295,8 @@ fn view_mlp<'a>(m: &'a ArchivedMlpRec, spec: &ModelSpec, shape: &MlpShape, has_b
                 b.push(Weights::Bf16(w));
             }
         }
-        layers.push(LinearView { inp, out, bias: floats(&l.bias), f32: f, bf16: b });
+        // Numbered by the caller, once every MLP is viewed.
+        layers.push(LinearView { index: 0, inp, out, bias: floats(&l.bias), f32: f, bf16: b });
     }
     let layer_norm = match (norm, m.gamma.len(), m.beta.len()) {
         (true, g, b) if g == output && b == output => {
@@ -363,7 +367,11 @@ impl<'a> Model<'a> {
         spec.validate()?;
         let has_bf16 = rec.has_bf16;
         let mismatch = || corrupt("model file: the MLPs disagree with the spec");
-        let mlps = records(rec).try_zip_map(&Mlps::shapes(&spec), mismatch, |m, s| view_mlp(m, &spec, s, has_bf16))?;
+        let mut mlps =
+            records(rec).try_zip_map(&Mlps::shapes(&spec), mismatch, |m, s| view_mlp(m, &spec, s, has_bf16))?;
+        for (index, layer) in mlps.iter_mut().flat_map(|m| &mut m.layers).enumerate() {
+            layer.index = index;
+        }
         let node_type_embedding = floats(&rec.node_type_embedding);
         let level_embedding = floats(&rec.level_embedding);
         if node_type_embedding.len() != NODE_TYPES * NODE_TYPES || level_embedding.len() != LEVELS * LEVELS {

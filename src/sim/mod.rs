@@ -55,7 +55,7 @@ pub use effects::StepEffects;
 pub use graph::Graph;
 pub use inputs::BODY_EDGE_RADIUS;
 use motion::FrameMotion;
-use network::{Net, Workspace};
+use network::{Net, WidenedBf16, Workspace};
 // Public for the parity tests (`tests/runtime_parity.rs`): a debugging hook, not stable API.
 #[doc(hidden)]
 pub use network::{Probe, Stage};
@@ -148,6 +148,8 @@ pub struct Sim<'m> {
     before_startup: SimState,
     rest_frames: u32,
     ws: Workspace,
+    /// The bf16 weights widened to f32 (bf16 on a kernel path without bf16 products).
+    widened: Option<WidenedBf16>,
     exec: Box<dyn Executor + 'm>,
     /// The clock of [`StepMode::SolverBudget`].
     clock: Option<Box<dyn Clock + 'm>>,
@@ -285,7 +287,11 @@ impl<'m> Sim<'m> {
             _ => None,
         };
         let max_active = body_state.as_ref().map_or(0, |b| b.net.max_active());
-        let net = Net { model, kernels, bf16: cfg.precision == Precision::Bf16 };
+        let bf16 = cfg.precision == Precision::Bf16;
+        // Without bf16 products the kernels would widen bf16 weights on every call: widen them
+        // once instead, and run them on the f32 path.
+        let widened = if bf16 && !kernels.tier().has_bf16_products() { Some(WidenedBf16::new(model)?) } else { None };
+        let net = Net { model, kernels, bf16, widened: None };
         let ws = Workspace::new(model, &graph, max_active)?;
         let (body_prev, body_pos) = match (&body_state, body) {
             (Some(_), Some(b)) => (b.positions.to_vec(), b.positions.to_vec()),
@@ -324,6 +330,7 @@ impl<'m> Sim<'m> {
             output_normals,
             rest_frames: 0,
             ws,
+            widened,
             exec: default_executor(cfg.threads),
             clock: clock::default_clock(),
             last_body: (0, 0),
@@ -390,6 +397,13 @@ impl<'m> Sim<'m> {
     /// The kernel path in use.
     pub fn tier(&self) -> Tier {
         self.net.kernels.tier()
+    }
+
+    /// Bytes of bf16 weights this simulation holds widened to f32: zero unless it runs bf16 on
+    /// a kernel path without bf16 products, where the weights are widened once, at creation,
+    /// and run on the f32 kernels (bf16-exact weights, f32 activations).
+    pub fn widened_weight_bytes(&self) -> usize {
+        self.widened.as_ref().map_or(0, WidenedBf16::bytes)
     }
 
     /// The configuration.

@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 use crate::exec::par::target_bounds;
 use crate::features::{BODY_EDGE_WIDTH, EDGE_WIDTH, NODE_WIDTH};
 use crate::kernels::{self, Kernels, MAX_OPERANDS};
-use crate::model::file::Model;
+use crate::model::file::{LinearView, Model};
 use crate::model::spec::EdgeKey;
 use alloc::vec;
 use alloc::vec::Vec;
@@ -16,6 +16,9 @@ const CHUNK: usize = 256;
 
 mod forward;
 mod tasks;
+mod widened;
+
+pub use widened::WidenedBf16;
 
 /// What the forward pass needs to know about the step's body edges.
 #[derive(Clone, Copy, Debug)]
@@ -277,4 +280,56 @@ pub struct Net<'m> {
     pub kernels: Kernels,
     /// Run the bf16 weights.
     pub bf16: bool,
+    /// The bf16 weights widened to f32 once (on kernel paths without bf16 products): used
+    /// instead of the model's when present.
+    pub widened: Option<&'m WidenedBf16>,
+}
+
+impl<'m> Net<'m> {
+    /// The weight parts of `layer` this net runs: the widened bf16 ones, else the model's in
+    /// the requested precision.
+    ///
+    /// # Errors
+    /// As [`WidenedBf16::parts`]; [`Error::IncompatibleModel`] for a layer of more parts than
+    /// a kernel call sums.
+    pub fn parts<'a>(&self, layer: &LinearView<'a>) -> Result<LayerParts<'a>>
+    where
+        'm: 'a,
+    {
+        match self.widened {
+            Some(w) => w.parts(layer.index),
+            None => LayerParts::collect(layer.parts(self.bf16).iter().map(|p| Ok(*p))),
+        }
+    }
+}
+
+/// The weight parts of one layer (at most [`MAX_OPERANDS`]), by value; a slice through `Deref`.
+#[derive(Clone, Copy, Debug)]
+pub struct LayerParts<'a> {
+    /// Unused slots repeat the first part.
+    parts: [kernels::Weights<'a>; MAX_OPERANDS],
+    len: usize,
+}
+
+impl<'a> LayerParts<'a> {
+    fn collect(mut parts: impl Iterator<Item = Result<kernels::Weights<'a>>>) -> Result<Self> {
+        let first = parts.next().ok_or(Error::IncompatibleModel { reason: "a layer without weights" })??;
+        let mut out = LayerParts { parts: [first; MAX_OPERANDS], len: 1 };
+        for w in parts {
+            let slot = out
+                .parts
+                .get_mut(out.len)
+                .ok_or(Error::IncompatibleModel { reason: "a layer has more parts than a kernel call sums" })?;
+            *slot = w?;
+            out.len += 1;
+        }
+        Ok(out)
+    }
+}
+
+impl<'a> core::ops::Deref for LayerParts<'a> {
+    type Target = [kernels::Weights<'a>];
+    fn deref(&self) -> &Self::Target {
+        &self.parts[..self.len]
+    }
 }

@@ -68,9 +68,11 @@ impl Sim<'_> {
             new_pos,
             new_vel,
             ws,
+            widened,
             query: own,
             ..
         } = self;
+        let net = &Net { widened: widened.as_ref(), ..*net };
         let exec = &*self.exec;
         // The body: its frames as the network sees them, its edges to the garment.
         let seen = match body {

@@ -106,8 +106,8 @@ impl Par<'_> {
             return Ok(());
         }
         let w = out.len() / rows;
-        let first: usize = mlp.layers[0]
-            .parts(net.bf16)
+        let first: usize = net
+            .parts(&mlp.layers[0])?
             .iter()
             .zip(inputs)
             .filter(|(_, x)| x.is_some())
@@ -162,7 +162,7 @@ impl Par<'_> {
         products: [(&[f32], usize, &'o mut [f32]); N],
     ) -> Result<[&'o [f32]; N]> {
         let l0 = &mlp.layers[0];
-        let (parts, h) = (l0.parts(net.bf16), l0.out);
+        let (parts, h) = (net.parts(l0)?, l0.out);
         let outs = products.map(|(x, part, out)| {
             let n = x.len() / h;
             (x, parts[part], &mut out[..n * h])
@@ -186,7 +186,7 @@ impl Par<'_> {
         per_edge: &mut [f32],
     ) -> Result<()> {
         let l = &mlp.layers;
-        let p1 = l[0].parts(net.bf16);
+        let p1 = net.parts(&l[0])?;
         let h = l[0].out;
         let pt: &[f32] = match edges {
             Edges::PerEdge { target_rows: Some(rows), .. } => {
@@ -199,9 +199,9 @@ impl Par<'_> {
         let em = EdgeMlp {
             w1_edge: p1[2],
             b1: l[0].bias,
-            w2: l[1].parts(net.bf16)[0],
+            w2: net.parts(&l[1])?[0],
             b2: l[1].bias,
-            w3: l[2].parts(net.bf16)[0],
+            w3: net.parts(&l[2])?[0],
             b3: l[2].bias,
             layer_norm: mlp.layer_norm,
         };
@@ -321,7 +321,7 @@ impl Net<'_> {
         tb: &mut TaskBufs,
     ) -> Result<()> {
         let layers = &mlp.layers;
-        let parts = layers[0].parts(self.bf16);
+        let parts = self.parts(&layers[0])?;
         if parts.len() != inputs.len() {
             return Err(Error::IncompatibleModel { reason: "MLP input parts disagree with the model" });
         }
@@ -334,7 +334,7 @@ impl Net<'_> {
             let o = (start - rows.start) * n_out..(end - rows.start) * n_out;
             let mut ops = [Operand { x: &[], w: parts[0] }; MAX_OPERANDS];
             let mut n_ops = 0;
-            for (x, w) in inputs.iter().zip(parts) {
+            for (x, w) in inputs.iter().zip(parts.iter()) {
                 if let Some(x) = x {
                     ops[n_ops] = Operand { x: &x[start * w.k()..end * w.k()], w: *w };
                     n_ops += 1;
@@ -351,7 +351,7 @@ impl Net<'_> {
                     let dst: &mut [f32] = if last { &mut out[o.clone()] } else { &mut a[..r * l.out] };
                     self.kernels.linear(&ops[..n_ops], Some(l.bias), &ep, dst, &mut tb.lin)?;
                 } else {
-                    let op = [Operand { x: &a[..r * l.inp], w: l.parts(self.bf16)[0] }];
+                    let op = [Operand { x: &a[..r * l.inp], w: self.parts(l)?[0] }];
                     let dst: &mut [f32] = if last { &mut out[o.clone()] } else { &mut b[..r * l.out] };
                     self.kernels.linear(&op, Some(l.bias), &ep, dst, &mut tb.lin)?;
                     core::mem::swap(&mut a, &mut b);
