@@ -32,7 +32,7 @@ pub struct BenchRow {
     pub blocks: usize,
     /// Arithmetic.
     pub precision: Precision,
-    /// The kernel path the step ran on (for bf16, [`crate::kernels::bf16_choice`]).
+    /// The kernel path the step ran on ([`crate::kernels::f32_choice`], [`crate::kernels::bf16_choice`]).
     pub tier: Tier,
     /// Threads.
     pub threads: usize,

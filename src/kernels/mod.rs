@@ -13,8 +13,9 @@
 //! tier, and [`Kernels::with_tier`] picks one explicitly, so one machine can test every path it
 //! has.
 //!
-//! bf16 weights run on whichever of `vdpbf16ps` and widened f32 FMAs is faster on the running
-//! CPU, measured once ([`bf16_choice`], [`Kernels::best_bf16`]).
+//! Each precision runs on the faster of two paths on the running CPU, measured once: bf16
+//! weights on `vdpbf16ps` (or AMX) or widened onto f32 FMAs, f32 weights on AVX-512 or AVX2
+//! ([`bf16_choice`], [`f32_choice`], [`Kernels::best_bf16`], [`Kernels::best_f32`]).
 //!
 //! bf16 weights on a tier without AVX-512-BF16 (the portable one included) run on f32
 //! multiply-adds: the weights are widened once per call into caller scratch and the activations
@@ -51,7 +52,7 @@ mod x86;
 
 use core::sync::atomic::{AtomicU8, Ordering};
 
-pub use choose::{bf16_choice, Bf16Choice, Bf16Reason, WIDEN_MARGIN};
+pub use choose::{bf16_choice, f32_choice, ChoiceReason, TierChoice, SWITCH_MARGIN};
 
 pub use pack::{pack_bf16, pack_f32, packed_len_bf16, packed_len_f32, PackedBf16, PackedF32, Weights};
 pub(crate) use pack::{padded_cols, PANEL};

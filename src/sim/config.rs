@@ -160,8 +160,8 @@ pub struct SimConfig {
     /// Run the start-up (relaxation) step with a static body and dt = 1/3 s before the first
     /// regular step (MODEL.md section 5).
     pub startup: bool,
-    /// Kernel path cap (`None`: the best this CPU has; for bf16, the faster of its native and
-    /// widened paths, [`crate::kernels::bf16_choice`]).
+    /// Kernel path cap (`None`: the faster of the precision's two paths on this CPU,
+    /// [`crate::kernels::f32_choice`], [`crate::kernels::bf16_choice`]).
     pub tier: Option<Tier>,
     /// Teleport threshold, metres: when the body's centroid, or some body vertex beyond what
     /// the speed limit carries, moves farther than this in one frame, the garment is carried

@@ -229,10 +229,14 @@ impl<'m> Sim<'m> {
         if !spec.effects.local_materials && garment.materials().iter().any(|m| *m != m0) {
             return Err(Error::UnsupportedEffect { effect: "per-vertex materials" });
         }
+        let bf16 = cfg.precision == Precision::Bf16;
+        let uses_network = cfg.step == StepMode::Network;
         let kernels = match cfg.tier {
-            // bf16 weights on whichever of vdpbf16ps and widened f32 FMAs is faster here.
-            None if cfg.precision == Precision::Bf16 => Kernels::best_bf16(),
-            None => Kernels::best(),
+            // The precision on the faster of its two paths here (measured once per process, and
+            // only for a step that runs the network).
+            None if !uses_network => Kernels::best(),
+            None if bf16 => Kernels::best_bf16(),
+            None => Kernels::best_f32(),
             Some(t) => Kernels::with_tier(t.min(Kernels::best().tier())).unwrap_or(Kernels::scalar()),
         };
         let n = garment.n_vertices();
@@ -287,10 +291,13 @@ impl<'m> Sim<'m> {
             _ => None,
         };
         let max_active = body_state.as_ref().map_or(0, |b| b.net.max_active());
-        let bf16 = cfg.precision == Precision::Bf16;
         // Without bf16 products the kernels would widen bf16 weights on every call: widen them
         // once instead, and run them on the f32 path.
-        let widened = if bf16 && !kernels.tier().has_bf16_products() { Some(WidenedBf16::new(model)?) } else { None };
+        let widened = if bf16 && uses_network && !kernels.tier().has_bf16_products() {
+            Some(WidenedBf16::new(model)?)
+        } else {
+            None
+        };
         let net = Net { model, kernels, bf16, widened: None };
         let ws = Workspace::new(model, &graph, max_active)?;
         let (body_prev, body_pos) = match (&body_state, body) {

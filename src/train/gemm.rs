@@ -73,9 +73,10 @@ fn needed(rows: usize, cols: usize, ld: usize) -> usize {
 }
 
 impl Gemm {
-    /// The best path for this CPU within [`Kernels::best`]'s tier.
+    /// The best path for this CPU within the tier f32 runs on ([`Kernels::best_f32`]: AVX-512
+    /// unless AVX2 measured faster, under any tier cap).
     pub fn best() -> Gemm {
-        Gemm::at_most(Kernels::best().tier())
+        Gemm::at_most(Kernels::best_f32().tier())
     }
 
     /// The best path on this CPU at or below `tier` (AVX-512 for the AVX-512 tiers and above,

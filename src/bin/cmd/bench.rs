@@ -118,8 +118,9 @@ pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
         peak.f32_gflops,
         peak.bf16_gflops
     );
-    if precisions.contains(&Precision::Bf16) {
-        eprintln!("{}", hood::kernels::bf16_choice().describe());
+    let choices = tier_choices(&precisions);
+    for c in &choices {
+        eprintln!("{c}");
     }
     let mut core_to_core = None;
     if a.threads.iter().any(|&t| t > 1) {
@@ -192,8 +193,8 @@ pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
         say!("{}", to_json(&rows, &references, &peak));
     }
     if let Some(path) = &a.markdown {
-        let bf16 = precisions.contains(&Precision::Bf16).then(|| hood::kernels::bf16_choice().describe());
-        let text = markdown(&rows, &latencies, &references, &peak, bf16.as_deref(), core_to_core);
+        let choices = (!choices.is_empty()).then(|| choices.join(". "));
+        let text = markdown(&rows, &latencies, &references, &peak, choices.as_deref(), core_to_core);
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| hood::Error::io(dir, e))?;
         }
@@ -340,6 +341,19 @@ fn to_json(rows: &[BenchRow], references: &[ReferenceTime], peak: &Peak) -> Stri
     hood::io::json::to_line(&Bench { peak, rows, reference })
 }
 
+/// Which tier each timed precision runs on and why ([`hood::kernels::f32_choice`],
+/// [`hood::kernels::bf16_choice`]), a sentence each.
+fn tier_choices(precisions: &[Precision]) -> Vec<String> {
+    let mut lines = Vec::new();
+    if precisions.contains(&Precision::F32) {
+        lines.push(hood::kernels::f32_choice().describe());
+    }
+    if precisions.contains(&Precision::Bf16) {
+        lines.push(hood::kernels::bf16_choice().describe());
+    }
+    lines
+}
+
 /// The report `--markdown` writes: the command, the machine, the peaks, then one row per step
 /// timed, with the speed-up of each multi-thread row over the same step on one thread.
 fn markdown(
@@ -347,7 +361,7 @@ fn markdown(
     latencies: &[Option<f64>],
     references: &[ReferenceTime],
     peak: &Peak,
-    bf16: Option<&str>,
+    choices: Option<&str>,
     core_to_core_ns: Option<f64>,
 ) -> String {
     let mut s = String::new();
@@ -370,8 +384,8 @@ fn markdown(
         peak.f32_gflops,
         peak.bf16_gflops
     );
-    if let Some(bf16) = bf16 {
-        let _ = write!(s, " {bf16}.");
+    if let Some(choices) = choices {
+        let _ = write!(s, " {choices}.");
     }
     if let Some(ns) = core_to_core_ns {
         let _ = write!(
