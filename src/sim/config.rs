@@ -70,7 +70,7 @@ pub enum Precision {
     /// bf16 weights (needs a model file with bf16 weights). Where the kernel path has bf16
     /// products (AVX-512-BF16, AMX) the activations are bf16 too, accumulated in f32; elsewhere
     /// the weights are widened to f32 once, when the simulation is made, and run at the f32
-    /// cost with f32 activations ([`Sim::widened_weight_bytes`](crate::Sim::widened_weight_bytes)).
+    /// cost with f32 activations ([`Sim::widened_weight_bytes`](crate::sim::Sim::widened_weight_bytes)).
     Bf16,
 }
 

@@ -2,7 +2,7 @@
 //!
 //! There the kernels would widen bf16 weights on every call (and round the activations to bf16
 //! to compute the same products as `vdpbf16ps`), which makes bf16 slower than f32. Widened once,
-//! when a [`Sim`](crate::Sim) is made, the bf16 weights run on the f32 kernels at the f32 cost:
+//! when a [`Sim`](crate::sim::Sim) is made, the bf16 weights run on the f32 kernels at the f32 cost:
 //! bf16-exact weights, f32 activations and arithmetic. The copy is owned by the simulation and
 //! costs the f32 size of the weights; a simulation that does not need it has none.
 
