@@ -6,7 +6,7 @@
 //! the descent is the same for every method, and small changes to a model do not change the
 //! states it is scored on.
 //!
-//! [`rollout`]: super::rollout
+//! [`rollout`]: fn@super::rollout
 
 use super::rollout::{advance, check_frames, step_kind, store};
 use super::scoring::{InsideCounter, Scorer};
@@ -44,7 +44,7 @@ pub enum Reference<'a> {
     /// objective (contact terms dropped without a body), pinned vertices at their targets: the
     /// states the physics leads to.
     Converged(Objective),
-    /// A rollout of the runtime (its start-up step first, as [`rollout`](super::rollout)
+    /// A rollout of the runtime (its start-up step first, as [`rollout`](fn@super::rollout)
     /// plays it): the states a model reaches on its own.
     Network {
         /// The model.
@@ -57,7 +57,7 @@ pub enum Reference<'a> {
 /// Plays a `reference` rollout of `anim` over frames `1..=frames`, from
 /// [`Animation::initial_garment`] moving at [`Animation::initial_velocity`]. On the frames `options.gap_every` picks (every
 /// frame when 0), every method steps once from the reference's state and is scored as in
-/// [`rollout`](super::rollout) under `options.objective`: terms, penetration, strain, speed,
+/// [`rollout`](fn@super::rollout) under `options.objective`: terms, penetration, strain, speed,
 /// step time, the inside count on the frames `options.inside_every` picks, and the [`Gap`]
 /// against the converged step of the scoring objective from that state (for a converged
 /// reference of the same objective, its own step). One [`Rollout`] per method, its records on

@@ -5,7 +5,7 @@
 //!
 //! * [`Animation`]: what a rollout plays (garment, body frames, pinned targets, initial state);
 //!   implemented by [`Scene`] and by the owned, editable [`Playback`].
-//! * [`rollout`] / [`rollout_observed`]: step a [`Sim`] through the frames; every frame gives a
+//! * [`rollout`](fn@rollout) / [`rollout_observed`]: step a [`Sim`] through the frames; every frame gives a
 //!   [`FrameRecord`] (objective terms, % penetrating vertices, largest edge strain and speed,
 //!   step time, optionally the [`Gap`] and the % of vertices inside the body); the [`Rollout`]
 //!   keeps chosen frames' positions and a [`Summary`].

@@ -300,7 +300,7 @@ impl Optimum {
     }
 }
 
-/// Counts the garment vertices inside the body on the frames [`RolloutOptions::inside_every`]
+/// Counts the garment vertices inside the body on the frames [`RolloutOptions::inside_every`](super::RolloutOptions::inside_every)
 /// picks.
 pub(super) struct InsideCounter {
     winding: Winding,

@@ -99,7 +99,7 @@ pub(crate) trait Simd: Copy {
     /// tiles run it.
     ///
     /// # Safety
-    /// Arguments and contract as [`gemm`]'s; called between [`Simd::bf16_begin`] and
+    /// Arguments and contract as [`gemm`](fn@gemm)'s; called between [`Simd::bf16_begin`] and
     /// [`Simd::bf16_end`].
     #[inline(always)]
     unsafe fn gemm_bf16(

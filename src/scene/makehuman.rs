@@ -139,12 +139,12 @@ fn lifted_onto_the_floor(mh: &MakeHuman, mut poses: Vec<Pose>) -> Result<Vec<Pos
     Ok(poses)
 }
 
-/// [`makehuman`] on `motion` instead of the CMU walk when given: a procedural motion or a
+/// [`makehuman`](fn@makehuman) on `motion` instead of the CMU walk when given: a procedural motion or a
 /// clip of the motion corpus, posed on the MakeHuman rig directly (it has the CMU bone
 /// names), `max_frames` frames long.
 ///
 /// # Errors
-/// As [`makehuman`], and errors of the motion generators.
+/// As [`makehuman`](fn@makehuman), and errors of the motion generators.
 pub fn makehuman_on(
     assets: &Path,
     which: MakeHumanGarment,
@@ -154,7 +154,7 @@ pub fn makehuman_on(
     makehuman_wearing(assets, Wearing::Piece(which), MakeHumanMotion::named(assets, motion), max_frames)
 }
 
-/// [`makehuman`] on a BVH clip of the user's (any frame rate: resampled to 30 Hz), retargeted
+/// [`makehuman`](fn@makehuman) on a BVH clip of the user's (any frame rate: resampled to 30 Hz), retargeted
 /// onto the MakeHuman rig by bone name (the CMU / MotionBuilder names: `Hips`, `Spine`,
 /// `LeftUpLeg`, `LeftArm`, ...; joints the rig lacks are ignored, bones the clip lacks stay
 /// at rest relative to their parents), the root translation scaled by the ratio of leg
@@ -162,7 +162,7 @@ pub fn makehuman_on(
 /// [`MocapClip`]s are. `rest` says what the clip's rest is.
 ///
 /// # Errors
-/// As [`makehuman`]; BVH parse errors; [`Error::Empty`] when no clip joint matches a rig bone.
+/// As [`makehuman`](fn@makehuman); BVH parse errors; [`Error::Empty`] when no clip joint matches a rig bone.
 pub fn makehuman_on_bvh(
     assets: &Path,
     which: MakeHumanGarment,
@@ -254,7 +254,7 @@ impl BvhRest {
 ///
 /// # Errors
 /// [`Error::Io`] when the assets are absent; parse and fitting errors; errors of the motion
-/// generators and of [`own::garment_from_mesh`](super::own::garment_from_mesh).
+/// generators and of [`own::garment_from_mesh`].
 pub fn makehuman_wearing(
     assets: &Path,
     wearing: Wearing<'_>,

@@ -58,7 +58,7 @@ pub(crate) fn layer_norm_stats(y: &[f32]) -> (f32, f32) {
 
 /// [`layer_norm_stats`] of consecutive rows of `width` values (`stats` gets one entry per row).
 /// The portable form, row by row; the x86 tiers batch rows with the same arithmetic
-/// ([`Simd::layer_norm_stats_rows`]).
+/// ([`Simd::layer_norm_stats_rows`](super::Simd::layer_norm_stats_rows)).
 #[inline(always)]
 pub(crate) fn layer_norm_stats_rows(y: &[f32], width: usize, stats: &mut [(f32, f32)]) {
     if width == 0 {
