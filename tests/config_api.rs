@@ -117,6 +117,7 @@ fn config_tool_option_builders_set_every_field() {
 #[cfg(feature = "train")]
 #[test]
 fn config_train_config_builders_set_every_field() {
+    use hood::mesh::Material;
     use hood::scene::{GarmentKind, MotionKind};
     use hood::train::config::PullStart;
     use hood::train::{SceneSource, TrainConfig};
@@ -144,6 +145,7 @@ fn config_train_config_builders_set_every_field() {
         .with_collision_ramp(50)
         .with_decoder_init_scale(0.1)
         .with_random_materials(false)
+        .with_material(Material::preset("stiff-bend").unwrap())
         .with_random_centres(false)
         .with_scenes(scenes.clone())
         .with_checkpoint_every(6)
@@ -164,6 +166,7 @@ fn config_train_config_builders_set_every_field() {
     assert_eq!((c.noise, c.decoder_init_scale), (1e-3, 0.1));
     assert_eq!((c.collision_weight, c.collision_ramp), ((1.0, 2.0), 50));
     assert!(!c.random_materials && !c.random_centres);
+    assert_eq!(c.material, Material::preset("stiff-bend").unwrap());
     assert_eq!(c.scenes, scenes);
     assert_eq!((c.checkpoint_every, c.validate_every, c.validation), (6, 7, (1, 4)));
     assert_eq!((c.supervised, c.supervised_start), ((0.5, 20, 10), PullStart::Prediction));

@@ -4,6 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::io::json::{self, Value};
+use crate::mesh::Material;
 use crate::model::{ModelSpec, HOOD_SCHEDULE};
 use crate::scene::{GarmentKind, MotionKind};
 use alloc::format;
@@ -93,8 +94,14 @@ pub struct TrainConfig {
     /// the reference; smaller starts the model near the no-force prediction `pos + velocity`
     /// instead of random accelerations).
     pub decoder_init_scale: f32,
-    /// Draw a random material per sample (otherwise the default material).
+    /// Draw a random material per sample (otherwise [`material`](Self::material)).
     pub random_materials: bool,
+    /// The material of every sample when [`random_materials`](Self::random_materials) is off,
+    /// and of the scenes' reference rollouts and the validation rollouts: the default
+    /// ([`Material::default`]) unless set, for example to one end of the training ranges
+    /// ([`Material::preset`]) to train a model for that regime. JSON key `material`: a preset
+    /// name or `density,mu,lambda,bending`, as [`Material::parse`] reads it.
+    pub material: Material,
     /// Draw a random hierarchy centre per sample (otherwise the first candidate).
     pub random_centres: bool,
     /// Scenes to sample from (uniformly).
@@ -122,7 +129,7 @@ pub struct TrainConfig {
     /// skinned garment and ends `rollout_max` steps later).
     pub carry: (usize, f64),
     /// Probability (0-1) that a fresh sample starts from a state of its scene's reference
-    /// rollout (the converged implicit step of the training objective, default material; see
+    /// rollout (the converged implicit step of the training objective, [`material`](Self::material); see
     /// [`crate::train::Dataset::attach_reference_states`]) rather than from the skinned garment
     /// with a start-up step: the network then also learns from the states the physics leads
     /// to, not only from its own. Off (0) by default.
@@ -159,6 +166,7 @@ impl Default for TrainConfig {
             collision_ramp: 20_000,
             decoder_init_scale: 1.0,
             random_materials: true,
+            material: Material::default(),
             random_centres: true,
             scenes: vec![
                 p(GarmentKind::Skirt, 500, MotionKind::Walk),
@@ -220,6 +228,9 @@ impl TrainConfig {
         with_decoder_init_scale => decoder_init_scale: f32;
         /// Sets [`random_materials`](Self::random_materials): a random material per sample.
         with_random_materials => random_materials: bool;
+        /// Sets [`material`](Self::material): the material when not random, of the reference
+        /// and validation rollouts too.
+        with_material => material: Material;
         /// Sets [`random_centres`](Self::random_centres): a random hierarchy centre per sample.
         with_random_centres => random_centres: bool;
         /// Sets [`scenes`](Self::scenes): the scenes to sample from.
@@ -428,6 +439,9 @@ impl TrainConfig {
                 "decoder_init_scale" => c.decoder_init_scale = float(v, key)? as f32,
                 "random_materials" => c.random_materials = boolean(v, key)?,
                 "random_centres" => c.random_centres = boolean(v, key)?,
+                "material" => {
+                    c.material = Material::parse(v.as_str().ok_or_else(|| bad(key, "expected a string"))?)?;
+                }
                 "scenes" => {
                     let a = v.as_array().ok_or_else(|| bad(key, "expected an array"))?;
                     c.scenes = a.iter().map(scene).collect::<Result<_>>()?;
@@ -453,6 +467,9 @@ impl TrainConfig {
             }
         }
         c.spec()?;
+        if c.random_materials && c.material != Material::default() {
+            return Err(bad("material", "a fixed material needs \"random_materials\": false"));
+        }
         if c.scenes.is_empty() {
             return Err(bad("scenes", "at least one scene"));
         }
@@ -506,6 +523,11 @@ impl TrainConfig {
             collision_ramp: self.collision_ramp,
             decoder_init_scale: self.decoder_init_scale,
             random_materials: self.random_materials,
+            material: (self.material != Material::default()).then(|| {
+                let m = &self.material;
+                // f32 Display is the shortest text that reads back to the same value.
+                format!("{},{},{},{}", m.density, m.mu, m.lambda, m.bending)
+            }),
             random_centres: self.random_centres,
             checkpoint_every: self.checkpoint_every,
             validate_every: self.validate_every,
@@ -572,6 +594,8 @@ struct ConfigFile<'a> {
     collision_ramp: u64,
     decoder_init_scale: f32,
     random_materials: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    material: Option<String>,
     random_centres: bool,
     checkpoint_every: u64,
     validate_every: u64,

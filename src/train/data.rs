@@ -82,7 +82,11 @@ impl Dataset {
                     scene::makehuman_on(assets, which, *motion, *frames)
                 }
             };
-            let s = built?;
+            let mut s = built?;
+            if cfg.material != Material::default() {
+                // The reference rollouts play the scene's own garment: give it the run's material.
+                s.garment = s.garment_with_material(cfg.material)?;
+            }
             if s.n_frames() < cfg.rollout_max + 2 {
                 d.skipped.push((name, std::format!("only {} frames", s.n_frames())));
                 continue;
@@ -98,15 +102,16 @@ impl Dataset {
 
     /// Plays every scene's reference rollout: from the skinned garment at rest at frame 0, every
     /// frame one implicit step of the training objective at the final collision weight (f64
-    /// L-BFGS, [`REFERENCE_ITERATIONS`] iterations at most), default material, pinned vertices at
-    /// their targets; a rollout that turns non-finite keeps its frames up to there, and one that
-    /// loses the garment ([`crate::eval::LossWatch`]: worn vertices off the body, or ridden up)
-    /// keeps its frames before that one, so that no sample starts
-    /// from a garment the solver has thrown off (on fast arm swings and inversions the implicit
-    /// step of the objective can lose a loose top). With
-    /// `cache`, each scene's states are read from `cache/<scene>.bin` when there (and of the
-    /// scene's size), else computed and written there. `progress(scene, done, of)` is told
-    /// about every frame computed.
+    /// L-BFGS, [`REFERENCE_ITERATIONS`] iterations at most), in the
+    /// [`material`](TrainConfig::material) of the config the dataset was built with, pinned
+    /// vertices at their targets. A rollout that turns non-finite keeps its frames up to there,
+    /// and one that loses the garment ([`crate::eval::LossWatch`]: worn vertices off the body, or
+    /// ridden up) keeps its frames before that one, so that no sample starts from a garment the
+    /// solver has thrown off (on fast arm swings and inversions the implicit step of the
+    /// objective can lose a loose top). With `cache`, each scene's states are read from
+    /// `cache/<scene>.bin` when there (and of the scene's size), else computed and written there
+    /// (the cache is per run: its files do not record the material). `progress(scene, done,
+    /// of)` is told about every frame computed.
     ///
     /// # Errors
     /// Errors of the scoring rollout; [`Error::Io`] when the cache cannot be written.
@@ -168,7 +173,7 @@ impl Dataset {
         let s = &self.scenes[scene];
         let last_start = s.n_frames().saturating_sub(steps + 1).max(1);
         let start = rng.below(last_start);
-        let material = if cfg.random_materials { random_material(rng) } else { Material::default() };
+        let material = if cfg.random_materials { random_material(rng) } else { cfg.material };
         let centre_seed = if cfg.random_centres { Some(rng.next_u64()) } else { None };
         let garment = s.garment_with_material(material)?;
         Ok(Sample { scene, start, garment, material, centre_seed })
@@ -258,5 +263,26 @@ mod tests {
         }
         truncate_at_loss(&s, &mut lost).unwrap();
         assert_eq!(lost.len(), 7);
+    }
+
+    /// A run's fixed material reaches its samples and the garments its reference rollouts play;
+    /// without one, both keep the default.
+    #[test]
+    fn a_fixed_material_reaches_samples_and_reference_scenes() {
+        let stiff = Material::preset("stiff-bend").unwrap();
+        let scenes = r#""scenes": [{"garment": "skirt", "vertices": 200, "motion": "walk", "seconds": 0.5}]"#;
+        for (material, want) in [(r#""material": "stiff-bend","#, stiff), ("", Material::default())] {
+            let json = std::format!(r#"{{"random_materials": false, {material} {scenes}}}"#);
+            let cfg = TrainConfig::from_json(&json).unwrap();
+            assert_eq!(cfg.material, want);
+            let d = Dataset::build(&cfg, Path::new("no-assets"), |_| {}).unwrap();
+            assert!(d.scenes[0].garment.materials().iter().all(|m| *m == want));
+            let s = d.sample(&mut Rng::new(1), 2, &cfg).unwrap();
+            assert_eq!(s.material, want);
+            assert!(s.garment.materials().iter().all(|m| *m == want));
+        }
+        // A fixed material that random materials would ignore is refused.
+        let both = std::format!(r#"{{"material": "stiff-bend", {scenes}}}"#);
+        assert!(TrainConfig::from_json(&both).is_err());
     }
 }

@@ -13,8 +13,9 @@ use std::vec;
 use std::vec::Vec;
 
 impl Trainer {
-    /// The fixed validation samples: seeded independently of the training stream, default
-    /// material, first hierarchy centre, spread over the scenes.
+    /// The fixed validation samples: seeded independently of the training stream, the config's
+    /// [`material`](crate::train::TrainConfig::material), first hierarchy centre, spread over
+    /// the scenes.
     fn validation_samples(&self) -> Result<Vec<Sample>> {
         let (count, frames) = self.cfg.validation;
         let mut rng = Rng::new(self.cfg.seed ^ 0x0a11_da7e);
