@@ -61,15 +61,17 @@ fn train_config_json_round_trip() {
     assert_eq!(c.scenes[0].name(), "makehuman-crop-top/dance-6");
 }
 
-/// The configs committed beside the shipped models (the record of how each was trained, and
-/// what `--config` / `--scenes-from` read to continue) parse, and a `NAME.*.json` that sets the
-/// model's shape describes the shape of `models/NAME.hood`.
+/// The configs committed beside the shipped models and the specialists (the record of how each
+/// was trained, and what `--config` / `--scenes-from` read to continue) parse, and a
+/// `NAME.*.json` that sets the model's shape describes the shape of `NAME.hood` beside it.
 #[test]
 fn train_committed_configs_parse_and_match_their_models() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
     let mut checked = 0;
-    for entry in std::fs::read_dir(&dir).unwrap() {
-        let path = entry.unwrap().path();
+    let entries = [models.clone(), models.join("specialists")]
+        .into_iter()
+        .flat_map(|dir| std::fs::read_dir(&dir).unwrap().map(move |e| (dir.clone(), e.unwrap().path())));
+    for (dir, path) in entries {
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
         if !name.ends_with(".json") {
             continue;
@@ -84,7 +86,7 @@ fn train_committed_configs_parse_and_match_their_models() {
             checked += 1;
         }
     }
-    assert!(checked >= 2, "only {checked} configs compared with a shipped model");
+    assert!(checked >= 8, "only {checked} configs compared with a model file");
 }
 
 #[test]
