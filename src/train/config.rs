@@ -129,10 +129,10 @@ pub struct TrainConfig {
     /// skinned garment and ends `rollout_max` steps later).
     pub carry: (usize, f64),
     /// Probability (0-1) that a fresh sample starts from a state of its scene's reference
-    /// rollout (the converged implicit step of the training objective, [`material`](Self::material); see
-    /// [`crate::train::Dataset::attach_reference_states`]) rather than from the skinned garment
-    /// with a start-up step: the network then also learns from the states the physics leads
-    /// to, not only from its own. Off (0) by default.
+    /// rollout (the converged implicit step of the training objective, in
+    /// [`material`](Self::material); see [`crate::train::Dataset::attach_reference_states`])
+    /// rather than from the skinned garment with a start-up step: the network then also learns
+    /// from the states the physics leads to, not only from its own. Off (0) by default.
     pub reference_states: f64,
     /// Decay of an exponential moving average of the weights taken after every optimiser step
     /// (off when 0; e.g. 0.999 averages over about the last 1,000 steps). When on, exports and
