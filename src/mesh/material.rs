@@ -37,6 +37,14 @@ impl Default for Material {
     }
 }
 
+impl core::fmt::Display for Material {
+    /// `density,mu,lambda,bending`, each the shortest text that reads back to the same `f32`:
+    /// what [`Material::parse`] reads.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{},{},{},{}", self.density, self.mu, self.lambda, self.bending)
+    }
+}
+
 impl Material {
     /// Names of [`Material::preset`]: the default and, for stretching (Lamé mu and lambda
     /// together) and bending separately, each end of the training ranges.
@@ -124,6 +132,7 @@ impl Material {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use alloc::string::ToString;
 
     #[test]
     fn garment_material_inputs_match_reference() {
@@ -140,6 +149,10 @@ mod tests {
         assert_eq!(Material::parse("stiff-bend").unwrap(), Material::preset("stiff-bend").unwrap());
         let m = Material::parse("0.3, 20000,40000,1e-5").unwrap();
         assert_eq!(m, Material { density: 0.3, mu: 20000.0, lambda: 40000.0, bending: 1e-5 });
+        // The text form reads back to the same material, bit for bit.
+        for m in [m, Material::preset("stiff-bend").unwrap(), Material::default()] {
+            assert_eq!(Material::parse(&m.to_string()).unwrap(), m);
+        }
         for bad in ["silk", "0.3,20000,40000", "0.3,20000,40000,1e-5,1", "0.3,-1,40000,1e-5", "0.3,nan,1,1", ""] {
             assert!(matches!(Material::parse(bad), Err(Error::Parse { format: "material", .. })), "{bad}");
         }

@@ -523,11 +523,7 @@ impl TrainConfig {
             collision_ramp: self.collision_ramp,
             decoder_init_scale: self.decoder_init_scale,
             random_materials: self.random_materials,
-            material: (self.material != Material::default()).then(|| {
-                let m = &self.material;
-                // f32 Display is the shortest text that reads back to the same value.
-                format!("{},{},{},{}", m.density, m.mu, m.lambda, m.bending)
-            }),
+            material: (self.material != Material::default()).then(|| self.material.to_string()),
             random_centres: self.random_centres,
             checkpoint_every: self.checkpoint_every,
             validate_every: self.validate_every,
