@@ -236,6 +236,34 @@ fn eval_cli_simulate_writes_obj_sequence_strip_and_animation() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+/// `hood simulate` runs the model it is given: a named model steps the garment unless `--solver`
+/// says otherwise, and with no model named the default step (the solver) runs. The scene line
+/// says which.
+#[cfg(feature = "cli")]
+#[test]
+fn eval_cli_simulate_runs_the_model_it_is_named() {
+    let out = std::env::temp_dir().join(format!("hood-simulate-step-test-{}", std::process::id()));
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/models/compact.hood");
+    let steps = |extra: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+            .args(["simulate", "--garment", "skirt", "--vertices", "300", "--frames", "1", "--no-obj", "--out"])
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "{err}");
+        let line = err.lines().find(|l| l.starts_with("scene:")).expect("a scene line").to_string();
+        line.split_once("steps: ").expect("the step on the scene line").1.to_string()
+    };
+    assert!(steps(&[]).starts_with("the solver, 30 iterations"), "{}", steps(&[]));
+    assert_eq!(steps(&["--model", model]), format!("the network ({model})"));
+    assert_eq!(steps(&["--random-model", "16"]), "the network (a random model, h = 16)");
+    assert!(steps(&["--model", model, "--solver", "10"]).starts_with("the solver, 10 iterations"));
+    assert_eq!(steps(&["--refine", "3"]), "the network (the shipped compact model), refined by 3 iterations");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 /// `hood validate` measures what the model cards' `hood simulate` command measures (the same
 /// figures to the printed digit), runs its rollouts in parallel without changing them (two
 /// copies of one file give identical rows), writes the table and one strip per rollout (named by

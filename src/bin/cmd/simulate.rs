@@ -137,8 +137,9 @@ pub struct SimulateArgs {
     refine: u32,
     /// The solver step mode (`SimConfig::step`, the default): no network, every step the
     /// implicit step by this many L-BFGS iterations from the coasting guess; 0: the network
-    /// steps (HOOD). Default: 30 (`DEFAULT_SOLVER_ITERATIONS`), or 0 with `--refine`, which
-    /// refines the network's step.
+    /// steps (HOOD). Default: 30 (`DEFAULT_SOLVER_ITERATIONS`), or 0 (the network) when a model
+    /// is named (`--model`, `--random-model`) or with `--refine`, which refines the network's
+    /// step.
     #[arg(long)]
     solver: Option<u32>,
     /// With `--solver K`: end each step's solve after this many microseconds of wall time too
@@ -377,9 +378,24 @@ pub fn named_scene(
     Ok((Box::new(s), name))
 }
 
-/// `--solver`'s iterations: as given, else the default step's (the network's with `--refine`).
-pub fn solver_iterations(given: Option<u32>, refine: u32) -> u32 {
-    given.unwrap_or(if refine > 0 { 0 } else { hood::sim::DEFAULT_SOLVER_ITERATIONS })
+/// `--solver`'s iterations: as given, else the network's (0) when the command names a model to
+/// run (`model_named`) or refines one (`refine` > 0), else the default step's.
+pub fn solver_iterations(given: Option<u32>, model_named: bool, refine: u32) -> u32 {
+    given.unwrap_or(if model_named || refine > 0 { 0 } else { hood::sim::DEFAULT_SOLVER_ITERATIONS })
+}
+
+/// What steps the garment, for the scene line: the network (with its refinement) or the solver.
+fn step_description(step: StepMode, refine: u32, model: &str) -> String {
+    match step {
+        StepMode::Network if refine > 0 => format!("the network ({model}), refined by {refine} iterations"),
+        StepMode::Network => format!("the network ({model})"),
+        StepMode::Solver { iterations } => {
+            format!("the solver, {iterations} iterations (no network; --solver 0 runs {model})")
+        }
+        StepMode::SolverBudget { micros, max_iterations } => {
+            format!("the solver, at most {max_iterations} iterations within {micros} us (no network)")
+        }
+    }
 }
 
 /// The step mode of `--solver K` (and `--solver-budget-us B`): the network for K = 0, else the
@@ -463,11 +479,21 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     let clock = Instant::now();
     let (anim, name) = scene(&a)?;
     let frames = a.frames.min(anim.n_frames().saturating_sub(1));
+    let step = step_mode(
+        solver_iterations(a.solver, a.model.is_some() || a.random_model.is_some(), a.refine),
+        a.solver_budget_us,
+    );
+    let model_name = match (&a.model, a.random_model) {
+        (Some(p), _) => p.display().to_string(),
+        (None, Some(h)) => format!("a random model, h = {h}"),
+        (None, None) => "the shipped compact model".to_string(),
+    };
     eprintln!(
-        "scene: {name}, garment {} vertices, body {} vertices, {frames} frames (built in {:.1} s)",
+        "scene: {name}, garment {} vertices, body {} vertices, {frames} frames (built in {:.1} s); steps: {}",
         anim.garment().n_vertices(),
         anim.body_mesh().map_or(0, |b| b.n_vertices()),
-        clock.elapsed().as_secs_f64()
+        clock.elapsed().as_secs_f64(),
+        step_description(step, a.refine, &model_name)
     );
     std::fs::create_dir_all(&a.out).map_err(|e| hood::Error::io(&a.out, e))?;
     let k = a.strip.max(1);
@@ -482,7 +508,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         .with_precision(precision)
         .with_projection(a.projection)
         .with_refine((a.refine > 0).then_some(a.refine))
-        .with_step(step_mode(solver_iterations(a.solver, a.refine), a.solver_budget_us));
+        .with_step(step);
     let faces = anim.garment().faces().to_vec();
     let body_faces = if a.no_body { None } else { anim.body_mesh().map(|b| b.faces().to_vec()) };
     // A garment from a file is written as that file with new positions.
