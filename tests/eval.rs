@@ -363,6 +363,23 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
         value.parse::<f64>().unwrap() * if unit == "mJ" { 1e-3 } else { 1.0 }
     };
     assert!(absolute(refined[9]) < absolute(rows[0][9]), "refined {}, model alone {}", refined[9], rows[0][9]);
+    // `--material` remakes every garment, in validate as in simulate: the same objective, and
+    // not the one of the garment's own material.
+    let stiff_out = out.join("stiff");
+    let o =
+        validate(&[model], &["--material", "stiff-bend", "--no-common-states", "--out", stiff_out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table = text(&o);
+    assert!(table.contains(", every garment made of stiff-bend ("), "{table}");
+    let stiff: Vec<&str> =
+        table.lines().find(|l| l.starts_with("| compact ")).unwrap().split('|').map(str::trim).collect();
+    let o = simulate(&["--material", "stiff-bend"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let objective = after(&text(&o), "objective mean ").unwrap();
+    assert_eq!(stiff[13], objective.trim_end_matches(';'), "{table}");
+    assert_ne!(stiff[13], rows[0][13], "stiff bending changes the objective");
+    let o = hood(&["validate", model, "--scenes", "skirt", "--material", "rubber"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("rubber"));
     let o = hood(&["validate", model, "--scenes", "poncho"]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("unknown scene"));
     let _ = std::fs::remove_dir_all(&out);

@@ -71,6 +71,7 @@ impl Progress {
     }
 
     /// Starts the count at `done` units (a resumed task): the rate counts only those after.
+    #[cfg(feature = "train")]
     pub fn start_at(&self, done: u64) {
         if let Ok(mut p) = self.plain.lock() {
             (p.done, p.base) = (done, done);
@@ -92,6 +93,7 @@ impl Progress {
     }
 
     /// Sets the total.
+    #[cfg(feature = "train")]
     pub fn set_length(&self, total: u64) {
         self.update(|p| p.total = total);
     }

@@ -12,7 +12,7 @@ use hood::model::ModelBytes;
 use hood::rig::procedural::Mannequin;
 use hood::scene::own::{garment_from_mesh, FaceAttachment, GarmentOptions, OwnGarment, Pins, UpAxis};
 use hood::scene::{makehuman_wearing, MakeHumanGarment, MakeHumanMotion, Wearing};
-use hood::scene::{procedural, GarmentKind, MotionKind};
+use hood::scene::{procedural, GarmentKind, MotionKind, Scene};
 use hood::sim::{Precision, SimConfig, StepMode};
 use hood::{Error, Result};
 use std::path::{Path, PathBuf};
@@ -89,10 +89,12 @@ pub struct SimulateArgs {
     /// spaces, commas or lines; `#` starts a comment).
     #[arg(long, default_value = "auto", requires = "garment_obj")]
     pins: String,
-    /// The --garment-obj material: default, soft-stretch, stiff-stretch, soft-bend, stiff-bend,
-    /// or density,mu,lambda,bending in SI units (kg/m^2, Pa, Pa, J).
-    #[arg(long, default_value = "default", requires = "garment_obj")]
-    material: String,
+    /// The garment's material: default, soft-stretch, stiff-stretch, soft-bend, stiff-bend, or
+    /// density,mu,lambda,bending in SI units (kg/m^2, Pa, Pa, J). A --garment-obj is made of the
+    /// default unless this says otherwise; a built-in garment keeps its own (the default) unless
+    /// this remakes it, same shape and pins.
+    #[arg(long)]
+    material: Option<String>,
     /// The assets folder: MakeHuman body, garments, motion clips (default: $HOOD_ASSETS, else
     /// `shared/assets` in the working directory or a parent).
     #[arg(long)]
@@ -230,7 +232,7 @@ fn garment_options(a: &SimulateArgs, obj: &Obj) -> Result<GarmentOptions> {
         .with_scale(a.scale)
         .with_up(up)
         .with_pins(pins)
-        .with_material(Some(Material::parse(&a.material)?)))
+        .with_material(Some(Material::parse(a.material.as_deref().unwrap_or("default"))?)))
 }
 
 /// 0-based vertex indices from a text file: separated by whitespace or commas, `#` comments.
@@ -311,10 +313,24 @@ fn scene(a: &SimulateArgs) -> Result<(Box<dyn Animation>, String)> {
         })?;
         let assets = hood::assets::locate(a.assets.as_deref())?;
         let s = makehuman_wearing(&assets, Wearing::Piece(which), makehuman_motion(a, &assets)?, a.frames + 1)?;
+        let s = made_of(s, material(a.material.as_deref())?)?;
         let name = s.name.clone();
         return Ok((Box::new(s), name));
     }
-    named_scene(&a.garment, a.vertices, &a.motion, a.frames, a.assets.as_deref())
+    named_scene(&a.garment, a.vertices, &a.motion, a.frames, a.assets.as_deref(), material(a.material.as_deref())?)
+}
+
+/// A `--material` argument, parsed (None: not given).
+pub fn material(arg: Option<&str>) -> Result<Option<Material>> {
+    arg.map(Material::parse).transpose()
+}
+
+/// The scene with its garment remade of `material` (same rest shape and pins), or as built.
+fn made_of(mut s: Scene, material: Option<Material>) -> Result<Scene> {
+    if let Some(m) = material {
+        s.garment = s.garment_with_material(m)?;
+    }
+    Ok(s)
 }
 
 /// The motion on the MakeHuman body: `--bvh`, else `--motion`, after `--lead-in` (default: a
@@ -353,12 +369,13 @@ pub fn named_scene(
     motion: &str,
     frames: usize,
     assets: Option<&Path>,
+    material: Option<Material>,
 ) -> Result<(Box<dyn Animation>, String)> {
     let seconds = (frames + 1) as f32 / 30.0 + 0.1;
     let motion_name = motion;
     let motion = motion_kind(motion)?;
     if let Some(kind) = GarmentKind::parse(garment) {
-        let s = procedural(&Mannequin::new(), kind, vertices, motion, seconds)?;
+        let s = made_of(procedural(&Mannequin::new(), kind, vertices, motion, seconds)?, material)?;
         let name = s.name.clone();
         return Ok((Box::new(s), name));
     }
@@ -373,7 +390,7 @@ pub fn named_scene(
     };
     let assets = hood::assets::locate(assets)?;
     let on = (motion_name != "walk").then_some(motion);
-    let s = makehuman_on(&assets, which, on, frames + 1)?;
+    let s = made_of(makehuman_on(&assets, which, on, frames + 1)?, material)?;
     let name = s.name.clone();
     Ok((Box::new(s), name))
 }

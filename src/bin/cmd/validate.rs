@@ -9,7 +9,7 @@
 
 use crate::objective::ObjectiveArg;
 use crate::progress::Progress;
-use crate::simulate::{named_scene, parse_precision, step_mode};
+use crate::simulate::{material, named_scene, parse_precision, step_mode};
 use clap::Args;
 use hood::eval::{common_state_gaps, rollout, strip_images, Method, Reference, RolloutOptions, Summary};
 use hood::model::{Model, ModelBytes};
@@ -129,6 +129,11 @@ pub struct ValidateArgs {
     /// model file then only names the row).
     #[arg(long, default_value_t = 0)]
     solver: u32,
+    /// Every garment remade of this material (same shape and pins): default, soft-stretch,
+    /// stiff-stretch, soft-bend, stiff-bend, or density,mu,lambda,bending in SI units (kg/m^2,
+    /// Pa, Pa, J). Without it each garment keeps its own.
+    #[arg(long)]
+    material: Option<String>,
     /// Output folder: `<model>-<scene>.png` strips and `validation.md` (the table).
     #[arg(long, short, default_value = "hood-validate")]
     out: PathBuf,
@@ -198,7 +203,9 @@ fn labels(models: &[PathBuf]) -> Vec<String> {
 /// Runs one model on one scene.
 fn validate_one(model: &Model<'_>, scene: &SceneSpec, a: &ValidateArgs, strip: &Path) -> Result<Row> {
     let clock = Instant::now();
-    let (anim, _) = named_scene(&scene.garment, scene.vertices, &scene.motion, a.frames, a.assets.as_deref())?;
+    let material = material(a.material.as_deref())?;
+    let (anim, _) =
+        named_scene(&scene.garment, scene.vertices, &scene.motion, a.frames, a.assets.as_deref(), material)?;
     let frames = a.frames.min(anim.n_frames().saturating_sub(1));
     let opts = RolloutOptions::default()
         .with_gap_every(a.gap_every)
@@ -239,6 +246,14 @@ fn validate_one(model: &Model<'_>, scene: &SceneSpec, a: &ValidateArgs, strip: &
 pub fn validate(a: ValidateArgs) -> Result<()> {
     let names: Vec<&str> = if a.held_out { HELD_OUT.to_vec() } else { a.scenes.iter().map(String::as_str).collect() };
     let scenes: Vec<SceneSpec> = names.iter().map(|s| SceneSpec::parse(s)).collect::<Result<_>>()?;
+    // Refused before any rollout runs.
+    let made_of = match (a.material.as_deref(), material(a.material.as_deref())?) {
+        (Some(name), Some(m)) if hood::mesh::Material::preset(name).is_some() => {
+            format!(", every garment made of {name} ({m})")
+        }
+        (_, Some(m)) => format!(", every garment made of {m}"),
+        _ => String::new(),
+    };
     let files: Vec<ModelBytes> = a.models.iter().map(ModelBytes::read).collect::<Result<_>>()?;
     // Validated once, before any rollout; the rollouts share them.
     let models: Vec<Model<'_>> = files.iter().map(ModelBytes::model).collect::<Result<_>>()?;
@@ -276,7 +291,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
     bar.finish();
     let results = results.into_inner().map_err(|_| Error::parse("validate", 0, "a rollout thread panicked"))?;
     let mut table = format!(
-        "Validation: {} frames, gap and inside count every {} frames, training objective, {}{}{}, one thread per rollout.\n\n\
+        "Validation: {} frames, gap and inside count every {} frames, training objective, {}{}{}{made_of}, one thread per rollout.\n\n\
          | model | scene | vertices | on the body | worn vertices off: max % (mean) | drift max (cm) | worn centroid shift max (cm) | finite | own rollout: relative gap (absolute) | of which stretching | p95 | from common states | objective mean (J) | largest after frame 1 (J, frame) | penetrating % | inside % | largest strain | s |\n\
          |---|---|---:|---|---:|---:|---:|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
         a.frames,
