@@ -332,11 +332,14 @@ fn fmt_opt(v: Option<f64>) -> String {
     v.map_or("-".into(), |v| format!("{v:.3}"))
 }
 
-/// The `hood report` command that writes this report (paths as given).
+/// The `hood report` command that writes this report (paths as given; the assets folder left out,
+/// which `HOOD_ASSETS` can name).
 fn command_line(a: &ReportArgs) -> String {
+    let models = a.model.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(",");
     format!(
-        "hood report --workload {} --vertices {} --frames {} --gap-every {} --iterations {}{}{}{} --threads {} \
+        "hood report{} --workload {} --vertices {} --frames {} --gap-every {} --iterations {}{}{}{} --threads {} \
          --objective {}{} -o {}{}",
+        if models.is_empty() { String::new() } else { format!(" --model {models}") },
         a.workload.join(","),
         a.vertices,
         a.frames,
@@ -355,4 +358,41 @@ fn command_line(a: &ReportArgs) -> String {
 
 fn join<T: ToString>(ks: &[T]) -> String {
     ks.iter().map(|k| k.to_string()).collect::<Vec<_>>().join(",")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{command_line, ReportArgs};
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Report {
+        #[command(flatten)]
+        args: ReportArgs,
+    }
+
+    fn parse(line: &str) -> ReportArgs {
+        Report::try_parse_from(line.split_whitespace().skip(1)).map(|r| r.args).unwrap()
+    }
+
+    /// The header's command writes the same report: every option that changes it survives the
+    /// round trip, the model list among them.
+    #[test]
+    fn the_header_command_reproduces_the_report_arguments() {
+        let given =
+            "hood report --model models/a.hood,models/specialists/b.hood --workload skirt@1000:walk/stiff-bend,tee \
+                     --vertices 900 --frames 60 --gap-every 15 --iterations 10,30 --refine 3 --solver 10,30 \
+                     --solver-budget 5,15 --threads 2 --objective training --common-states false -o out/map \
+                     --readme README.md";
+        let line = command_line(&parse(given));
+        assert!(line.starts_with("hood report --model models/a.hood,models/specialists/b.hood --workload "), "{line}");
+        let again = parse(&line);
+        assert_eq!(command_line(&again), line);
+        assert_eq!(again.model.len(), 2);
+        assert_eq!((again.vertices, again.frames, again.gap_every, again.threads), (900, 60, 15, 2));
+        assert_eq!((again.refine.as_slice(), again.solver.as_slice()), (&[3][..], &[10, 30][..]));
+        assert!(!again.common_states && again.readme.is_some());
+        // Without models the default set is used, and the line says nothing of them.
+        assert!(!command_line(&parse("hood report --workload skirt")).contains("--model"));
+    }
 }
