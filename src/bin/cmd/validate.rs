@@ -1,4 +1,4 @@
-//! `hood validate`: the model cards' validation (issue 7) in one command. Every model runs the
+//! `hood validate`: the model cards' validation in one command. Every model runs the
 //! four 300-frame scenes the cards report (the procedural skirt at 500 vertices and dress at
 //! 2,000 on the procedural walk, the MakeHuman t-shirt and jeans on the CMU walk), each scored
 //! on its own rollout and one step at a time from common states, with the training objective;
