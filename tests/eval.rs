@@ -342,18 +342,29 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
         .fold(0.0f64, |m, (e, _)| m.max(e));
     let shown: f64 = rows[0][14].split(' ').next().unwrap().parse().unwrap();
     assert!((shown - peak).abs() <= 0.006 + 1e-4 * peak, "validate {shown}, simulate {peak}");
+    // The model alone with `extra` options: validate's table and the model's row, and what
+    // simulate prints with the same options.
+    let validated = |extra: &[&str], dir: &str| {
+        let dir = out.join(dir);
+        let mut args = extra.to_vec();
+        args.extend(["--no-common-states", "--out", dir.to_str().unwrap()]);
+        let o = validate(&[model], &args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let table = text(&o);
+        let row = table.lines().find(|l| l.starts_with("| compact ")).unwrap();
+        let row: Vec<String> = row.split('|').map(|c| c.trim().to_string()).collect();
+        (table, row)
+    };
+    let simulated = |extra: &[&str]| {
+        let o = simulate(extra);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        text(&o)
+    };
     // With the refinement effect, validate scores what `simulate --refine` scores, closer to
     // the optimum than the model alone.
-    let refined_out = out.join("refined");
-    let o = validate(&[model], &["--refine", "5", "--no-common-states", "--out", refined_out.to_str().unwrap()]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let table = text(&o);
+    let (table, refined) = validated(&["--refine", "5"], "refined");
     assert!(table.contains(", 5 refinement iterations per step"), "{table}");
-    let refined: Vec<&str> =
-        table.lines().find(|l| l.starts_with("| compact ")).unwrap().split('|').map(str::trim).collect();
-    let o = simulate(&["--refine", "5"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let gap = after(&text(&o), "; relative gap mean ").unwrap();
+    let gap = after(&simulated(&["--refine", "5"]), "; relative gap mean ").unwrap();
     assert!(refined[9].starts_with(&format!("{gap} (")), "simulate --refine 5 {gap}, validate {}", refined[9]);
     // The absolute gap (J, in parentheses) is what a few iterations from the prediction cut; the
     // relative one also moves with the descent available at the (now different) states.
@@ -362,20 +373,12 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
         let (value, unit) = inner.split_once(' ').unwrap();
         value.parse::<f64>().unwrap() * if unit == "mJ" { 1e-3 } else { 1.0 }
     };
-    assert!(absolute(refined[9]) < absolute(rows[0][9]), "refined {}, model alone {}", refined[9], rows[0][9]);
+    assert!(absolute(&refined[9]) < absolute(rows[0][9]), "refined {}, model alone {}", refined[9], rows[0][9]);
     // `--material` remakes every garment, in validate as in simulate: the same objective, and
     // not the one of the garment's own material.
-    let stiff_out = out.join("stiff");
-    let o =
-        validate(&[model], &["--material", "stiff-bend", "--no-common-states", "--out", stiff_out.to_str().unwrap()]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let table = text(&o);
+    let (table, stiff) = validated(&["--material", "stiff-bend"], "stiff");
     assert!(table.contains(", every garment made of stiff-bend ("), "{table}");
-    let stiff: Vec<&str> =
-        table.lines().find(|l| l.starts_with("| compact ")).unwrap().split('|').map(str::trim).collect();
-    let o = simulate(&["--material", "stiff-bend"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let objective = after(&text(&o), "objective mean ").unwrap();
+    let objective = after(&simulated(&["--material", "stiff-bend"]), "objective mean ").unwrap();
     assert_eq!(stiff[13], objective.trim_end_matches(';'), "{table}");
     assert_ne!(stiff[13], rows[0][13], "stiff bending changes the objective");
     let o = hood(&["validate", model, "--scenes", "skirt", "--material", "rubber"]);
