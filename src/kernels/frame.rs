@@ -40,6 +40,9 @@ pub(crate) trait Simd: Copy {
     /// Prepared-activation `f32` slots per input pair: 2 (bf16-rounded f32 values) or 1 (a
     /// packed pair of bf16, as `vdpbf16ps` broadcasts it).
     const SLOTS_PER_PAIR: usize;
+    /// Whether a register tile prefetches the activation rows of the tile below it, one cache
+    /// line per row for each line it reads (see [`gemm`](fn@gemm)'s kernels).
+    const PREFETCH_NEXT_ROWS: bool = false;
     type V: Copy;
     /// A loaded weight vector holding `LANES` columns × (even, odd) input.
     type WP: Copy;

@@ -46,6 +46,24 @@ pub(crate) struct TileEpi {
     pub accumulate: bool,
 }
 
+/// `f32` values per 64-byte cache line.
+const LINE_FLOATS: usize = 16;
+
+/// Prefetches, for each of a tile's `R` activation rows `x`, the line `offset` floats on: with
+/// `offset = R · ldx + k`, the line the tile below will read where this one reads now. On the
+/// first column pass of a row block the activations come from memory or L3, and the six
+/// interleaved row streams of a tile are too short (k = 128: eight lines each) for the hardware
+/// prefetcher to run ahead of them. On a Zen 3 core the hint took the f32 linear layer of the
+/// kernels bench (h = 128, 30,000 rows) from 72 % to 87 % of the FMA peak.
+#[inline(always)]
+unsafe fn prefetch_next_rows<S: Simd, const R: usize>(s: S, x: &[*const f32; R], offset: usize) {
+    for &row in x {
+        // SAFETY: a prefetch never faults; the address is formed with `wrapping_add`, so it
+        // may lie past the operand (the last tile) without a pointer to outside it being used.
+        unsafe { s.prefetch(row.wrapping_add(offset) as *const u8) };
+    }
+}
+
 #[inline(always)]
 unsafe fn kernel_f32<S: Simd, const R: usize, const NV: usize>(
     s: S,
@@ -67,6 +85,9 @@ unsafe fn kernel_f32<S: Simd, const R: usize, const NV: usize>(
             for kk in 0..k {
                 if NV * S::LANES >= 32 {
                     s.prefetch(w[0].wrapping_add((kk + 8) * PANEL) as *const u8);
+                }
+                if S::PREFETCH_NEXT_ROWS && kk % LINE_FLOATS == 0 {
+                    prefetch_next_rows::<S, R>(s, &x, R * seg.ldx + kk);
                 }
                 let wv: [S::V; NV] = core::array::from_fn(|v| s.load(w[v].add(kk * PANEL)));
                 for r in 0..R {
@@ -102,6 +123,9 @@ unsafe fn kernel_bf16<S: Simd, const R: usize, const NV: usize>(
                 // Widened weights: the even then the odd input of each pair, like two f32 steps
                 // (only NV weight registers live, and the scalar reference's summation order).
                 for pr in 0..seg.pairs {
+                    if S::PREFETCH_NEXT_ROWS && (pr * 2) % LINE_FLOATS == 0 {
+                        prefetch_next_rows::<S, R>(s, &x, R * seg.ldx + pr * 2);
+                    }
                     for half in 0..2 {
                         let wv: [S::V; NV] = core::array::from_fn(|v| s.load_w_half(w[v].add(pr * 2 * PANEL), half));
                         for r in 0..R {
