@@ -49,12 +49,17 @@ pub(crate) struct TileEpi {
 /// `f32` values per 64-byte cache line.
 const LINE_FLOATS: usize = 16;
 
+/// Fewest inputs for which an f32 tile prefetches the rows below it: shorter rows form one
+/// stream the hardware prefetcher follows (at k = 32 the hint cost 2 % of the linear layer).
+const PREFETCH_MIN_K: usize = 64;
+
 /// Prefetches, for each of a tile's `R` activation rows `x`, the line `offset` floats on: with
 /// `offset = R · ldx + k`, the line the tile below will read where this one reads now. On the
 /// first column pass of a row block the activations come from memory or L3, and the six
 /// interleaved row streams of a tile are too short (k = 128: eight lines each) for the hardware
 /// prefetcher to run ahead of them. On a Zen 3 core the hint took the f32 linear layer of the
-/// kernels bench (h = 128, 30,000 rows) from 72 % to 87 % of the FMA peak.
+/// kernels bench (h = 128, 30,000 rows) from 72 % to 87 % of the FMA peak. `kernel_bf16` goes
+/// without: its activations are a prepared copy, already in cache (there the hint only cost).
 #[inline(always)]
 unsafe fn prefetch_next_rows<S: Simd, const R: usize>(s: S, x: &[*const f32; R], offset: usize) {
     for &row in x {
@@ -82,20 +87,30 @@ unsafe fn kernel_f32<S: Simd, const R: usize, const NV: usize>(
                 seg.w.add((p0 + c / PANEL) * PANEL * k + c % PANEL)
             });
             let x: [*const f32; R] = core::array::from_fn(|r| seg.x.add((row0 + r) * seg.ldx));
-            for kk in 0..k {
-                if NV * S::LANES >= 32 {
-                    s.prefetch(w[0].wrapping_add((kk + 8) * PANEL) as *const u8);
-                }
-                if S::PREFETCH_NEXT_ROWS && kk % LINE_FLOATS == 0 {
-                    prefetch_next_rows::<S, R>(s, &x, R * seg.ldx + kk);
-                }
-                let wv: [S::V; NV] = core::array::from_fn(|v| s.load(w[v].add(kk * PANEL)));
-                for r in 0..R {
-                    let xb = s.splat(*x[r].add(kk));
-                    for v in 0..NV {
-                        acc[r][v] = s.fma(xb, wv[v], acc[r][v]);
+            // With the row hint, the inputs go in runs of one cache line, the hint before each
+            // run; without it, in one run (the inner loop then has no test for the hint).
+            let prefetch_rows = S::PREFETCH_NEXT_ROWS && k >= PREFETCH_MIN_K;
+            let mut k0 = 0;
+            while k0 < k {
+                let k1 = if prefetch_rows {
+                    prefetch_next_rows::<S, R>(s, &x, R * seg.ldx + k0);
+                    (k0 + LINE_FLOATS).min(k)
+                } else {
+                    k
+                };
+                for kk in k0..k1 {
+                    if NV * S::LANES >= 32 {
+                        s.prefetch(w[0].wrapping_add((kk + 8) * PANEL) as *const u8);
+                    }
+                    let wv: [S::V; NV] = core::array::from_fn(|v| s.load(w[v].add(kk * PANEL)));
+                    for r in 0..R {
+                        let xb = s.splat(*x[r].add(kk));
+                        for v in 0..NV {
+                            acc[r][v] = s.fma(xb, wv[v], acc[r][v]);
+                        }
                     }
                 }
+                k0 = k1;
             }
         }
         acc
@@ -123,9 +138,6 @@ unsafe fn kernel_bf16<S: Simd, const R: usize, const NV: usize>(
                 // Widened weights: the even then the odd input of each pair, like two f32 steps
                 // (only NV weight registers live, and the scalar reference's summation order).
                 for pr in 0..seg.pairs {
-                    if S::PREFETCH_NEXT_ROWS && (pr * 2) % LINE_FLOATS == 0 {
-                        prefetch_next_rows::<S, R>(s, &x, R * seg.ldx + pr * 2);
-                    }
                     for half in 0..2 {
                         let wv: [S::V; NV] = core::array::from_fn(|v| s.load_w_half(w[v].add(pr * 2 * PANEL), half));
                         for r in 0..R {
