@@ -50,7 +50,7 @@ pub(crate) struct TileEpi {
 const LINE_FLOATS: usize = 16;
 
 /// Fewest inputs for which an f32 tile prefetches the rows below it: shorter rows form one
-/// stream the hardware prefetcher follows (at k = 32 the hint cost 2 % of the linear layer).
+/// stream the hardware prefetcher follows (at k = 32 the hint did not pay).
 const PREFETCH_MIN_K: usize = 64;
 
 /// Prefetches, for each of a tile's `R` activation rows `x`, the line `offset` floats on: with
@@ -59,7 +59,7 @@ const PREFETCH_MIN_K: usize = 64;
 /// interleaved row streams of a tile are too short (k = 128: eight lines each) for the hardware
 /// prefetcher to run ahead of them. On a Zen 3 core the hint took the f32 linear layer of the
 /// kernels bench (h = 128, 30,000 rows) from 72 % to 87 % of the FMA peak. `kernel_bf16` goes
-/// without: its activations are a prepared copy, already in cache (there the hint only cost).
+/// without: its activations are a prepared copy, already in cache (there the hint did not pay).
 #[inline(always)]
 unsafe fn prefetch_next_rows<S: Simd, const R: usize>(s: S, x: &[*const f32; R], offset: usize) {
     for &row in x {
