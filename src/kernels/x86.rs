@@ -159,8 +159,8 @@ impl Simd for Avx2Fma {
     ln_stats_avx!();
     const LANES: usize = 8;
     const TILE_PANELS: usize = 1;
-    // Measured on Zen 3 (see `prefetch_next_rows`); the AVX-512 tiers have not been measured
-    // with it.
+    // See `prefetch_next_rows`. The AVX-512 tiers, whose tiles are four panels wide and prefetch
+    // their weights, go without.
     const PREFETCH_NEXT_ROWS: bool = true;
     const SLOTS_PER_PAIR: usize = 2;
     type V = __m256;
