@@ -71,6 +71,9 @@ enum Command {
     Validate(validate::ValidateArgs),
     /// Average the weights of several models of one shape (e.g. snapshots of one training run).
     Average(AverageArgs),
+    /// Rewrite model files in this build's layout (format version, checksum, weights on cache
+    /// lines), in place: the same weights, normalisers and provenance.
+    Upgrade(UpgradeArgs),
     /// Train a model from physics alone (feature `train`); resumes the run in `--dir`.
     #[cfg(feature = "train")]
     Train(train_cmd::TrainArgs),
@@ -178,6 +181,33 @@ fn average(a: AverageArgs) -> hood::Result<()> {
     Ok(())
 }
 
+#[derive(Args)]
+struct UpgradeArgs {
+    /// The `.hood` files to rewrite.
+    #[arg(required = true)]
+    models: Vec<PathBuf>,
+}
+
+fn upgrade(a: UpgradeArgs) -> hood::Result<()> {
+    for path in &a.models {
+        let old = ModelBytes::read(path)?;
+        let model = old.model()?;
+        let params = model.to_params();
+        let provenance: Vec<(&str, &str)> = model.provenance().collect();
+        let bytes = write_model(&params, model.has_bf16(), &provenance)?;
+        let new = ModelBytes::new(&bytes);
+        if new.model()?.to_params() != params {
+            return Err(hood::Error::CorruptData { reason: "an upgraded model file reads back different weights" });
+        }
+        // Written beside and renamed over, so an interrupted upgrade leaves the old file whole.
+        let tmp = path.with_extension("hood.upgrade");
+        std::fs::write(&tmp, &bytes).map_err(|e| hood::Error::io(&tmp, e))?;
+        std::fs::rename(&tmp, path).map_err(|e| hood::Error::io(path, e))?;
+        eprintln!("{}: {} -> {} bytes", path.display(), old.as_bytes().len(), bytes.len());
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -187,6 +217,7 @@ fn main() -> ExitCode {
         Command::Convert(a) => convert(a),
         Command::Info(a) => info(a),
         Command::Average(a) => average(a),
+        Command::Upgrade(a) => upgrade(a),
         Command::Validate(a) => validate::validate(a),
         Command::Plot(a) => plot::plot(a),
         #[cfg(feature = "train")]

@@ -8,6 +8,9 @@
 //! repacking, so a buffer the engine memory-maps can be used directly. It must be 16-byte
 //! aligned and outlive the [`Model`]. Files are little-endian; a big-endian CPU is refused.
 //!
+//! Every packed weight array starts on a [`WEIGHT_ALIGN`]-byte boundary of a buffer aligned to
+//! [`WEIGHT_ALIGN`] (as [`ModelBytes`] is), so no vector load of a weight spans two cache lines.
+//!
 //! Layers: the first layer of every processor MLP is stored in parts of `h` input columns (edge
 //! MLPs: target, source, edge; node MLPs: the node latent, then one part per aggregate), so the
 //! kernels can apply the split first layer and the never-materialised concatenation; all other
@@ -35,6 +38,56 @@ pub const FORMAT_VERSION: u32 = 2;
 pub const HEADER_LEN: usize = 16;
 /// Required alignment of a model buffer.
 pub const ALIGN: usize = 16;
+/// Alignment, from the start of the file, at which the writer places every packed weight array:
+/// one cache line. A buffer aligned to it (as [`ModelBytes`] is) has its weights cache-line
+/// aligned; one aligned only to [`ALIGN`] still loads, at the cost of split loads.
+pub const WEIGHT_ALIGN: usize = 64;
+
+/// rkyv wrapper for the packed weight arrays of a [`PartRec`]: the same archived vector, preceded
+/// by the padding that starts its data at a [`WEIGHT_ALIGN`] file offset (archive positions are
+/// [`HEADER_LEN`] bytes short of file offsets). Readers see an ordinary `ArchivedVec`, so files
+/// written before it still load.
+struct CacheLineAligned;
+
+impl<T: Archive> rkyv::with::ArchiveWith<Vec<T>> for CacheLineAligned {
+    type Archived = rkyv::vec::ArchivedVec<T::Archived>;
+    type Resolver = rkyv::vec::VecResolver;
+
+    fn resolve_with(field: &Vec<T>, resolver: Self::Resolver, out: rkyv::Place<Self::Archived>) {
+        rkyv::vec::ArchivedVec::resolve_from_len(field.len(), resolver, out);
+    }
+}
+
+impl<T, S> rkyv::with::SerializeWith<Vec<T>, S> for CacheLineAligned
+where
+    T: Serialize<S>,
+    S: rkyv::rancor::Fallible + rkyv::ser::Allocator + rkyv::ser::Writer + ?Sized,
+{
+    fn serialize_with(field: &Vec<T>, serializer: &mut S) -> core::result::Result<Self::Resolver, S::Error> {
+        // The elements of a weight array own no out-of-line data, so nothing is written
+        // between this padding and the array. (rkyv's own `pad` takes at most 31 bytes.)
+        if !field.is_empty() {
+            let file_pos = HEADER_LEN + serializer.pos();
+            let padding = (WEIGHT_ALIGN - file_pos % WEIGHT_ALIGN) % WEIGHT_ALIGN;
+            serializer.write(&[0; WEIGHT_ALIGN][..padding])?;
+        }
+        rkyv::vec::ArchivedVec::serialize_from_slice(field.as_slice(), serializer)
+    }
+}
+
+impl<T, D> rkyv::with::DeserializeWith<rkyv::vec::ArchivedVec<T::Archived>, Vec<T>, D> for CacheLineAligned
+where
+    T: Archive,
+    T::Archived: Deserialize<T, D>,
+    D: rkyv::rancor::Fallible + ?Sized,
+{
+    fn deserialize_with(
+        field: &rkyv::vec::ArchivedVec<T::Archived>,
+        deserializer: &mut D,
+    ) -> core::result::Result<Vec<T>, D::Error> {
+        field.iter().map(|x| x.deserialize(deserializer)).collect()
+    }
+}
 
 #[derive(Archive, Serialize, Deserialize, Debug)]
 #[rkyv(derive(Debug))]
@@ -43,8 +96,10 @@ struct PartRec {
     col: u32,
     /// Input columns in this part.
     k: u32,
+    #[rkyv(with = CacheLineAligned)]
     f32: Vec<f32>,
     /// bf16 bit patterns (empty when the file has no bf16 weights).
+    #[rkyv(with = CacheLineAligned)]
     bf16: Vec<u16>,
 }
 
@@ -489,13 +544,13 @@ impl<'a> Model<'a> {
 /// ```
 #[derive(Clone, Debug)]
 pub struct ModelBytes {
-    buf: rkyv::util::AlignedVec<ALIGN>,
+    buf: rkyv::util::AlignedVec<WEIGHT_ALIGN>,
 }
 
 impl ModelBytes {
-    /// Copies `bytes` into an aligned buffer.
+    /// Copies `bytes` into a buffer aligned to [`WEIGHT_ALIGN`].
     pub fn new(bytes: &[u8]) -> ModelBytes {
-        let mut buf = rkyv::util::AlignedVec::<ALIGN>::with_capacity(bytes.len());
+        let mut buf = rkyv::util::AlignedVec::<WEIGHT_ALIGN>::with_capacity(bytes.len());
         buf.extend_from_slice(bytes);
         ModelBytes { buf }
     }

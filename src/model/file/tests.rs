@@ -39,6 +39,36 @@ fn model_file_round_trip_reads_weights_in_place() {
 }
 
 #[test]
+fn model_file_weights_start_on_cache_lines_and_load_from_any_aligned_buffer() {
+    let p = small();
+    let file = write_model(&p, true, &[("note", "an entry long enough to shift what follows")]).unwrap();
+    let bytes = ModelBytes::new(&file);
+    assert!((bytes.as_bytes().as_ptr() as usize).is_multiple_of(WEIGHT_ALIGN));
+    let m = bytes.model().unwrap();
+    let mut arrays = 0;
+    for v in m.mlps.iter() {
+        for l in &v.layers {
+            for w in l.f32.iter().chain(&l.bf16) {
+                let start = match w {
+                    Weights::F32(w) => w.data().as_ptr() as usize,
+                    Weights::Bf16(w) => w.data().as_ptr() as usize,
+                };
+                assert!(start.is_multiple_of(WEIGHT_ALIGN), "a weight array at offset {}", start % WEIGHT_ALIGN);
+                arrays += 1;
+            }
+        }
+    }
+    assert!(arrays > 20, "{arrays}");
+    // The padding is the writer's only: a buffer aligned to 16 bytes but not to 64 reads the
+    // same model.
+    let mut shifted = rkyv::util::AlignedVec::<WEIGHT_ALIGN>::new();
+    shifted.extend_from_slice(&[0; ALIGN]);
+    shifted.extend_from_slice(&file);
+    let m16 = Model::from_bytes(&shifted[ALIGN..]).unwrap();
+    assert_eq!(m16.to_params(), p);
+}
+
+#[test]
 fn model_file_refuses_truncation_at_every_length() {
     let bytes = write_model(&small(), false, &[]).unwrap();
     for cut in 0..bytes.len() {
