@@ -142,6 +142,7 @@ fn bench_effects(c: &mut Criterion) {
         ("body+normals", base.with_normals(true)),
         ("body+sleeping", base.with_sleeping(Some(Default::default()))),
         ("body+projection", base.with_projection(Some(hood::sim::DEFAULT_PROJECTION_MARGIN))),
+        ("body+tether", base.with_tether(Some(hood::sim::DEFAULT_TETHER_SLACK))),
         ("body+refine 3", base.with_refine(Some(3))),
         ("body+refine 10", base.with_refine(Some(10))),
     ] {

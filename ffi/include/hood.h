@@ -291,6 +291,7 @@ HOOD_API hood_status HOOD_CALL hood_garment_face_count(const hood_garment *garme
 #define HOOD_EFFECT_SPEED_LIMIT 64u   /* body speeds beyond speed_limit carry the garment along */
 #define HOOD_EFFECT_COLLISION_PROJECTION 128u /* push cloth that ends up in the body out of it */
 #define HOOD_EFFECT_REFINE 256u /* refine each step toward the physics optimum (refine_iterations) */
+#define HOOD_EFFECT_TETHER 512u /* keep worn cloth near where it was put on the body (tether_slack) */
 
 #define HOOD_PRECISION_F32 0u  /* f32 weights and activations */
 #define HOOD_PRECISION_BF16 1u /* bf16 weights, f32 accumulation (model with bf16 weights) */
@@ -337,11 +338,20 @@ typedef struct hood_sim_config {
                                    at most N iterations and about B us: the step that fits a frame's
                                    budget, its result no longer reproducible bit for bit. Without
                                    solver_iterations: HOOD_ERR_UNSUPPORTED_EFFECT */
+    float tether_slack;         /* (since 0.3.0) HOOD_EFFECT_TETHER: at the first step (and the first
+                                   after hood_sim_reset), every free garment vertex within 0.1 m of
+                                   a body vertex is tied to the nearest one; after every step a
+                                   vertex farther from it than its distance then plus this slack
+                                   (m; 0 <= slack <= 1) moves straight back to that length,
+                                   velocity included. The "max distance" of game cloth, outside
+                                   HOOD and the physics: for garments that must stay on whatever
+                                   the motion (a top upside down). Needs a body.
+                                   hood_sim_load_state and hood_sim_teleport keep the ties */
 } hood_sim_config;
 
 /* The defaults: body collision, pinning, start-up, auto-teleport (0.45 m) and the speed limit
- * (0.12 m/frame, 3.6 m/s) on; collision projection off (margin 0.002 m); refinement off
- * (10 iterations); f32; 1 thread;
+ * (0.12 m/frame, 3.6 m/s) on; collision projection off (margin 0.002 m); tethers off
+ * (slack 0.05 m); refinement off (10 iterations); f32; 1 thread;
  * sleeping after 3 frames below 1e-5 m/frame (when enabled). Writes the library's
  * sizeof(hood_sim_config) bytes, struct_size included (set to that size). A NULL `out` is ignored
  * (only hood_last_error records it). */
@@ -441,6 +451,7 @@ HOOD_API hood_status HOOD_CALL hood_sim_step(hood_sim *sim, const float *body_ne
 #define HOOD_STEP_PROJECTED 32u    /* the collision projection moved at least one vertex */
 #define HOOD_STEP_OVER_BUDGET 64u  /* the solver step mode's step took longer than its time budget
                                       (solver_budget_us; hood_refinement says by how much) */
+#define HOOD_STEP_TETHERED 128u    /* a body tether pulled at least one vertex back */
 HOOD_API hood_status HOOD_CALL hood_sim_last_effects(const hood_sim *sim, uint32_t *flags);
 
 /* Copies the current garment positions (3 * n_vertices floats). */

@@ -5,7 +5,7 @@ use crate::arrays::{aligned, require, write_out};
 use crate::consts::{
     ALL_EFFECTS, HOOD_EFFECT_AUTO_TELEPORT, HOOD_EFFECT_BODY_COLLISION, HOOD_EFFECT_COLLISION_PROJECTION,
     HOOD_EFFECT_NORMALS, HOOD_EFFECT_PINNING, HOOD_EFFECT_REFINE, HOOD_EFFECT_SLEEPING, HOOD_EFFECT_SPEED_LIMIT,
-    HOOD_EFFECT_STARTUP, HOOD_LOG_WARNING, HOOD_PRECISION_BF16, HOOD_PRECISION_F32,
+    HOOD_EFFECT_STARTUP, HOOD_EFFECT_TETHER, HOOD_LOG_WARNING, HOOD_PRECISION_BF16, HOOD_PRECISION_F32,
 };
 use crate::extensible::{size_problem, struct_size, write_sized, Extensible};
 use crate::guard::guard;
@@ -42,6 +42,8 @@ pub struct hood_sim_config {
     pub solver_iterations: u32,
     /// With `solver_iterations`: each step's solve also ends within this many µs (0: no budget).
     pub solver_budget_us: u32,
+    /// Body tethers' slack, m.
+    pub tether_slack: f32,
 }
 
 // SAFETY: `#[repr(C)]`, `struct_size` first, only integers and floats.
@@ -64,7 +66,8 @@ fn default_config() -> hood_sim_config {
         | flag(d.teleport.is_some(), HOOD_EFFECT_AUTO_TELEPORT)
         | flag(d.speed_limit.is_some(), HOOD_EFFECT_SPEED_LIMIT)
         | flag(d.projection.is_some(), HOOD_EFFECT_COLLISION_PROJECTION)
-        | flag(d.refine.is_some(), HOOD_EFFECT_REFINE);
+        | flag(d.refine.is_some(), HOOD_EFFECT_REFINE)
+        | flag(d.tether.is_some(), HOOD_EFFECT_TETHER);
     hood_sim_config {
         struct_size: struct_size::<hood_sim_config>(),
         effects,
@@ -84,6 +87,7 @@ fn default_config() -> hood_sim_config {
             StepMode::Network => 0,
             StepMode::Solver { iterations } | StepMode::SolverBudget { max_iterations: iterations, .. } => iterations,
         },
+        tether_slack: d.tether.unwrap_or(hood::sim::DEFAULT_TETHER_SLACK),
     }
 }
 
@@ -155,6 +159,8 @@ pub(crate) fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
     let speed_limit = distance(HOOD_EFFECT_SPEED_LIMIT, c.speed_limit, "config speed limit")?;
     // The margin's range is checked by the sim (0 <= margin < hood::sim::PROJECTION_REACH).
     let projection = (c.effects & HOOD_EFFECT_COLLISION_PROJECTION != 0).then_some(c.projection_margin);
+    // The slack's range is checked by the sim (0 <= slack <= hood::sim::MAX_TETHER_SLACK).
+    let tether = (c.effects & HOOD_EFFECT_TETHER != 0).then_some(c.tether_slack);
     // The count's range is checked by the sim (1 ..= hood::sim::MAX_REFINE_ITERATIONS).
     let refine = (c.effects & HOOD_EFFECT_REFINE != 0).then_some(c.refine_iterations);
     // Likewise (and the sim refuses it beside HOOD_EFFECT_REFINE).
@@ -172,6 +178,7 @@ pub(crate) fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
         .with_teleport(teleport)
         .with_speed_limit(speed_limit)
         .with_projection(projection)
+        .with_tether(tether)
         .with_refine(refine)
         .with_body_collision(c.effects & HOOD_EFFECT_BODY_COLLISION != 0)
         .with_pinning(c.effects & HOOD_EFFECT_PINNING != 0)

@@ -31,7 +31,10 @@ pub const HOOD_EFFECT_SPEED_LIMIT: u32 = 64;
 pub const HOOD_EFFECT_COLLISION_PROJECTION: u32 = 128;
 /// Refine every network step by `refine_iterations` L-BFGS iterations of the physics objective.
 pub const HOOD_EFFECT_REFINE: u32 = 256;
-pub(crate) const ALL_EFFECTS: u32 = 511;
+/// Keep every worn garment vertex within its distance from the body vertex it was put on plus
+/// `tether_slack`.
+pub const HOOD_EFFECT_TETHER: u32 = 512;
+pub(crate) const ALL_EFFECTS: u32 = 1023;
 
 /// Step flag: the garment was moved rigidly instead of stepped (a body jump, or
 /// `hood_sim_teleport`).
@@ -48,6 +51,8 @@ pub const HOOD_STEP_REFINED: u32 = 16;
 pub const HOOD_STEP_PROJECTED: u32 = 32;
 /// Step flag: the step took longer than the solver's time budget.
 pub const HOOD_STEP_OVER_BUDGET: u32 = 64;
+/// Step flag: a body tether pulled a vertex back.
+pub const HOOD_STEP_TETHERED: u32 = 128;
 
 /// Log level: an internal error (a panic caught at the boundary).
 pub const HOOD_LOG_ERROR: u32 = 1;

@@ -6,7 +6,7 @@ use crate::body::{hood_body_desc, read_body};
 use crate::config::{hood_sim_config, sim_config};
 use crate::consts::{
     HOOD_LOG_WARNING, HOOD_STEP_OVER_BUDGET, HOOD_STEP_PROJECTED, HOOD_STEP_REFINED, HOOD_STEP_SLEPT,
-    HOOD_STEP_SPEED_LIMITED, HOOD_STEP_STARTUP, HOOD_STEP_TELEPORTED,
+    HOOD_STEP_SPEED_LIMITED, HOOD_STEP_STARTUP, HOOD_STEP_TELEPORTED, HOOD_STEP_TETHERED,
 };
 use crate::extensible::{read_struct, write_extensible, Extensible};
 use crate::garment::hood_garment;
@@ -325,7 +325,8 @@ pub unsafe extern "C" fn hood_sim_last_effects(sim: *const hood_sim, flags: *mut
             | flag(e.carried, HOOD_STEP_SPEED_LIMITED)
             | flag(e.refined, HOOD_STEP_REFINED)
             | flag(e.projected, HOOD_STEP_PROJECTED)
-            | flag(e.over_budget, HOOD_STEP_OVER_BUDGET);
+            | flag(e.over_budget, HOOD_STEP_OVER_BUDGET)
+            | flag(e.tethered, HOOD_STEP_TETHERED);
         // SAFETY: `flags` non-null.
         unsafe { write_out(flags, v) };
         Ok(())

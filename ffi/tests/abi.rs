@@ -834,6 +834,20 @@ fn config_effects_are_honoured() {
         assert_eq!(hood_sim_free(sim), HOOD_OK);
         proj.effects &= !HOOD_EFFECT_BODY_COLLISION;
         assert_eq!(hood_sim_new(l.model, g, &bd, &proj, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
+        // Body tethers: off by default; the slack is range-checked; they need body collision.
+        assert_eq!(cfg.effects & HOOD_EFFECT_TETHER, 0, "tethers are off by default");
+        assert_eq!(cfg.tether_slack, hood::sim::DEFAULT_TETHER_SLACK);
+        let mut tether = cfg;
+        tether.effects |= HOOD_EFFECT_TETHER;
+        for bad in [-1e-3, f32::NAN, f32::INFINITY, 2.0 * hood::sim::MAX_TETHER_SLACK] {
+            tether.tether_slack = bad;
+            assert_eq!(hood_sim_new(l.model, g, &bd, &tether, &mut sim), HOOD_ERR_OUT_OF_RANGE, "{bad}");
+        }
+        tether.tether_slack = 0.0;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &tether, &mut sim), HOOD_OK, "{}", last_error());
+        assert_eq!(hood_sim_free(sim), HOOD_OK);
+        tether.effects &= !HOOD_EFFECT_BODY_COLLISION;
+        assert_eq!(hood_sim_new(l.model, g, &bd, &tether, &mut sim), HOOD_ERR_UNSUPPORTED_EFFECT);
         // Solver refinement: off by default; its iteration count is range-checked; it runs with
         // or without a body.
         assert_eq!(cfg.effects & HOOD_EFFECT_REFINE, 0, "refinement is off by default");
@@ -1530,6 +1544,16 @@ fn last_effects_name_what_each_step_did() {
     assert_eq!(unsafe { hood_sim_reset(sim, inside.as_ptr().cast(), n, null(), 0) }, HOOD_OK);
     assert_eq!(step(sim, &sc.body_at(0, [0.0; 3]), &mut out), HOOD_OK);
     assert_eq!(last_effects(sim), HOOD_STEP_STARTUP | HOOD_STEP_PROJECTED);
+    // SAFETY: a live sim.
+    assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
+    // Tethers with no slack, the body dropping 10 cm from under the cloth (under the speed
+    // limit): the cloth is pulled after it.
+    let sim = sim_with(&sc, l.model, |c| {
+        c.effects |= HOOD_EFFECT_TETHER;
+        c.tether_slack = 0.0;
+    });
+    assert_eq!(step(sim, &sc.body_at(0, [0.0, -0.1, 0.0]), &mut out), HOOD_OK);
+    assert_ne!(last_effects(sim) & HOOD_STEP_TETHERED, 0);
     // SAFETY: a live sim.
     assert_eq!(unsafe { hood_sim_free(sim) }, HOOD_OK);
 }

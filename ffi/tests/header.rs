@@ -327,6 +327,7 @@ fn checked_constants() -> Vec<(&'static str, u64)> {
         HOOD_EFFECT_SPEED_LIMIT,
         HOOD_EFFECT_COLLISION_PROJECTION,
         HOOD_EFFECT_REFINE,
+        HOOD_EFFECT_TETHER,
         HOOD_STEP_TELEPORTED,
         HOOD_STEP_SLEPT,
         HOOD_STEP_STARTUP,
@@ -334,6 +335,7 @@ fn checked_constants() -> Vec<(&'static str, u64)> {
         HOOD_STEP_REFINED,
         HOOD_STEP_PROJECTED,
         HOOD_STEP_OVER_BUDGET,
+        HOOD_STEP_TETHERED,
         HOOD_LOG_ERROR,
         HOOD_LOG_WARNING,
         HOOD_PRECISION_F32,
@@ -405,7 +407,8 @@ fn compiler_checks_types_constants_and_layouts() {
             projection_margin,
             refine_iterations,
             solver_iterations,
-            solver_budget_us
+            solver_budget_us,
+            tether_slack
         }
     );
     layout!(cpp, hood_body_desc { struct_size, positions, n_vertices, indices, n_faces, omitted });

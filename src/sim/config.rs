@@ -5,7 +5,10 @@
 #[cfg(all(doc, feature = "std"))]
 use super::ThreadPool;
 #[cfg(doc)]
-use super::{Sim, DEFAULT_PROJECTION_MARGIN, MAX_REFINE_ITERATIONS, PROJECTION_REACH, REFINE_COLLISION_WEIGHT};
+use super::{
+    Sim, DEFAULT_PROJECTION_MARGIN, DEFAULT_TETHER_SLACK, MAX_REFINE_ITERATIONS, PROJECTION_REACH,
+    REFINE_COLLISION_WEIGHT, TETHER_REACH,
+};
 use crate::kernels::Tier;
 
 /// Default teleport threshold, metres per frame: a fast run moves a hand about 0.35 m per
@@ -182,6 +185,14 @@ pub struct SimConfig {
     /// must not show the body through the cloth; needs body collision. See
     /// [`DEFAULT_PROJECTION_MARGIN`].
     pub projection: Option<f32>,
+    /// Body tethers' slack, metres: at the first step (and the first after [`Sim::set_state`]),
+    /// every free garment vertex within [`TETHER_REACH`] of a body vertex is tied to the nearest
+    /// one, and after every step a vertex farther from it than its distance then plus this slack
+    /// is moved straight back to that length, its velocity taking the move (`None`: off). The
+    /// "max distance" constraint of game-engine cloth, outside HOOD and the physics, for
+    /// garments that must stay on whatever the motion (a top upside down); needs body collision.
+    /// See [`DEFAULT_TETHER_SLACK`].
+    pub tether: Option<f32>,
     /// Solver refinement: this many L-BFGS iterations (1 ..= [`MAX_REFINE_ITERATIONS`]) of the
     /// physics objective (training form, collision weight [`REFINE_COLLISION_WEIGHT`]), started
     /// from the network's prediction, before the projection, on every step but the start-up
@@ -213,6 +224,7 @@ impl Default for SimConfig {
             teleport: Some(DEFAULT_TELEPORT),
             speed_limit: Some(DEFAULT_SPEED_LIMIT),
             projection: None,
+            tether: None,
             refine: None,
             step: StepMode::default(),
             threads: 1,
@@ -222,7 +234,7 @@ impl Default for SimConfig {
 
 impl SimConfig {
     /// The defaults with the network's step ([`StepMode::Network`], HOOD): the start-up step,
-    /// teleport and speed limit on; refinement, projection and sleeping off.
+    /// teleport and speed limit on; refinement, projection, tethers and sleeping off.
     pub fn network() -> Self {
         SimConfig { step: StepMode::Network, ..SimConfig::default() }
     }
@@ -248,6 +260,8 @@ impl SimConfig {
         with_speed_limit => speed_limit: Option<f32>;
         /// Sets [`projection`](Self::projection): the margin, metres (`None`: off).
         with_projection => projection: Option<f32>;
+        /// Sets [`tether`](Self::tether): the slack, metres (`None`: off).
+        with_tether => tether: Option<f32>;
         /// Sets [`refine`](Self::refine): L-BFGS refinement iterations per step (`None`: off).
         with_refine => refine: Option<u32>;
         /// Sets [`step`](Self::step): what computes the step.

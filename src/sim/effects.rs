@@ -29,6 +29,9 @@ pub struct StepEffects {
     pub refined: bool,
     /// The collision projection moved at least one garment vertex.
     pub projected: bool,
+    /// A body tether pulled at least one garment vertex back
+    /// ([`SimConfig::tether`](super::SimConfig::tether)).
+    pub tethered: bool,
     /// The step took longer than the time budget of
     /// [`StepMode::SolverBudget`](super::StepMode::SolverBudget) (see
     /// [`Sim::last_budget`](super::Sim::last_budget)).
@@ -62,6 +65,7 @@ mod tests {
         carried: false,
         refined: false,
         projected: false,
+        tethered: false,
         over_budget: false,
     };
     const TELEPORTED: StepEffects = StepEffects { teleported: true, ..NONE };

@@ -27,6 +27,7 @@ mod projection;
 mod refine;
 mod saved;
 mod stages;
+mod tether;
 
 use crate::body::rigid::RigidMotion;
 use crate::body::{BodyMesh, BodySurvey};
@@ -66,6 +67,8 @@ pub use projection::{DEFAULT_PROJECTION_MARGIN, PROJECTION_REACH};
 use refine::Refiner;
 pub use refine::{DEFAULT_REFINE_ITERATIONS, MAX_REFINE_ITERATIONS, REFINE_COLLISION_WEIGHT};
 pub use saved::{STATE_MAGIC, STATE_VERSION};
+use tether::Tethers;
+pub use tether::{DEFAULT_TETHER_SLACK, MAX_TETHER_SLACK, TETHER_REACH};
 
 /// The garment and body state between steps.
 #[derive(Clone, Debug, PartialEq)]
@@ -89,6 +92,8 @@ struct BodyState {
     net: NetBody,
     /// Collision projection's buffers (only with [`SimConfig::projection`]).
     projection: Option<Projection>,
+    /// Body tethers (only with [`SimConfig::tether`]).
+    tethers: Option<Tethers>,
     /// Orientation and resolution of the body at the first frame.
     survey: BodySurvey,
 }
@@ -225,6 +230,9 @@ impl<'m> Sim<'m> {
         if cfg.projection.is_some() && !use_body {
             return Err(Error::UnsupportedEffect { effect: "collision projection (needs a body and body collision)" });
         }
+        if cfg.tether.is_some() && !use_body {
+            return Err(Error::UnsupportedEffect { effect: "body tethers (need a body and body collision)" });
+        }
         let m0 = garment.materials()[0];
         if !spec.effects.local_materials && garment.materials().iter().any(|m| *m != m0) {
             return Err(Error::UnsupportedEffect { effect: "per-vertex materials" });
@@ -251,6 +259,10 @@ impl<'m> Sim<'m> {
                     net: NetBody::new(n, b.mesh.n_vertices(), cfg.speed_limit.is_some()),
                     projection: match cfg.projection {
                         Some(margin) => Some(Projection::new(n, margin)?),
+                        None => None,
+                    },
+                    tethers: match cfg.tether {
+                        Some(slack) => Some(Tethers::new(n, b.mesh.n_vertices(), slack)?),
                         None => None,
                     },
                     survey,
@@ -383,6 +395,18 @@ impl<'m> Sim<'m> {
         self.body.as_ref().map(|b| b.survey)
     }
 
+    /// Garment vertices the body tethers pulled back in the last step (0 when they are off).
+    pub fn last_tethered(&self) -> usize {
+        self.body.as_ref().and_then(|b| b.tethers.as_ref()).map_or(0, |t| t.moved())
+    }
+
+    /// Garment vertices with a body tether: the free vertices that were within [`TETHER_REACH`]
+    /// of the body when the ties were made, at the first step after the sim was made or its state
+    /// set (0 when tethers are off, and until then).
+    pub fn tethered_vertices(&self) -> usize {
+        self.body.as_ref().and_then(|b| b.tethers.as_ref()).map_or(0, |t| t.count())
+    }
+
     /// Garment vertices the collision projection moved in the last step (0 when it is off).
     pub fn last_projected(&self) -> usize {
         self.body.as_ref().and_then(|b| b.projection.as_ref()).map_or(0, |p| p.moved())
@@ -468,6 +492,10 @@ impl<'m> Sim<'m> {
         check_finite("state body position", &s.body_pos)?;
         copy_state(&mut self.state, s);
         self.rest_frames = 0;
+        // The garment is placed anew: tethers tie again at the next step.
+        if let Some(t) = self.body.as_mut().and_then(|b| b.tethers.as_mut()) {
+            t.untie();
+        }
         // The state is in world coordinates: the speed limit's frame of reference starts anew.
         self.last_carry = [0.0; 3];
         // No step has run from this state yet.
@@ -563,6 +591,7 @@ impl<'m> Sim<'m> {
         let startup = !self.state.started && self.cfg.step == StepMode::Network;
         // Whether the start-up pass's projection moved a vertex (the regular pass's is read last).
         let mut startup_projected = false;
+        let mut startup_tethered = false;
         if self.state.started || self.cfg.step != StepMode::Network {
             self.advance(query, next, carry, DT, observer)?;
         } else {
@@ -573,6 +602,7 @@ impl<'m> Sim<'m> {
             self.state.velocity.iter_mut().for_each(|v| *v = [0.0; 3]);
             let both = self.advance(query.as_deref_mut(), None, [0.0; 3], DT_STARTUP, observer).and_then(|()| {
                 startup_projected = self.last_projected() > 0;
+                startup_tethered = self.last_tethered() > 0;
                 self.state.started = true;
                 self.advance(query, next, carry, DT, observer)
             });
@@ -589,6 +619,7 @@ impl<'m> Sim<'m> {
             carried: carry != [0.0; 3],
             refined: self.refiner.is_some(),
             projected: startup_projected || self.last_projected() > 0,
+            tethered: startup_tethered || self.last_tethered() > 0,
             over_budget: self.last_budget().is_some_and(|b| !b.met()),
             ..StepEffects::default()
         };
@@ -616,8 +647,13 @@ impl<'m> Sim<'m> {
         if let Some(r) = self.refiner.as_mut() {
             r.forget_last();
         }
-        if let Some(p) = self.body.as_mut().and_then(|b| b.projection.as_mut()) {
-            p.forget_last();
+        if let Some(b) = self.body.as_mut() {
+            if let Some(p) = b.projection.as_mut() {
+                p.forget_last();
+            }
+            if let Some(t) = b.tethers.as_mut() {
+                t.forget_last();
+            }
         }
     }
 

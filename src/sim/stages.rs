@@ -1,6 +1,6 @@
 //! One pass of a step, as a pipeline of stages ([`Sim::advance`]): pins, the prediction (the
 //! network's, `predict.rs`, or the solver modes' coasting guess), back to the world frame,
-//! refinement, collision projection, commit. Each stage writes the pass's next positions (m) and
+//! refinement, body tethers, collision projection, commit. Each stage writes the pass's next positions (m) and
 //! velocities (m/frame) into the sim's `new_pos` / `new_vel`; the state changes only at the
 //! commit, so that a refused pass leaves it as it was.
 
@@ -57,6 +57,10 @@ impl Sim<'_> {
     ) -> Result<()> {
         let last_carry = if dt == DT_STARTUP { [0.0; 3] } else { self.last_carry };
         let pass = Pass { body_next, carry, last_carry, dt };
+        if let Some(t) = self.body.as_mut().and_then(|b| b.tethers.as_mut()).filter(|t| !t.tied()) {
+            // The first pass from a new placement ties the tethers where the garment is now.
+            t.tie(&self.state.pos, &self.pinned, &self.state.body_pos)?;
+        }
         pin(&self.state.pos, &self.pinned, &self.pin_targets, carry, &mut self.new_pos);
         match self.cfg.step {
             StepMode::Network => self.predict(query.as_deref_mut(), &pass, observer)?,
@@ -83,6 +87,11 @@ impl Sim<'_> {
             r.apply(&*self.exec, &input, self.clock.as_deref(), &mut self.new_pos, &mut self.new_vel)?;
         }
         if let Some(b) = &mut self.body {
+            if let Some(t) = &mut b.tethers {
+                // Tethers before the projection: a vertex pulled back toward its body vertex may
+                // land in the body, which the projection then pushes out.
+                t.apply(body_next.unwrap_or(&self.state.body_pos), &mut self.new_pos, &mut self.new_vel);
+            }
             if let Some(proj) = &mut b.projection {
                 // Collision projection; a refined pass has built the faces at the same frame.
                 let faces =

@@ -132,6 +132,11 @@ pub struct SimulateArgs {
     /// margin (m) of the body out to it (a post-process outside HOOD; without a value: 0.002).
     #[arg(long, num_args = 0..=1, default_missing_value = "0.002")]
     projection: Option<f32>,
+    /// Body tethers: every worn garment vertex (within 0.1 m of the body at the first frame) may
+    /// move at most this much (m) farther from the body vertex it started on, and is pulled back
+    /// when it does (game cloth's "max distance", outside HOOD; without a value: 0.05).
+    #[arg(long, num_args = 0..=1, default_missing_value = "0.05")]
+    tether: Option<f32>,
     /// Solver refinement (the runtime effect `SimConfig::refine`): every network step is
     /// refined by this many L-BFGS iterations of the training-form objective, in f32, started
     /// from the prediction (0: the model alone). Trades time for accuracy.
@@ -524,6 +529,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         .with_threads(a.threads.max(1))
         .with_precision(precision)
         .with_projection(a.projection)
+        .with_tether(a.tether)
         .with_refine((a.refine > 0).then_some(a.refine))
         .with_step(step);
     let faces = anim.garment().faces().to_vec();

@@ -119,6 +119,11 @@ pub struct ValidateArgs {
     /// model with the effect rather than the model alone (without a value: 0.002 m).
     #[arg(long, num_args = 0..=1, default_missing_value = "0.002")]
     projection: Option<f32>,
+    /// Body tethers (the runtime effect `SimConfig::tether`, off by default): worn vertices
+    /// held within this slack (m) of their distance from the body vertex they started on, so
+    /// the rows score the model with the effect (without a value: 0.05 m).
+    #[arg(long, num_args = 0..=1, default_missing_value = "0.05")]
+    tether: Option<f32>,
     /// Solver refinement (the runtime effect `SimConfig::refine`, off by default): every
     /// network step but the start-up refined by this many L-BFGS iterations of the
     /// training-form objective, so the rows score the model with the effect.
@@ -216,6 +221,7 @@ fn validate_one(model: &Model<'_>, scene: &SceneSpec, a: &ValidateArgs, strip: &
         .with_threads(1)
         .with_precision(parse_precision(&a.precision)?)
         .with_projection(a.projection)
+        .with_tether(a.tether)
         .with_refine((a.refine > 0).then_some(a.refine))
         .with_step(step_mode(a.solver, 0));
     let own = rollout(model, &*anim, frames, cfg, &opts)?;
@@ -297,7 +303,8 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
         a.frames,
         a.gap_every,
         a.precision,
-        a.projection.map_or_else(String::new, |m| format!(", collision projection (margin {m} m)")),
+        a.projection.map_or_else(String::new, |m| format!(", collision projection (margin {m} m)"))
+            + &a.tether.map_or_else(String::new, |m| format!(", body tethers (slack {m} m)")),
         if a.refine > 0 { format!(", {} refinement iterations per step", a.refine) } else { String::new() }
             + &if a.solver > 0 { format!(", the solver step mode ({} iterations per step, no network)", a.solver) } else { String::new() }
     );

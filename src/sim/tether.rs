@@ -1,0 +1,284 @@
+//! Body tethers: an optional post-step limit on how far each worn garment vertex may move from
+//! the body vertex it was put on. Not part of HOOD, and not physics: the "max distance"
+//! constraint of game-engine cloth, for scenes where the garment must stay on whatever the step
+//! does (a top upside down in a handstand slides off over the head under the physics objective,
+//! with the solver as with the networks).
+//!
+//! At the first step (and the first after [`Sim::set_state`](super::Sim::set_state), which places
+//! the garment anew), every free garment vertex within [`TETHER_REACH`] of a body vertex is tied
+//! to the nearest one, with a length of that distance plus the slack. After every step a vertex
+//! farther than its length from its body vertex (at the new frame) is moved straight back to that
+//! length, and its velocity takes the move, so the next step starts from where it was put. A
+//! vertex within its length is not touched: a garment that stays on is stepped exactly as without
+//! tethers.
+
+use crate::body::{Nearest, PointGrid};
+use crate::error::{Error, Result};
+use crate::math::{add3, dot3, scale3, sub3};
+use alloc::vec;
+use alloc::vec::Vec;
+
+/// Farthest a garment vertex may be from every body vertex when the sim is made (m) and still
+/// be tethered: beyond it the vertex is not worn on the body (a cape's hem, a long skirt below
+/// the knees) and moves freely.
+pub const TETHER_REACH: f32 = 0.1;
+
+/// Default tether slack (m): how much farther than where it was put a worn vertex may move from
+/// its body vertex. Enough for a shirt to ride up a hand's width; the off-body test of the
+/// evaluation counts a vertex off at 10 cm from the body.
+pub const DEFAULT_TETHER_SLACK: f32 = 0.05;
+
+/// Largest tether slack accepted (m).
+pub const MAX_TETHER_SLACK: f32 = 1.0;
+
+/// No tether for this vertex (pinned, or out of reach).
+const UNTETHERED: u32 = u32::MAX;
+
+/// The tethers of one garment on one body, with the buffers to tie them without allocating.
+#[derive(Clone, Debug)]
+pub(super) struct Tethers {
+    /// Slack, m.
+    slack: f32,
+    /// Whether the ties are made (from the state the first step started from).
+    tied: bool,
+    /// The body's vertices, to find each garment vertex's nearest when tying.
+    grid: PointGrid,
+    nearest: Vec<Option<Nearest>>,
+    /// Body vertex of every garment vertex ([`UNTETHERED`]: none).
+    anchor: Vec<u32>,
+    /// Largest distance from the anchor (m): the distance when tied plus the slack.
+    length: Vec<f32>,
+    /// Vertices moved by the last [`apply`](Self::apply).
+    moved: usize,
+}
+
+impl Tethers {
+    /// Untied tethers for `n_garment` garment vertices on a body of `n_body` vertices, with
+    /// `slack` metres to spare (allocates, once, when the sim is made).
+    ///
+    /// # Errors
+    /// [`Error::OutOfRange`] for a slack that is negative, not finite or above
+    /// [`MAX_TETHER_SLACK`]; errors of the grid.
+    pub(super) fn new(n_garment: usize, n_body: usize, slack: f32) -> Result<Tethers> {
+        if !(0.0..=MAX_TETHER_SLACK).contains(&slack) {
+            return Err(Error::OutOfRange { what: "tether slack (0 <= m <= MAX_TETHER_SLACK)", index: 0 });
+        }
+        Ok(Tethers {
+            slack,
+            tied: false,
+            grid: PointGrid::new(n_body, (n_body * 4).max(64))?,
+            nearest: vec![None; n_garment],
+            anchor: vec![UNTETHERED; n_garment],
+            length: vec![0.0; n_garment],
+            moved: 0,
+        })
+    }
+
+    /// Whether the ties are made.
+    pub(super) fn tied(&self) -> bool {
+        self.tied
+    }
+
+    /// Unties: the next step ties again (the garment was placed anew).
+    pub(super) fn untie(&mut self) {
+        self.tied = false;
+    }
+
+    /// Ties every free vertex of `garment` (m) within [`TETHER_REACH`] of a vertex of `body` (m,
+    /// the same frame) to the nearest one. Allocates nothing.
+    ///
+    /// # Errors
+    /// [`Error::SizeMismatch`] when `garment` or `pinned` is not one per garment vertex, errors of
+    /// the grid (a body of more vertices than it was made for, non-finite positions); the ties
+    /// are then left unmade.
+    pub(super) fn tie(&mut self, garment: &[[f32; 3]], pinned: &[bool], body: &[[f32; 3]]) -> Result<()> {
+        let n = self.anchor.len();
+        for (what, len) in [("tethered garment positions", garment.len()), ("pinned flags", pinned.len())] {
+            if len != n {
+                return Err(Error::SizeMismatch { what, expected: n, got: len });
+            }
+        }
+        self.tied = false;
+        self.grid.rebuild(body)?;
+        self.grid.nearest_within(garment, TETHER_REACH, &mut self.nearest)?;
+        for (i, near) in self.nearest.iter().enumerate() {
+            (self.anchor[i], self.length[i]) = match (pinned[i], near) {
+                (false, Some(Nearest { index, distance })) => (*index, distance + self.slack),
+                _ => (UNTETHERED, 0.0),
+            };
+        }
+        self.tied = true;
+        Ok(())
+    }
+
+    /// Garment vertices that have a tether.
+    pub(super) fn count(&self) -> usize {
+        if !self.tied {
+            return 0;
+        }
+        self.anchor.iter().filter(|&&a| a != UNTETHERED).count()
+    }
+
+    /// Vertices moved by the last step.
+    pub(super) fn moved(&self) -> usize {
+        self.moved
+    }
+
+    /// Forgets the last count (no step ran from the sim's state).
+    pub(super) fn forget_last(&mut self) {
+        self.moved = 0;
+    }
+
+    /// Moves every tethered vertex of `pos` (m) that is farther than its length from its body
+    /// vertex in `body` (m, the frame `pos` belongs to) straight back to that length, adding the
+    /// move to `velocity` (m/frame). Allocates nothing.
+    pub(super) fn apply(&mut self, body: &[[f32; 3]], pos: &mut [[f32; 3]], velocity: &mut [[f32; 3]]) {
+        self.moved = 0;
+        if !self.tied {
+            return;
+        }
+        let mut moved = 0;
+        for (i, (&a, &len)) in self.anchor.iter().zip(&self.length).enumerate() {
+            // A body of another length cannot reach here (the sim checks every frame), but an
+            // index past it is skipped rather than trusted.
+            let Some(&b) = body.get(a as usize) else { continue };
+            let d = sub3(pos[i], b);
+            let dist2 = dot3(d, d);
+            if dist2 <= len * len {
+                continue;
+            }
+            let to = add3(b, scale3(d, len / libm::sqrtf(dist2)));
+            velocity[i] = add3(velocity[i], sub3(to, pos[i]));
+            pos[i] = to;
+            moved += 1;
+        }
+        self.moved = moved;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
+        let d = sub3(a, b);
+        libm::sqrtf(dot3(d, d))
+    }
+
+    /// Each free vertex in reach is tied to its nearest body vertex with its distance plus the
+    /// slack; pinned and far vertices are not; a vertex beyond its length comes back to it along
+    /// the line to its body vertex, its velocity taking the move, and one within it stays.
+    #[test]
+    fn tethers_pull_back_only_what_went_beyond_its_length() {
+        let body = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let garment = [[0.0, 0.02, 0.0], [1.0, 0.0, 0.05], [0.0, 1.0, 0.01], [0.5, 0.5, 0.5]];
+        let pinned = [false, false, true, false];
+        let mut t = Tethers::new(garment.len(), body.len(), 0.03).unwrap();
+        assert!(!t.tied());
+        t.tie(&garment, &pinned, &body).unwrap();
+        assert!(t.tied());
+        assert_eq!(t.anchor, [0, 1, UNTETHERED, UNTETHERED]);
+        assert!((t.length[0] - 0.05).abs() < 1e-6 && (t.length[1] - 0.08).abs() < 1e-6);
+        assert_eq!(t.count(), 2);
+
+        // The body moves 1 m along x; vertex 0 stays behind, vertex 1 follows, the pinned and the
+        // untethered vertices go anywhere.
+        let body_next: Vec<[f32; 3]> = body.iter().map(|p| [p[0] + 1.0, p[1], p[2]]).collect();
+        let mut pos = [[0.0, 0.02, 0.0], [2.0, 0.0, 0.05], [5.0, 5.0, 5.0], [-3.0, 0.0, 0.0]];
+        let mut vel = [[0.1, 0.0, 0.0]; 4];
+        let before = pos;
+        t.apply(&body_next, &mut pos, &mut vel);
+        assert_eq!(t.moved(), 1);
+        assert!((dist(pos[0], body_next[0]) - t.length[0]).abs() < 1e-6);
+        // Straight back: on the segment from where it was to its body vertex.
+        let (a, b) = (sub3(before[0], body_next[0]), sub3(pos[0], body_next[0]));
+        assert!((dot3(a, b) / (libm::sqrtf(dot3(a, a)) * libm::sqrtf(dot3(b, b))) - 1.0).abs() < 1e-6);
+        for k in 0..3 {
+            let v0 = if k == 0 { 0.1 } else { 0.0 };
+            assert!((vel[0][k] - (v0 + pos[0][k] - before[0][k])).abs() < 1e-6);
+        }
+        assert_eq!(&pos[1..], &before[1..]);
+        assert_eq!(vel[1], [0.1, 0.0, 0.0]);
+        t.forget_last();
+        assert_eq!(t.moved(), 0);
+    }
+
+    /// On a sim: a cloth whose network outputs nothing, over a body that drops 5 cm a frame, stays
+    /// where it was without tethers and is held within its lengths with them; the step reports
+    /// the pull, and a teleport forgets it. Tethers need a body.
+    #[test]
+    fn tethers_hold_a_cloth_on_a_body_that_drops_away() {
+        use crate::body::rigid::RigidMotion;
+        use crate::body::{shapes, BodyMesh};
+        use crate::mesh::{shapes::grid, Garment, GarmentDesc};
+        use crate::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
+        use crate::sim::{BodyDesc, Sim, SimConfig, StepEffects};
+
+        let mut p = Params::init(&ModelSpec::hood(8), 7).unwrap();
+        p.normalisers = Normalisers::unit_scale(3);
+        // A decoder that outputs nothing: every network step is the coasting guess.
+        let last = p.mlps.decoder.layers.last_mut().unwrap();
+        last.weight.iter_mut().chain(last.bias.iter_mut()).for_each(|w| *w = 0.0);
+        let bytes = ModelBytes::new(&write_model(&p, false, &[]).unwrap());
+        let model = bytes.model().unwrap();
+        let (rest, faces) = grid(5, 5, 0.2, 0.2, 0.31);
+        let garment = Garment::new(GarmentDesc::new(&rest, &faces)).unwrap();
+        let (body, body_faces) = shapes::ellipsoid(32, 48, [0.25, 0.3, 0.25], [0.0; 3]);
+        let mesh = BodyMesh::new(body.len(), &body_faces).unwrap();
+        let desc = || Some(BodyDesc { mesh: &mesh, positions: &body });
+        let base = SimConfig { startup: false, ..SimConfig::network() };
+        let mut free = Sim::new(&model, &garment, desc(), base).unwrap();
+        let mut held = Sim::new(&model, &garment, desc(), base.with_tether(Some(0.02))).unwrap();
+        assert_eq!(held.tethered_vertices(), 0, "tied at the first step");
+        assert_eq!((free.tethered_vertices(), free.last_tethered()), (0, 0));
+        let mut now = body.clone();
+        for frame in 1..=10 {
+            now = body.iter().map(|q| [q[0], q[1] - 0.05 * frame as f32, q[2]]).collect();
+            free.step(&now).unwrap();
+            held.step(&now).unwrap();
+            // The pulls give the cloth the body's speed within a few frames; the first must pull.
+            if frame == 1 {
+                assert_eq!(held.tethered_vertices(), 25);
+                assert!(held.last_effects().tethered && held.last_tethered() > 0);
+            }
+            assert!(!free.last_effects().tethered);
+            let t = held.body.as_ref().unwrap().tethers.as_ref().unwrap();
+            for (i, x) in held.positions().iter().enumerate() {
+                let anchor = now[t.anchor[i] as usize];
+                assert!(dist(*x, anchor) <= t.length[i] * (1.0 + 1e-5), "frame {frame} vertex {i}");
+            }
+        }
+        // Without tethers the cloth stays about where it was (the random normalisers' mean output
+        // moves it by millimetres), half a metre above the body's top.
+        assert!(free.positions().iter().all(|x| (x[1] - 0.31).abs() < 0.02));
+        assert!(held.positions().iter().all(|x| x[1] < 0.31 - 0.4));
+        let motion = RigidMotion { rotation: glam::Quat::IDENTITY, translation: glam::Vec3::ZERO };
+        held.teleport(&motion, &now).unwrap();
+        assert_eq!(held.last_tethered(), 0);
+        assert_eq!(held.last_effects(), StepEffects { teleported: true, ..StepEffects::default() });
+        assert_eq!(held.tethered_vertices(), 25, "a teleport keeps the ties");
+        let state = held.state().clone();
+        held.set_state(&state).unwrap();
+        assert_eq!(held.tethered_vertices(), 0, "a new placement ties again at the next step");
+        let no_body = Sim::new(&model, &garment, None, base.with_tether(Some(0.02)));
+        assert!(matches!(no_body, Err(Error::UnsupportedEffect { .. })));
+    }
+
+    #[test]
+    fn tethers_refuse_bad_slack_and_sizes() {
+        let body = [[0.0; 3]];
+        let g = [[0.0, 0.01, 0.0]];
+        for bad in [-0.01, f32::NAN, f32::INFINITY, MAX_TETHER_SLACK * 1.5] {
+            assert!(matches!(Tethers::new(1, 1, bad), Err(Error::OutOfRange { .. })), "{bad}");
+        }
+        let mut t = Tethers::new(1, 1, 0.0).unwrap();
+        assert!(matches!(t.tie(&g, &[], &body), Err(Error::SizeMismatch { .. })));
+        assert!(matches!(t.tie(&[], &[false], &body), Err(Error::SizeMismatch { .. })));
+        assert!(t.tie(&g, &[false], &[[0.0; 3], [1.0; 3]]).is_err(), "a body larger than made for");
+        assert!(!t.tied());
+        t.tie(&g, &[false], &body).unwrap();
+        assert!(t.tied());
+        t.untie();
+        assert!(!t.tied());
+    }
+}
