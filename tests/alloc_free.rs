@@ -104,10 +104,11 @@ fn step_every_effect_precision_and_thread_count() {
                                 .with_sleeping(sleeping)
                                 .with_precision(precision)
                                 .with_threads(threads)
-                                // Collision projection (needs the body) rides with the normals,
-                                // solver refinement with the sleeping, which keeps the
-                                // combinations few.
+                                // Collision projection and tethers (both need the body) ride
+                                // with the normals, solver refinement with the sleeping, which
+                                // keeps the combinations few.
                                 .with_projection((body && normals).then_some(0.004))
+                                .with_tether((body && normals).then_some(0.0))
                                 .with_refine(sleeping.filter(|_| network).map(|_| 3))
                                 .with_step(step);
                             let b0 = scene.body_at(0);
@@ -116,9 +117,14 @@ fn step_every_effect_precision_and_thread_count() {
                             // Buffers the caller owns are made before counting starts.
                             let frames: Vec<Vec<[f32; 3]>> = (1..6).map(|t| scene.body_at(t)).collect();
                             sim.step(&frames[0]).unwrap(); // includes the start-up step
+                            let placed = sim.state().clone();
                             COUNTING.store(true, Ordering::SeqCst);
                             ALLOCATIONS.store(0, Ordering::SeqCst);
-                            for f in &frames[1..] {
+                            for (i, f) in frames[1..].iter().enumerate() {
+                                if i == 2 && cfg.tether.is_some() {
+                                    // A new placement: the next step ties the tethers again.
+                                    sim.set_state(&placed).unwrap();
+                                }
                                 sim.step(f).unwrap();
                             }
                             COUNTING.store(false, Ordering::SeqCst);
