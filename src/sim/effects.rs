@@ -135,12 +135,8 @@ mod tests {
     /// teleport, a set or loaded state forget them. A teleport counts frames at rest anew.
     #[test]
     fn reports_of_the_last_step_are_forgotten_when_no_step_runs() {
-        let mut p = Params::init(&ModelSpec::hood(8), 5).unwrap();
-        p.normalisers = Normalisers::unit_scale(3);
         // A decoder that outputs nothing: every network step is the coasting guess.
-        let last = p.mlps.decoder.layers.last_mut().unwrap();
-        last.weight.iter_mut().chain(last.bias.iter_mut()).for_each(|w| *w = 0.0);
-        let bytes = ModelBytes::new(&write_model(&p, false, &[]).unwrap());
+        let bytes = crate::sim::coasting_model_bytes(5);
         let model = bytes.model().unwrap();
         // A cloth partly inside the top of the body, which rises 4 cm a frame into it: every
         // step has vertices to refine and to project.

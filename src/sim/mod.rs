@@ -70,6 +70,18 @@ pub use saved::{STATE_MAGIC, STATE_VERSION};
 use tether::Tethers;
 pub use tether::{DEFAULT_TETHER_SLACK, MAX_TETHER_SLACK, TETHER_REACH};
 
+/// For the sim's tests: a random HOOD model (latent `8`) whose decoder outputs nothing, so every
+/// network step is the coasting guess (plus the unit-scale normalisers' mean output).
+#[cfg(test)]
+pub(crate) fn coasting_model_bytes(seed: u64) -> crate::model::ModelBytes {
+    use crate::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
+    let mut p = Params::init(&ModelSpec::hood(8), seed).unwrap();
+    p.normalisers = Normalisers::unit_scale(3);
+    let last = p.mlps.decoder.layers.last_mut().unwrap();
+    last.weight.iter_mut().chain(last.bias.iter_mut()).for_each(|w| *w = 0.0);
+    ModelBytes::new(&write_model(&p, false, &[]).unwrap())
+}
+
 /// The garment and body state between steps.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SimState {

@@ -211,15 +211,9 @@ mod tests {
         use crate::body::rigid::RigidMotion;
         use crate::body::{shapes, BodyMesh};
         use crate::mesh::{shapes::grid, Garment, GarmentDesc};
-        use crate::model::{write_model, ModelBytes, ModelSpec, Normalisers, Params};
-        use crate::sim::{BodyDesc, Sim, SimConfig, StepEffects};
+        use crate::sim::{coasting_model_bytes, BodyDesc, Sim, SimConfig, StepEffects};
 
-        let mut p = Params::init(&ModelSpec::hood(8), 7).unwrap();
-        p.normalisers = Normalisers::unit_scale(3);
-        // A decoder that outputs nothing: every network step is the coasting guess.
-        let last = p.mlps.decoder.layers.last_mut().unwrap();
-        last.weight.iter_mut().chain(last.bias.iter_mut()).for_each(|w| *w = 0.0);
-        let bytes = ModelBytes::new(&write_model(&p, false, &[]).unwrap());
+        let bytes = coasting_model_bytes(7);
         let model = bytes.model().unwrap();
         let (rest, faces) = grid(5, 5, 0.2, 0.2, 0.31);
         let garment = Garment::new(GarmentDesc::new(&rest, &faces)).unwrap();
