@@ -119,6 +119,7 @@ fn step_every_effect_precision_and_thread_count() {
                             sim.step(&frames[0]).unwrap(); // includes the start-up step
                             let placed = sim.state().clone();
                             COUNTING.store(true, Ordering::SeqCst);
+                            let mut pulled = false;
                             ALLOCATIONS.store(0, Ordering::SeqCst);
                             for (i, f) in frames[1..].iter().enumerate() {
                                 if i == 2 && cfg.tether.is_some() {
@@ -126,10 +127,13 @@ fn step_every_effect_precision_and_thread_count() {
                                     sim.set_state(&placed).unwrap();
                                 }
                                 sim.step(f).unwrap();
+                                pulled |= sim.last_tethered() > 0;
                             }
                             COUNTING.store(false, Ordering::SeqCst);
                             let n = ALLOCATIONS.load(Ordering::SeqCst);
                             assert_eq!(n, 0, "{n} allocations in 4 steps with {cfg:?}");
+                            // Tethers without slack pull (and the cloth follows) in those steps.
+                            assert_eq!(pulled, cfg.tether.is_some(), "tethers pulled: {cfg:?}");
                             combos += 1;
                         }
                     }

@@ -342,8 +342,10 @@ typedef struct hood_sim_config {
                                    after hood_sim_reset), every free garment vertex within 0.1 m of
                                    a body vertex is tied to the nearest one; after every step a
                                    vertex farther from it than its distance then plus this slack
-                                   (m; 0 <= slack <= 1) moves straight back to that length,
-                                   velocity included. The "max distance" of game cloth, outside
+                                   (m; 0 <= slack <= 1) moves straight back to that length, and
+                                   the cloth around it follows (no edge from a moved vertex kept
+                                   over 1.5 times its rest length), velocity included. The "max
+                                   distance" of game cloth, outside
                                    HOOD and the physics: for garments that must stay on whatever
                                    the motion (a top upside down). Needs a body.
                                    hood_sim_load_state and hood_sim_teleport keep the ties */

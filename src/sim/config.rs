@@ -188,10 +188,12 @@ pub struct SimConfig {
     /// Body tethers' slack, metres: at the first step (and the first after [`Sim::set_state`]),
     /// every free garment vertex within [`TETHER_REACH`] of a body vertex is tied to the nearest
     /// one, and after every step a vertex farther from it than its distance then plus this slack
-    /// is moved straight back to that length, its velocity taking the move (`None`: off). The
-    /// "max distance" constraint of game-engine cloth, outside HOOD and the physics, for
-    /// garments that must stay on whatever the motion (a top upside down); needs body collision.
-    /// See [`DEFAULT_TETHER_SLACK`].
+    /// is moved straight back to that length; the cloth around it follows, so that no edge from
+    /// a moved vertex stays stretched by more than
+    /// [`TETHER_FOLLOW_STRETCH`](super::TETHER_FOLLOW_STRETCH), and velocities take the moves
+    /// (`None`: off). The "max distance" constraint of game-engine cloth, outside HOOD and the
+    /// physics, for garments that must stay on whatever the motion (a top upside down); needs
+    /// body collision. See [`DEFAULT_TETHER_SLACK`].
     pub tether: Option<f32>,
     /// Solver refinement: this many L-BFGS iterations (1 ..= [`MAX_REFINE_ITERATIONS`]) of the
     /// physics objective (training form, collision weight [`REFINE_COLLISION_WEIGHT`]), started

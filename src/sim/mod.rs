@@ -68,7 +68,7 @@ use refine::Refiner;
 pub use refine::{DEFAULT_REFINE_ITERATIONS, MAX_REFINE_ITERATIONS, REFINE_COLLISION_WEIGHT};
 pub use saved::{STATE_MAGIC, STATE_VERSION};
 use tether::Tethers;
-pub use tether::{DEFAULT_TETHER_SLACK, MAX_TETHER_SLACK, TETHER_REACH};
+pub use tether::{DEFAULT_TETHER_SLACK, MAX_TETHER_SLACK, TETHER_FOLLOW_STRETCH, TETHER_REACH};
 
 /// For the sim's tests: a random HOOD model (latent `8`) whose decoder outputs nothing, so every
 /// network step is the coasting guess (plus the unit-scale normalisers' mean output).
@@ -274,7 +274,7 @@ impl<'m> Sim<'m> {
                         None => None,
                     },
                     tethers: match cfg.tether {
-                        Some(slack) => Some(Tethers::new(n, b.mesh.n_vertices(), slack)?),
+                        Some(slack) => Some(Tethers::new(garment, b.mesh.n_vertices(), slack)?),
                         None => None,
                     },
                     survey,

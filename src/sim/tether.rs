@@ -7,14 +7,25 @@
 //! At the first step (and the first after [`Sim::set_state`](super::Sim::set_state), which places
 //! the garment anew), every free garment vertex within [`TETHER_REACH`] of a body vertex is tied
 //! to the nearest one, with a length of that distance plus the slack. After every step a vertex
-//! farther than its length from its body vertex (at the new frame) is moved straight back to that
-//! length, and its velocity takes the move, so the next step starts from where it was put. A
-//! vertex within its length is not touched: a garment that stays on is stepped exactly as without
-//! tethers.
+//! farther than its length from its body vertex (at the new frame) is pulled straight back to that
+//! length, and its velocity takes the move, so the next step starts from where it was put. When no
+//! vertex is beyond its length nothing is touched: a garment that stays on is stepped exactly as
+//! without tethers.
+//!
+//! The cloth around a pulled vertex follows it. Neighbours are tied to different body vertices
+//! at different distances, so a step that carries the cloth away pulls some vertices back and
+//! not the one 2 mm beside them: moved alone, a sleeve's 2 mm seam edge was stretched to 16 mm.
+//! So after the pulls, every edge with a moved end that is longer than its rest length by more
+//! than [`TETHER_FOLLOW_STRETCH`] is shortened to that length by moving the end that moved less
+//! (a neighbour pulled by less, or not at all), and so on outward: position-based dynamics'
+//! strain limit, but only where the tethers moved something (the step's own stretching elsewhere
+//! is left as it is). A last pass brings any vertex that following carried beyond its own length
+//! back onto it.
 
 use crate::body::{Nearest, PointGrid};
 use crate::error::{Error, Result};
 use crate::math::{add3, dot3, scale3, sub3};
+use crate::mesh::Garment;
 use alloc::vec;
 use alloc::vec::Vec;
 
@@ -30,6 +41,19 @@ pub const DEFAULT_TETHER_SLACK: f32 = 0.05;
 
 /// Largest tether slack accepted (m).
 pub const MAX_TETHER_SLACK: f32 = 1.0;
+
+/// Stretch (fraction of its rest length) an edge from a vertex the tethers moved may keep; a
+/// longer one brings its other end along. A third of the largest strain the evaluation accepts
+/// (1.5), and enough give that a pull fades within a few edges: at 0.1 a 4 cm pull dragged cloth
+/// 40 cm away, where pulls in other directions fought it.
+pub const TETHER_FOLLOW_STRETCH: f32 = 0.5;
+
+/// Most sweeps over the edges that bring the cloth along after the pulls (each carries the move
+/// at least one edge further; cloth farther than that is left where the step put it).
+const MAX_FOLLOW_SWEEPS: usize = 64;
+
+/// Excess length (m) below which an edge is left as it is, so that the sweeps end.
+const FOLLOW_TOLERANCE: f32 = 1e-6;
 
 /// No tether for this vertex (pinned, or out of reach).
 const UNTETHERED: u32 = u32::MAX;
@@ -48,21 +72,32 @@ pub(super) struct Tethers {
     anchor: Vec<u32>,
     /// Largest distance from the anchor (m): the distance when tied plus the slack.
     length: Vec<f32>,
+    /// Whether each vertex may be moved (not pinned), as when tied.
+    free: Vec<bool>,
+    /// The garment's edges and their rest lengths (m), along which the cloth follows.
+    edges: Vec<[u32; 2]>,
+    rest_len: Vec<f32>,
+    /// Where each vertex was before this step's pulls (m).
+    before: Vec<[f32; 3]>,
     /// Vertices moved by the last [`apply`](Self::apply).
     moved: usize,
 }
 
 impl Tethers {
-    /// Untied tethers for `n_garment` garment vertices on a body of `n_body` vertices, with
-    /// `slack` metres to spare (allocates, once, when the sim is made).
+    /// Untied tethers for `garment` on a body of `n_body` vertices, with `slack` metres to spare
+    /// (allocates, once, when the sim is made).
     ///
     /// # Errors
     /// [`Error::OutOfRange`] for a slack that is negative, not finite or above
     /// [`MAX_TETHER_SLACK`]; errors of the grid.
-    pub(super) fn new(n_garment: usize, n_body: usize, slack: f32) -> Result<Tethers> {
+    pub(super) fn new(garment: &Garment, n_body: usize, slack: f32) -> Result<Tethers> {
         if !(0.0..=MAX_TETHER_SLACK).contains(&slack) {
             return Err(Error::OutOfRange { what: "tether slack (0 <= m <= MAX_TETHER_SLACK)", index: 0 });
         }
+        let n_garment = garment.n_vertices();
+        let rest = garment.rest();
+        let edges = garment.edges().to_vec();
+        let rest_len = edges.iter().map(|&[i, j]| dist(rest[i as usize], rest[j as usize])).collect();
         Ok(Tethers {
             slack,
             tied: false,
@@ -70,6 +105,10 @@ impl Tethers {
             nearest: vec![None; n_garment],
             anchor: vec![UNTETHERED; n_garment],
             length: vec![0.0; n_garment],
+            free: vec![false; n_garment],
+            edges,
+            rest_len,
+            before: vec![[0.0; 3]; n_garment],
             moved: 0,
         })
     }
@@ -107,6 +146,7 @@ impl Tethers {
                 _ => (UNTETHERED, 0.0),
             };
         }
+        self.free.iter_mut().zip(pinned).for_each(|(f, &p)| *f = !p);
         self.tied = true;
         Ok(())
     }
@@ -129,15 +169,35 @@ impl Tethers {
         self.moved = 0;
     }
 
-    /// Moves every tethered vertex of `pos` (m) that is farther than its length from its body
-    /// vertex in `body` (m, the frame `pos` belongs to) straight back to that length, adding the
-    /// move to `velocity` (m/frame). Allocates nothing.
+    /// Pulls every tethered vertex of `pos` (m) that is farther than its length from its body
+    /// vertex in `body` (m, the frame `pos` belongs to) straight back to that length, brings the
+    /// cloth around it along (see the module notes), and adds every move to `velocity`
+    /// (m/frame). Allocates nothing.
     pub(super) fn apply(&mut self, body: &[[f32; 3]], pos: &mut [[f32; 3]], velocity: &mut [[f32; 3]]) {
         self.moved = 0;
         if !self.tied {
             return;
         }
+        self.before.copy_from_slice(pos);
+        if !self.pull_back(body, pos) {
+            return;
+        }
+        self.follow(pos);
+        self.pull_back(body, pos);
         let mut moved = 0;
+        for (v, (x, &x0)) in velocity.iter_mut().zip(pos.iter().zip(&self.before)) {
+            if *x != x0 {
+                *v = add3(*v, sub3(*x, x0));
+                moved += 1;
+            }
+        }
+        self.moved = moved;
+    }
+
+    /// Moves every tethered vertex of `pos` (m) farther than its length from its body vertex in
+    /// `body` (m) straight back to that length; whether any moved.
+    fn pull_back(&self, body: &[[f32; 3]], pos: &mut [[f32; 3]]) -> bool {
+        let mut any = false;
         for (i, (&a, &len)) in self.anchor.iter().zip(&self.length).enumerate() {
             // A body of another length cannot reach here (the sim checks every frame), but an
             // index past it is skipped rather than trusted.
@@ -147,35 +207,89 @@ impl Tethers {
             if dist2 <= len * len {
                 continue;
             }
-            let to = add3(b, scale3(d, len / libm::sqrtf(dist2)));
-            velocity[i] = add3(velocity[i], sub3(to, pos[i]));
-            pos[i] = to;
-            moved += 1;
+            pos[i] = add3(b, scale3(d, len / libm::sqrtf(dist2)));
+            any = true;
         }
-        self.moved = moved;
+        any
     }
+
+    /// Brings the cloth along after the pulls: sweeps the edges both ways (at most
+    /// [`MAX_FOLLOW_SWEEPS`] times), shortening every edge with a moved end to its rest length
+    /// times 1 + [`TETHER_FOLLOW_STRETCH`]. The end moved less so far gives way to the other
+    /// (both halfway when they moved alike); pinned vertices do not move.
+    fn follow(&self, pos: &mut [[f32; 3]]) {
+        let moved2 = |pos: &[[f32; 3]], i: usize| {
+            let d = sub3(pos[i], self.before[i]);
+            dot3(d, d)
+        };
+        for sweep in 0..MAX_FOLLOW_SWEEPS {
+            let mut changed = false;
+            let mut relax = |k: usize| {
+                let [i, j] = self.edges[k].map(|v| v as usize);
+                let (mi, mj) = (moved2(pos, i), moved2(pos, j));
+                if mi == 0.0 && mj == 0.0 {
+                    return; // the step's own stretch
+                }
+                let d = sub3(pos[j], pos[i]);
+                let len = libm::sqrtf(dot3(d, d));
+                let excess = len - self.rest_len[k] * (1.0 + TETHER_FOLLOW_STRETCH);
+                if excess <= FOLLOW_TOLERANCE {
+                    return;
+                }
+                // Each end's share of the shortening, i's toward j and j's toward i.
+                let (si, sj) = match (self.free[i], self.free[j]) {
+                    (false, false) => return,
+                    (true, false) => (1.0, 0.0),
+                    (false, true) => (0.0, 1.0),
+                    _ if mi < mj => (1.0, 0.0),
+                    _ if mj < mi => (0.0, 1.0),
+                    _ => (0.5, 0.5),
+                };
+                let toward_j = scale3(d, excess / len);
+                pos[i] = add3(pos[i], scale3(toward_j, si));
+                pos[j] = sub3(pos[j], scale3(toward_j, sj));
+                changed = true;
+            };
+            if sweep % 2 == 0 {
+                (0..self.edges.len()).for_each(&mut relax);
+            } else {
+                (0..self.edges.len()).rev().for_each(&mut relax);
+            }
+            if !changed {
+                return;
+            }
+        }
+    }
+}
+
+/// Distance between two points (m).
+fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let d = sub3(a, b);
+    libm::sqrtf(dot3(d, d))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mesh::shapes::grid;
 
-    fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
-        let d = sub3(a, b);
-        libm::sqrtf(dot3(d, d))
+    /// A garment of `rest` (m) and `faces`.
+    fn garment(rest: &[[f32; 3]], faces: &[[u32; 3]]) -> Garment {
+        Garment::new(crate::mesh::GarmentDesc::new(rest, faces)).unwrap()
     }
 
     /// Each free vertex in reach is tied to its nearest body vertex with its distance plus the
     /// slack; pinned and far vertices are not; a vertex beyond its length comes back to it along
-    /// the line to its body vertex, its velocity taking the move, and one within it stays.
+    /// the line to its body vertex, its velocity taking the move, and one within it stays (as
+    /// does every edge the pull leaves within its stretch).
     #[test]
     fn tethers_pull_back_only_what_went_beyond_its_length() {
         let body = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
-        let garment = [[0.0, 0.02, 0.0], [1.0, 0.0, 0.05], [0.0, 1.0, 0.01], [0.5, 0.5, 0.5]];
+        let placed = [[0.0, 0.02, 0.0], [1.0, 0.0, 0.05], [0.0, 1.0, 0.01], [0.5, 0.5, 0.5]];
         let pinned = [false, false, true, false];
-        let mut t = Tethers::new(garment.len(), body.len(), 0.03).unwrap();
+        let mut t = Tethers::new(&garment(&placed, &[[0, 1, 3], [1, 2, 3]]), body.len(), 0.03).unwrap();
         assert!(!t.tied());
-        t.tie(&garment, &pinned, &body).unwrap();
+        t.tie(&placed, &pinned, &body).unwrap();
         assert!(t.tied());
         assert_eq!(t.anchor, [0, 1, UNTETHERED, UNTETHERED]);
         assert!((t.length[0] - 0.05).abs() < 1e-6 && (t.length[1] - 0.08).abs() < 1e-6);
@@ -184,7 +298,7 @@ mod tests {
         // The body moves 1 m along x; vertex 0 stays behind, vertex 1 follows, the pinned and the
         // untethered vertices go anywhere.
         let body_next: Vec<[f32; 3]> = body.iter().map(|p| [p[0] + 1.0, p[1], p[2]]).collect();
-        let mut pos = [[0.0, 0.02, 0.0], [2.0, 0.0, 0.05], [5.0, 5.0, 5.0], [-3.0, 0.0, 0.0]];
+        let mut pos = [[0.0, 0.02, 0.0], [2.0, 0.0, 0.05], [5.0, 5.0, 5.0], [1.4, 0.5, 0.5]];
         let mut vel = [[0.1, 0.0, 0.0]; 4];
         let before = pos;
         t.apply(&body_next, &mut pos, &mut vel);
@@ -203,6 +317,44 @@ mod tests {
         assert_eq!(t.moved(), 0);
     }
 
+    /// A strip of cloth 1 cm over a body, its first column tied half as far: slid 4 cm along
+    /// the body, the first column is pulled back farther than the second, and the rest of the
+    /// strip follows it instead of stretching the edges between them to half as long again.
+    #[test]
+    fn the_cloth_follows_a_vertex_pulled_farther_than_its_neighbours() {
+        let (placed, faces) = grid(11, 2, 0.1, 0.01, 0.01);
+        let first = |p: &[f32; 3]| p[0] < -0.049;
+        let body: Vec<[f32; 3]> = placed.iter().map(|p| [p[0], if first(p) { 0.005 } else { 0.0 }, p[2]]).collect();
+        let g = garment(&placed, &faces);
+        let mut t = Tethers::new(&g, body.len(), 0.0).unwrap();
+        t.tie(&placed, &[false; 22], &body).unwrap();
+        let slid: Vec<[f32; 3]> = placed.iter().map(|p| [p[0] + 0.04, p[1], p[2]]).collect();
+
+        // Pulled alone, the edges from the first column would be 1.5 times their rest length.
+        let mut alone = slid.clone();
+        assert!(t.pull_back(&body, &mut alone));
+        let rest_len = t.rest_len.clone();
+        let strain = |pos: &[[f32; 3]]| {
+            (g.edges().iter().zip(&rest_len))
+                .map(|(&[i, j], &rest)| dist(pos[i as usize], pos[j as usize]) / rest - 1.0)
+                .fold(0.0f32, f32::max)
+        };
+        assert!(strain(&alone) > 0.45, "{}", strain(&alone));
+
+        let (mut pos, mut vel) = (slid.clone(), vec![[0.0; 3]; 22]);
+        t.apply(&body, &mut pos, &mut vel);
+        assert_eq!(t.moved(), 22);
+        assert!(strain(&pos) <= TETHER_FOLLOW_STRETCH + 1e-4, "{}", strain(&pos));
+        for (i, x) in pos.iter().enumerate() {
+            assert!(dist(*x, body[i]) <= t.length[i] * (1.0 + 1e-5), "vertex {i} beyond its length");
+            assert!((0..3).all(|k| (vel[i][k] - (x[k] - slid[i][k])).abs() < 1e-6), "velocity takes the move");
+        }
+        // Followed by less with distance from the first column, and never ahead of a pull alone.
+        let back = |i: usize| slid[i][0] - pos[i][0];
+        assert!(back(0) > back(1) && back(1) > back(5) && back(5) >= back(10) - 1e-6);
+        assert!((1..11).all(|i| pos[i][0] <= alone[i][0] + 1e-6));
+    }
+
     /// On a sim: a cloth whose network outputs nothing, over a body that drops 5 cm a frame, stays
     /// where it was without tethers and is held within its lengths with them; the step reports
     /// the pull, and a teleport forgets it. Tethers need a body.
@@ -210,7 +362,7 @@ mod tests {
     fn tethers_hold_a_cloth_on_a_body_that_drops_away() {
         use crate::body::rigid::RigidMotion;
         use crate::body::{shapes, BodyMesh};
-        use crate::mesh::{shapes::grid, Garment, GarmentDesc};
+        use crate::mesh::GarmentDesc;
         use crate::sim::{coasting_model_bytes, BodyDesc, Sim, SimConfig, StepEffects};
 
         let bytes = coasting_model_bytes(7);
@@ -261,16 +413,17 @@ mod tests {
     #[test]
     fn tethers_refuse_bad_slack_and_sizes() {
         let body = [[0.0; 3]];
-        let g = [[0.0, 0.01, 0.0]];
+        let (g, faces) = grid(2, 2, 0.1, 0.1, 0.01);
+        let cloth = garment(&g, &faces);
         for bad in [-0.01, f32::NAN, f32::INFINITY, MAX_TETHER_SLACK * 1.5] {
-            assert!(matches!(Tethers::new(1, 1, bad), Err(Error::OutOfRange { .. })), "{bad}");
+            assert!(matches!(Tethers::new(&cloth, 1, bad), Err(Error::OutOfRange { .. })), "{bad}");
         }
-        let mut t = Tethers::new(1, 1, 0.0).unwrap();
-        assert!(matches!(t.tie(&g, &[], &body), Err(Error::SizeMismatch { .. })));
-        assert!(matches!(t.tie(&[], &[false], &body), Err(Error::SizeMismatch { .. })));
-        assert!(t.tie(&g, &[false], &[[0.0; 3], [1.0; 3]]).is_err(), "a body larger than made for");
+        let mut t = Tethers::new(&cloth, 1, 0.0).unwrap();
+        assert!(matches!(t.tie(&g, &[false; 3], &body), Err(Error::SizeMismatch { .. })));
+        assert!(matches!(t.tie(&g[..3], &[false; 4], &body), Err(Error::SizeMismatch { .. })));
+        assert!(t.tie(&g, &[false; 4], &[[0.0; 3], [1.0; 3]]).is_err(), "a body larger than made for");
         assert!(!t.tied());
-        t.tie(&g, &[false], &body).unwrap();
+        t.tie(&g, &[false; 4], &body).unwrap();
         assert!(t.tied());
         t.untie();
         assert!(!t.tied());
