@@ -24,7 +24,7 @@
 
 use crate::body::{Nearest, PointGrid};
 use crate::error::{Error, Result};
-use crate::math::{add3, dot3, scale3, sub3};
+use crate::math::{add3, dot3, norm3, scale3, sub3};
 use crate::mesh::Garment;
 use alloc::vec;
 use alloc::vec::Vec;
@@ -97,7 +97,7 @@ impl Tethers {
         let n_garment = garment.n_vertices();
         let rest = garment.rest();
         let edges = garment.edges().to_vec();
-        let rest_len = edges.iter().map(|&[i, j]| dist(rest[i as usize], rest[j as usize])).collect();
+        let rest_len = edges.iter().map(|&[i, j]| norm3(sub3(rest[i as usize], rest[j as usize]))).collect();
         Ok(Tethers {
             slack,
             tied: false,
@@ -262,16 +262,15 @@ impl Tethers {
     }
 }
 
-/// Distance between two points (m).
-fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
-    let d = sub3(a, b);
-    libm::sqrtf(dot3(d, d))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::mesh::shapes::grid;
+
+    /// Distance between two points (m).
+    fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
+        norm3(sub3(a, b))
+    }
 
     /// A garment of `rest` (m) and `faces`.
     fn garment(rest: &[[f32; 3]], faces: &[[u32; 3]]) -> Garment {
