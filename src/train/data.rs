@@ -105,13 +105,15 @@ impl Dataset {
     /// L-BFGS, [`REFERENCE_ITERATIONS`] iterations at most), in the
     /// [`material`](TrainConfig::material) of the config the dataset was built with, pinned
     /// vertices at their targets. A rollout that turns non-finite keeps its frames up to there,
-    /// and one that loses the garment ([`crate::eval::LossWatch`]: worn vertices off the body, or
-    /// ridden up) keeps its frames before that one, so that no sample starts from a garment the
-    /// solver has thrown off (on fast arm swings and inversions the implicit step of the
-    /// objective can lose a loose top). With `cache`, each scene's states are read from
-    /// `cache/<scene>.bin` when there (and of the scene's size), else computed and written there
-    /// (the cache is per run: its files do not record the material). `progress(scene, done,
-    /// of)` is told about every frame computed.
+    /// and one whose garment has fallen off ([`REFERENCE_GONE_PERCENT`] or more of its worn
+    /// vertices off the body) keeps its frames before that one, so that no sample starts from a
+    /// garment the solver has thrown off (on inversions the implicit step of the objective can
+    /// lose a loose top). A top flaring away from the body at a jump's peak, or ridden up to the
+    /// chest, stays: those are states the network has to step from. With `cache`, each scene's
+    /// states are read from `cache/<scene>.bin` when there (of the scene's size and made with
+    /// [`REFERENCE_ITERATIONS`]), else computed and written there (the cache is per run: its
+    /// files do not record the material). `progress(scene, done, of)` is told about every frame
+    /// computed.
     ///
     /// # Errors
     /// Errors of the scoring rollout; [`Error::Io`] when the cache cannot be written.
@@ -128,7 +130,7 @@ impl Dataset {
         for (scene, name) in self.scenes.iter().zip(&self.names) {
             let n = scene.garment.n_vertices();
             let file = cache.map(|dir| dir.join(std::format!("{}.bin", name.replace(['/', ' '], "_"))));
-            if let Some(mut states) = file.as_deref().and_then(|f| read_states(f, n)) {
+            if let Some(mut states) = file.as_deref().and_then(|f| read_states(f, n, REFERENCE_ITERATIONS)) {
                 truncate_at_loss(scene, &mut states)?;
                 self.reference.push(states);
                 continue;
@@ -147,7 +149,7 @@ impl Dataset {
                 states.truncate(r.frames.len() + 1);
             }
             if let Some(f) = &file {
-                write_states(f, &states)?;
+                write_states(f, &states, REFERENCE_ITERATIONS)?;
             }
             truncate_at_loss(scene, &mut states)?;
             self.reference.push(states);
@@ -183,42 +185,56 @@ impl Dataset {
 /// Garment positions (m), one per vertex.
 pub type Positions = Vec<[f32; 3]>;
 
-/// Drops the states of `scene`'s reference rollout from the first frame whose garment is lost
-/// ([`LossWatch`](crate::eval::LossWatch); the cache keeps the whole rollout: the rule may
-/// change, the solve need not be redone).
+/// Drops the states of `scene`'s reference rollout from the first frame at which
+/// [`REFERENCE_GONE_PERCENT`] or more of the garment's worn vertices are off the body
+/// ([`OffBody`](crate::eval::OffBody)). The cache keeps the whole rollout: the rule may change,
+/// the solve need not be redone.
 fn truncate_at_loss(scene: &Scene, states: &mut Vec<Positions>) -> Result<()> {
-    use crate::eval::{LossWatch, OffBody};
+    use crate::eval::OffBody;
     let Some(mut metric) = OffBody::new(scene)? else { return Ok(()) };
-    let mut watch = LossWatch::default();
-    let mut lost = None;
     for (t, x) in states.iter().enumerate() {
-        if watch.observe(&metric.measure(scene, t, x)?).is_some() {
-            lost = Some(t);
+        if metric.measure(scene, t, x)?.off_percent >= REFERENCE_GONE_PERCENT {
+            states.truncate(t);
             break;
         }
-    }
-    if let Some(t) = lost {
-        states.truncate(t);
     }
     Ok(())
 }
 
-/// L-BFGS iterations per frame of the reference rollouts (the accuracy/time report puts 100
-/// iterations within about 0.002 of the converged step's gap).
-pub const REFERENCE_ITERATIONS: usize = 100;
+/// The percentage of worn vertices off the body at which a reference rollout's garment has
+/// fallen off, and its states end. Far above the acceptance bound of a rollout
+/// ([`crate::eval::LOST_PERCENT`]): at that bound the converged step of the objective already
+/// "loses" the t-shirt for a few frames at the peak of a jump, as the hem flares away, and then
+/// holds it on for the rest of the clip.
+pub const REFERENCE_GONE_PERCENT: f64 = 50.0;
 
-/// Magic bytes of a reference-state file. Version 2: the rollouts start at the scene's initial
-/// velocity ([`Scene::initial_velocity`]); files of version 1 (from rest) are recomputed.
-const STATES_MAGIC: &[u8; 8] = b"HOODREF2";
+/// L-BFGS iterations per frame of the reference rollouts at most: the converged step's
+/// ([`crate::eval::converged_solver`]), whose tolerances end most frames sooner. On walks 100
+/// iterations come within about 0.002 of the converged step's gap (the accuracy/time report),
+/// but on vigorous motion they fall behind it: capped at 100, the implicit step loses the
+/// t-shirt on the training jumps at frame 13 and has it entirely off from frame 262; converged,
+/// it keeps the t-shirt on through the clip (at most 13.7 % of its worn vertices off, at one
+/// jump's peak), for about 0.1 s a frame against 0.04 s.
+pub const REFERENCE_ITERATIONS: usize = 1000;
 
-/// Reads a reference-state file (magic, frames and vertices as little-endian `u32`, then the
-/// positions as little-endian `f32`), `None` when absent, damaged or not of `n` vertices.
-fn read_states(path: &Path, n: usize) -> Option<Vec<Vec<[f32; 3]>>> {
+/// Magic bytes of a reference-state file. Version 3: the header records the L-BFGS iterations
+/// per frame, and files made with other counts are recomputed. Version 2 started the rollouts
+/// at the scene's initial velocity ([`Scene::initial_velocity`]), version 1 from rest.
+const STATES_MAGIC: &[u8; 8] = b"HOODREF3";
+
+/// Bytes of a reference-state file's header: magic, then frames, vertices and iterations.
+const STATES_HEADER: usize = 20;
+
+/// Reads a reference-state file (magic, frames, vertices and L-BFGS iterations per frame as
+/// little-endian `u32`, then the positions as little-endian `f32`), `None` when absent,
+/// damaged, not of `n` vertices or not made with `iterations`.
+fn read_states(path: &Path, n: usize, iterations: usize) -> Option<Vec<Vec<[f32; 3]>>> {
     let bytes = std::fs::read(path).ok()?;
-    let (head, body) = bytes.split_at_checked(16)?;
+    let (head, body) = bytes.split_at_checked(STATES_HEADER)?;
     let word = |i: usize| u32::from_le_bytes([head[i], head[i + 1], head[i + 2], head[i + 3]]) as usize;
-    let (frames, verts) = (word(8), word(12));
-    if &head[..8] != STATES_MAGIC || verts != n || frames == 0 || body.len() != frames * verts * 12 {
+    let (frames, verts, iters) = (word(8), word(12), word(16));
+    let fits = body.len() == frames * verts * 12;
+    if &head[..8] != STATES_MAGIC || verts != n || iters != iterations || frames == 0 || !fits {
         return None;
     }
     let values: Vec<f32> = body.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
@@ -226,13 +242,14 @@ fn read_states(path: &Path, n: usize) -> Option<Vec<Vec<[f32; 3]>>> {
 }
 
 /// Writes `states` in [`read_states`]' format (atomically).
-fn write_states(path: &Path, states: &[Vec<[f32; 3]>]) -> Result<()> {
+fn write_states(path: &Path, states: &[Vec<[f32; 3]>], iterations: usize) -> Result<()> {
     let io = |e: std::io::Error| Error::io(path, e);
     let verts = states.first().map_or(0, Vec::len);
-    let mut bytes = Vec::with_capacity(16 + states.len() * verts * 12);
+    let mut bytes = Vec::with_capacity(STATES_HEADER + states.len() * verts * 12);
     bytes.extend_from_slice(STATES_MAGIC);
-    bytes.extend_from_slice(&(states.len() as u32).to_le_bytes());
-    bytes.extend_from_slice(&(verts as u32).to_le_bytes());
+    for word in [states.len(), verts, iterations] {
+        bytes.extend_from_slice(&(word as u32).to_le_bytes());
+    }
     for p in states.iter().flatten().flatten() {
         bytes.extend_from_slice(&p.to_le_bytes());
     }
@@ -247,22 +264,49 @@ mod tests {
     use super::*;
     use crate::scene::{GarmentKind, MotionKind};
 
-    /// A reference rollout keeps its frames up to the one that loses the garment, and all of
-    /// them while the garment stays on.
+    /// A reference rollout keeps its frames up to the one whose garment has fallen off, and all
+    /// of them while the garment stays on, even where part of it flares away for a while.
     #[test]
-    fn reference_states_end_where_the_garment_is_lost() {
+    fn reference_states_end_where_the_garment_has_fallen_off() {
         let m = Mannequin::new();
         let s = scene::procedural(&m, GarmentKind::Skirt, 300, MotionKind::Walk, 0.5).unwrap();
         let worn: Vec<Positions> = (0..s.n_frames()).map(|f| s.initial_garment(f).unwrap()).collect();
         let mut kept = worn.clone();
         truncate_at_loss(&s, &mut kept).unwrap();
         assert_eq!(kept.len(), worn.len());
+        // Every fifth vertex 30 cm out on frames 3-6: off the body by the acceptance rule, not
+        // fallen off.
+        let mut flared = worn.clone();
+        for frame in &mut flared[3..7] {
+            for p in frame.iter_mut().step_by(5) {
+                p[0] += 0.3;
+            }
+        }
+        let mut metric = crate::eval::OffBody::new(&s).unwrap().unwrap();
+        let off = metric.measure(&s, 3, &flared[3]).unwrap().off_percent;
+        assert!((crate::eval::LOST_PERCENT..REFERENCE_GONE_PERCENT).contains(&off), "{off}");
+        truncate_at_loss(&s, &mut flared).unwrap();
+        assert_eq!(flared.len(), worn.len());
         let mut lost = worn.clone();
         for p in lost[7].iter_mut() {
             p[1] -= 1.0; // a metre down: fallen to the floor
         }
         truncate_at_loss(&s, &mut lost).unwrap();
         assert_eq!(lost.len(), 7);
+    }
+
+    /// The state cache reads back what it wrote, and refuses files of another vertex count or
+    /// made with another number of solver iterations.
+    #[test]
+    fn reference_state_files_record_their_solver_iterations() {
+        let dir = std::env::temp_dir().join(std::format!("hood-reference-{}", std::process::id()));
+        let file = dir.join("scene.bin");
+        let states: Vec<Positions> = (0..3).map(|f| (0..4).map(|v| [f as f32, v as f32, 0.5]).collect()).collect();
+        write_states(&file, &states, 300).unwrap();
+        assert_eq!(read_states(&file, 4, 300), Some(states));
+        assert_eq!(read_states(&file, 5, 300), None);
+        assert_eq!(read_states(&file, 4, 100), None);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A run's fixed material reaches its samples and the garments its reference rollouts play;

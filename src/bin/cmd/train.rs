@@ -354,8 +354,8 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
         for ((states, scene), name) in t.data.reference.iter().zip(&t.data.scenes).zip(&t.data.names) {
             if states.len() < scene.n_frames() {
                 eprintln!(
-                    "reference rollout of {name}: states before frame {0} (the garment is lost, or the step fails, at \
-                     frame {0})",
+                    "reference rollout of {name}: states before frame {0} (the garment has fallen off, or the step \
+                     fails, at frame {0})",
                     states.len()
                 );
             }
