@@ -5,6 +5,7 @@
 use hood::scene::{GarmentKind, MotionKind};
 use hood::train::{Dataset, SceneSource, TrainConfig, Trainer};
 use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// A run small enough for debug-mode tests: h = 8, a two-level schedule, a 64-vertex cape.
 fn tiny_config() -> TrainConfig {
@@ -468,6 +469,33 @@ fn train_cli_resume_with_other_scenes() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Reference rollouts solved on two threads, a scene per thread, give each scene the states
+/// one thread gives it, and the progress counts every frame of every scene once.
+#[test]
+fn train_reference_states_on_two_threads_match_one() {
+    let scene = |garment, motion| SceneSource::Procedural { garment, vertices: 64, motion, seconds: 0.5 };
+    let cfg = tiny_config().with_scenes(vec![
+        scene(GarmentKind::Cape, MotionKind::ArmSwings),
+        scene(GarmentKind::Skirt, MotionKind::Walk),
+        scene(GarmentKind::Cape, MotionKind::Walk),
+    ]);
+    let mut one = data(&cfg);
+    one.attach_reference_states(None, 5e5, 1, |_, _, _| {}).unwrap();
+    let mut two = data(&cfg);
+    let (calls, last) = (AtomicUsize::new(0), AtomicUsize::new(0));
+    two.attach_reference_states(None, 5e5, 2, |_, done, of| {
+        calls.fetch_add(1, Ordering::Relaxed);
+        last.fetch_max(done, Ordering::Relaxed);
+        assert!(done <= of, "{done} of {of}");
+    })
+    .unwrap();
+    let frames: usize = two.scenes.iter().map(|s| s.n_frames() - 1).sum();
+    assert_eq!((calls.into_inner(), last.into_inner()), (frames, frames));
+    assert_eq!(one.reference.len(), 3);
+    assert!(one.reference.iter().all(|r| r.len() > 1));
+    assert_eq!(two.reference, one.reference);
+}
+
 /// `reference_states`: the scenes' reference rollouts (implicit steps of the training objective)
 /// are computed once and cached, and fresh samples start from their states (past the start-up
 /// step) with the configured probability; without them attached, from the skinned garment.
@@ -476,10 +504,13 @@ fn train_reference_states_start_fresh_samples_from_the_reference_rollout() {
     let cfg = tiny_config().with_reference_states(1.0);
     let dir = std::env::temp_dir().join(format!("hood-reference-{}", std::process::id()));
     let mut d = data(&cfg);
-    let mut computed = 0;
-    d.attach_reference_states(Some(&dir), 5e5, |_, _, _| computed += 1).unwrap();
+    let computed = AtomicUsize::new(0);
+    d.attach_reference_states(Some(&dir), 5e5, 1, |_, _, _| {
+        computed.fetch_add(1, Ordering::Relaxed);
+    })
+    .unwrap();
     let n_frames = d.scenes[0].n_frames();
-    assert_eq!(computed, n_frames - 1);
+    assert_eq!(computed.into_inner(), n_frames - 1);
     let states = &d.reference[0];
     assert_eq!(states.len(), n_frames);
     assert_eq!(states[0], d.scenes[0].initial_garment(0).unwrap());
@@ -491,15 +522,19 @@ fn train_reference_states_start_fresh_samples_from_the_reference_rollout() {
     assert!(d.reference_state(0, 0).is_none() && d.reference_state(0, n_frames).is_none());
     // The cache gives the same states without computing; a file of another garment is redone.
     let mut again = data(&cfg);
-    again.attach_reference_states(Some(&dir), 5e5, |_, _, _| panic!("computed again")).unwrap();
+    again.attach_reference_states(Some(&dir), 5e5, 2, |_, _, _| panic!("computed again")).unwrap();
     assert_eq!(again.reference, d.reference);
     let file = std::fs::read_dir(&dir).unwrap().next().unwrap().unwrap().path();
     let mut bytes = std::fs::read(&file).unwrap();
     bytes[12] ^= 1;
     std::fs::write(&file, &bytes).unwrap();
-    let mut redone = 0;
-    again.attach_reference_states(Some(&dir), 5e5, |_, _, _| redone += 1).unwrap();
-    assert_eq!((redone, &again.reference), (n_frames - 1, &d.reference));
+    let redone = AtomicUsize::new(0);
+    again
+        .attach_reference_states(Some(&dir), 5e5, 2, |_, _, _| {
+            redone.fetch_add(1, Ordering::Relaxed);
+        })
+        .unwrap();
+    assert_eq!((redone.into_inner(), &again.reference), (n_frames - 1, &d.reference));
     std::fs::remove_dir_all(&dir).ok();
 
     let mut t = Trainer::new(cfg.clone(), d).unwrap();

@@ -112,8 +112,9 @@ impl Dataset {
     /// chest, stays: those are states the network has to step from. With `cache`, each scene's
     /// states are read from `cache/<scene>.bin` when there (of the scene's size and made with
     /// [`REFERENCE_ITERATIONS`]), else computed and written there (the cache is per run: its
-    /// files do not record the material). `progress(scene, done, of)` is told about every frame
-    /// computed.
+    /// files do not record the material). Up to `threads` scenes are solved at once, one per
+    /// thread; `progress(scene, done, of)` is told about every frame solved, with the frames
+    /// solved so far and the frames to solve in all.
     ///
     /// # Errors
     /// Errors of the scoring rollout; [`Error::Io`] when the cache cannot be written.
@@ -121,38 +122,67 @@ impl Dataset {
         &mut self,
         cache: Option<&Path>,
         collision_weight: f64,
-        mut progress: impl FnMut(&str, usize, usize),
+        threads: usize,
+        progress: impl Fn(&str, usize, usize) + Sync,
     ) -> Result<()> {
-        use crate::eval::{converged_solver, implicit_rollout, RolloutOptions};
-        use crate::physics::Objective;
-        use crate::solve::LbfgsParams;
+        use core::sync::atomic::{AtomicUsize, Ordering};
+        use std::sync::Mutex;
+        let files: Vec<Option<std::path::PathBuf>> = self
+            .names
+            .iter()
+            .map(|name| cache.map(|dir| dir.join(std::format!("{}.bin", name.replace(['/', ' '], "_")))))
+            .collect();
+        let mut states: Vec<Option<Vec<Positions>>> = self
+            .scenes
+            .iter()
+            .zip(&files)
+            .map(|(scene, file)| {
+                let n = scene.garment.n_vertices();
+                file.as_deref().and_then(|f| read_states(f, n, REFERENCE_ITERATIONS))
+            })
+            .collect();
+        // The rollouts still to solve, one scene per worker at a time (each is serial).
+        let todo: Vec<usize> = (0..self.scenes.len()).filter(|&i| states[i].is_none()).collect();
+        let of: usize = todo.iter().map(|&i| self.scenes[i].n_frames() - 1).sum();
+        let (next, done) = (AtomicUsize::new(0), AtomicUsize::new(0));
+        let solved: Mutex<Vec<(usize, Result<Vec<Positions>>)>> = Mutex::new(Vec::new());
+        let work = || {
+            while let Some(&i) = todo.get(next.fetch_add(1, Ordering::Relaxed)) {
+                let name = &self.names[i];
+                let r = reference_rollout(&self.scenes[i], collision_weight, &mut || {
+                    progress(name, done.fetch_add(1, Ordering::Relaxed) + 1, of);
+                })
+                .and_then(|computed| {
+                    // Written at once: an interrupted run keeps the scenes it finished.
+                    if let Some(f) = &files[i] {
+                        write_states(f, &computed, REFERENCE_ITERATIONS)?;
+                    }
+                    Ok(computed)
+                });
+                if r.is_err() {
+                    // No worker starts another scene.
+                    next.store(todo.len(), Ordering::Relaxed);
+                }
+                solved.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push((i, r));
+            }
+        };
+        std::thread::scope(|scope| {
+            for _ in 1..threads.clamp(1, todo.len().max(1)) {
+                scope.spawn(work);
+            }
+            work();
+        });
+        let mut solved = solved.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
+        // The first error in scene order, whichever worker met it.
+        solved.sort_by_key(|(i, _)| *i);
+        for (i, r) in solved {
+            states[i] = Some(r?);
+        }
         self.reference.clear();
-        for (scene, name) in self.scenes.iter().zip(&self.names) {
-            let n = scene.garment.n_vertices();
-            let file = cache.map(|dir| dir.join(std::format!("{}.bin", name.replace(['/', ' '], "_"))));
-            if let Some(mut states) = file.as_deref().and_then(|f| read_states(f, n, REFERENCE_ITERATIONS)) {
-                truncate_at_loss(scene, &mut states)?;
-                self.reference.push(states);
-                continue;
-            }
-            let frames = scene.n_frames() - 1;
-            let opts = RolloutOptions { objective: Objective::training(collision_weight), ..RolloutOptions::default() };
-            let solver = LbfgsParams { max_iterations: REFERENCE_ITERATIONS, ..converged_solver() };
-            let mut states = std::vec![scene.initial_garment(0)?];
-            let r = implicit_rollout(scene, frames, &solver, &opts, &mut |rec, pos| {
-                states.push(pos.to_vec());
-                progress(name, rec.frame, frames);
-                Ok(())
-            })?;
-            if r.failure.is_some() {
-                // The failing frame's positions were not recorded: the states end before it.
-                states.truncate(r.frames.len() + 1);
-            }
-            if let Some(f) = &file {
-                write_states(f, &states, REFERENCE_ITERATIONS)?;
-            }
-            truncate_at_loss(scene, &mut states)?;
-            self.reference.push(states);
+        for (scene, s) in self.scenes.iter().zip(states) {
+            let mut s = s.unwrap_or_default();
+            truncate_at_loss(scene, &mut s)?;
+            self.reference.push(s);
         }
         Ok(())
     }
@@ -184,6 +214,28 @@ impl Dataset {
 
 /// Garment positions (m), one per vertex.
 pub type Positions = Vec<[f32; 3]>;
+
+/// One scene's reference rollout (the rules of [`Dataset::attach_reference_states`], before
+/// the cut where the garment has fallen off), telling `frame_done` about every frame solved.
+fn reference_rollout(scene: &Scene, collision_weight: f64, frame_done: &mut dyn FnMut()) -> Result<Vec<Positions>> {
+    use crate::eval::{converged_solver, implicit_rollout, RolloutOptions};
+    use crate::physics::Objective;
+    use crate::solve::LbfgsParams;
+    let frames = scene.n_frames() - 1;
+    let opts = RolloutOptions { objective: Objective::training(collision_weight), ..RolloutOptions::default() };
+    let solver = LbfgsParams { max_iterations: REFERENCE_ITERATIONS, ..converged_solver() };
+    let mut states = std::vec![scene.initial_garment(0)?];
+    let r = implicit_rollout(scene, frames, &solver, &opts, &mut |_, pos| {
+        states.push(pos.to_vec());
+        frame_done();
+        Ok(())
+    })?;
+    if r.failure.is_some() {
+        // The failing frame's positions were not recorded: the states end before it.
+        states.truncate(r.frames.len() + 1);
+    }
+    Ok(states)
+}
 
 /// Drops the states of `scene`'s reference rollout from the first frame at which
 /// [`REFERENCE_GONE_PERCENT`] or more of the garment's worn vertices are off the body

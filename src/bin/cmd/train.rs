@@ -345,7 +345,8 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
         let clock = Instant::now();
         let weight = t.cfg.collision_weight.1;
         let bar = Progress::new("reference rollout", "frames", 0, Duration::from_secs(10));
-        t.data.attach_reference_states(Some(&dir.join("reference")), weight, |name, done, of| {
+        let threads = t.cfg.threads;
+        t.data.attach_reference_states(Some(&dir.join("reference")), weight, threads, |name, done, of| {
             bar.set_length(of as u64);
             bar.set_position(done as u64);
             bar.set_message(name);
