@@ -347,7 +347,8 @@ typedef struct hood_sim_config {
                                    over 1.5 times its rest length), velocity included. The "max
                                    distance" of game cloth, outside
                                    HOOD and the physics: for garments that must stay on whatever
-                                   the motion (a top upside down). Needs a body.
+                                   the motion (a top upside down). Applied after the collision
+                                   projection when both are on. Needs a body.
                                    hood_sim_load_state and hood_sim_teleport keep the ties */
 } hood_sim_config;
 

@@ -193,7 +193,8 @@ pub struct SimConfig {
     /// [`TETHER_FOLLOW_STRETCH`](super::TETHER_FOLLOW_STRETCH), and velocities take the moves
     /// (`None`: off). The "max distance" constraint of game-engine cloth, outside HOOD and the
     /// physics, for garments that must stay on whatever the motion (a top upside down); needs
-    /// body collision. See [`DEFAULT_TETHER_SLACK`].
+    /// body collision. Applied after [`projection`](Self::projection), so that the cloth's
+    /// following is not undone. See [`DEFAULT_TETHER_SLACK`].
     pub tether: Option<f32>,
     /// Solver refinement: this many L-BFGS iterations (1 ..= [`MAX_REFINE_ITERATIONS`]) of the
     /// physics objective (training form, collision weight [`REFINE_COLLISION_WEIGHT`]), started

@@ -354,22 +354,26 @@ mod tests {
         assert!((1..11).all(|i| pos[i][0] <= alone[i][0] + 1e-6));
     }
 
+    /// A sim's scene: a network that outputs nothing (its bytes), a 5 x 5 cloth 20 cm wide 1 cm
+    /// above the top of an ellipsoid body, the body's vertices and mesh.
+    fn cloth_over_a_body() -> (crate::model::ModelBytes, Garment, Vec<[f32; 3]>, crate::body::BodyMesh) {
+        let (rest, faces) = grid(5, 5, 0.2, 0.2, 0.31);
+        let garment = Garment::new(crate::mesh::GarmentDesc::new(&rest, &faces)).unwrap();
+        let (body, body_faces) = crate::body::shapes::ellipsoid(32, 48, [0.25, 0.3, 0.25], [0.0; 3]);
+        let mesh = crate::body::BodyMesh::new(body.len(), &body_faces).unwrap();
+        (crate::sim::coasting_model_bytes(7), garment, body, mesh)
+    }
+
     /// On a sim: a cloth whose network outputs nothing, over a body that drops 5 cm a frame, stays
     /// where it was without tethers and is held within its lengths with them; the step reports
     /// the pull, and a teleport forgets it. Tethers need a body.
     #[test]
     fn tethers_hold_a_cloth_on_a_body_that_drops_away() {
         use crate::body::rigid::RigidMotion;
-        use crate::body::{shapes, BodyMesh};
-        use crate::mesh::GarmentDesc;
-        use crate::sim::{coasting_model_bytes, BodyDesc, Sim, SimConfig, StepEffects};
+        use crate::sim::{BodyDesc, Sim, SimConfig, StepEffects};
 
-        let bytes = coasting_model_bytes(7);
+        let (bytes, garment, body, mesh) = cloth_over_a_body();
         let model = bytes.model().unwrap();
-        let (rest, faces) = grid(5, 5, 0.2, 0.2, 0.31);
-        let garment = Garment::new(GarmentDesc::new(&rest, &faces)).unwrap();
-        let (body, body_faces) = shapes::ellipsoid(32, 48, [0.25, 0.3, 0.25], [0.0; 3]);
-        let mesh = BodyMesh::new(body.len(), &body_faces).unwrap();
         let desc = || Some(BodyDesc { mesh: &mesh, positions: &body });
         let base = SimConfig { startup: false, ..SimConfig::network() };
         let mut free = Sim::new(&model, &garment, desc(), base).unwrap();
@@ -407,6 +411,32 @@ mod tests {
         assert_eq!(held.tethered_vertices(), 0, "a new placement ties again at the next step");
         let no_body = Sim::new(&model, &garment, None, base.with_tether(Some(0.02)));
         assert!(matches!(no_body, Err(Error::UnsupportedEffect { .. })));
+    }
+
+    /// With collision projection on as well, the tethers act last: a projection margin wider
+    /// than the slack pushes the cloth out past its lengths, and every vertex is back within its
+    /// length when the step ends.
+    #[test]
+    fn tethers_act_after_the_projection() {
+        use crate::sim::{BodyDesc, Sim, SimConfig};
+
+        // Tied with no slack 1 cm above the body; the projection keeps 3 cm.
+        let (bytes, garment, body, mesh) = cloth_over_a_body();
+        let model = bytes.model().unwrap();
+        let cfg =
+            SimConfig { startup: false, ..SimConfig::network() }.with_tether(Some(0.0)).with_projection(Some(0.03));
+        let mut sim = Sim::new(&model, &garment, Some(BodyDesc { mesh: &mesh, positions: &body }), cfg).unwrap();
+        let mut both = 0;
+        for frame in 1..=5 {
+            sim.step(&body).unwrap();
+            both += usize::from(sim.last_projected() > 0 && sim.last_tethered() > 0);
+            let t = sim.body.as_ref().unwrap().tethers.as_ref().unwrap();
+            for (i, x) in sim.positions().iter().enumerate() {
+                let anchor = body[t.anchor[i] as usize];
+                assert!(dist(*x, anchor) <= t.length[i] * (1.0 + 1e-5), "frame {frame} vertex {i}");
+            }
+        }
+        assert!(both > 0, "the projection pushed past a length and the tethers pulled back");
     }
 
     #[test]
