@@ -102,7 +102,7 @@ impl Dataset {
 
     /// Plays every scene's reference rollout: from the skinned garment at rest at frame 0, every
     /// frame one implicit step of the training objective at the final collision weight (f64
-    /// L-BFGS, [`REFERENCE_ITERATIONS`] iterations at most), in the
+    /// L-BFGS to the tolerances of [`crate::eval::converged_solver`]), in the
     /// [`material`](TrainConfig::material) of the config the dataset was built with, pinned
     /// vertices at their targets. A rollout that turns non-finite keeps its frames up to there,
     /// and one whose garment has fallen off ([`REFERENCE_GONE_PERCENT`] or more of its worn
@@ -111,7 +111,7 @@ impl Dataset {
     /// lose a loose top). A top flaring away from the body at a jump's peak, or ridden up to the
     /// chest, stays: those are states the network has to step from. With `cache`, each scene's
     /// states are read from `cache/<scene>.bin` when there (of the scene's size and made with
-    /// [`REFERENCE_ITERATIONS`]), else computed and written there (the cache is per run: its
+    /// the converged step's iteration cap), else computed and written there (the cache is per run: its
     /// files do not record the material). Up to `threads` scenes are solved at once, one per
     /// thread; `progress(scene, done, of)` is told about every frame solved, with the frames
     /// solved so far and the frames to solve in all.
@@ -132,13 +132,14 @@ impl Dataset {
             .iter()
             .map(|name| cache.map(|dir| dir.join(std::format!("{}.bin", name.replace(['/', ' '], "_")))))
             .collect();
+        let cap = crate::eval::converged_solver().max_iterations;
         let mut states: Vec<Option<Vec<Positions>>> = self
             .scenes
             .iter()
             .zip(&files)
             .map(|(scene, file)| {
                 let n = scene.garment.n_vertices();
-                file.as_deref().and_then(|f| read_states(f, n, REFERENCE_ITERATIONS))
+                file.as_deref().and_then(|f| read_states(f, n, cap))
             })
             .collect();
         // The rollouts still to solve, one scene per worker at a time (each is serial).
@@ -155,7 +156,7 @@ impl Dataset {
                 .and_then(|computed| {
                     // Written at once: an interrupted run keeps the scenes it finished.
                     if let Some(f) = &files[i] {
-                        write_states(f, &computed, REFERENCE_ITERATIONS)?;
+                        write_states(f, &computed, cap)?;
                     }
                     Ok(computed)
                 });
@@ -217,13 +218,20 @@ pub type Positions = Vec<[f32; 3]>;
 
 /// One scene's reference rollout (the rules of [`Dataset::attach_reference_states`], before
 /// the cut where the garment has fallen off), telling `frame_done` about every frame solved.
+///
+/// Each frame is the converged step ([`crate::eval::converged_solver`]: at most 1,000 L-BFGS
+/// iterations, most frames ending sooner on its tolerances). On walks 100 iterations come within
+/// about 0.002 of its gap (the accuracy/time report), but on vigorous motion they fall behind
+/// it: capped at 100, the implicit step loses the t-shirt on the training jumps at frame 13 and
+/// has it entirely off from frame 262; converged, it keeps the t-shirt on the body through the
+/// clip (at most 13.7 % of its worn vertices off, at one jump's peak; ridden up to the chest by
+/// the end), for about 0.1 s a frame against 0.04 s.
 fn reference_rollout(scene: &Scene, collision_weight: f64, frame_done: &mut dyn FnMut()) -> Result<Vec<Positions>> {
     use crate::eval::{converged_solver, implicit_rollout, RolloutOptions};
     use crate::physics::Objective;
-    use crate::solve::LbfgsParams;
+    let solver = converged_solver();
     let frames = scene.n_frames() - 1;
     let opts = RolloutOptions { objective: Objective::training(collision_weight), ..RolloutOptions::default() };
-    let solver = LbfgsParams { max_iterations: REFERENCE_ITERATIONS, ..converged_solver() };
     let mut states = std::vec![scene.initial_garment(0)?];
     let r = implicit_rollout(scene, frames, &solver, &opts, &mut |_, pos| {
         states.push(pos.to_vec());
@@ -259,16 +267,6 @@ fn truncate_at_loss(scene: &Scene, states: &mut Vec<Positions>) -> Result<()> {
 /// "loses" the t-shirt for a few frames at the peak of a jump, as the hem flares away, and then
 /// holds it on for the rest of the clip.
 pub const REFERENCE_GONE_PERCENT: f64 = 50.0;
-
-/// L-BFGS iterations per frame of the reference rollouts at most: the converged step's
-/// ([`crate::eval::converged_solver`]), whose tolerances end most frames sooner. On walks 100
-/// iterations come within about 0.002 of the converged step's gap (the accuracy/time report),
-/// but on vigorous motion they fall behind it: capped at 100, the implicit step loses the
-/// t-shirt on the training jumps at frame 13 and has it entirely off from frame 262; converged,
-/// it keeps the t-shirt on the body through the clip (at most 13.7 % of its worn vertices off,
-/// at one jump's peak; ridden up to the chest by the end), for about 0.1 s a frame against
-/// 0.04 s.
-pub const REFERENCE_ITERATIONS: usize = 1000;
 
 /// Magic bytes of a reference-state file. Version 3: the header records the L-BFGS iterations
 /// per frame, and files made with other counts are recomputed. Version 2 started the rollouts
