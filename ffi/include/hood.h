@@ -348,7 +348,8 @@ typedef struct hood_sim_config {
                                    distance" of game cloth, outside
                                    HOOD and the physics: for garments that must stay on whatever
                                    the motion (a top upside down). Applied after the collision
-                                   projection when both are on. Needs a body.
+                                   projection when both are on, the cloth then following the
+                                   projection's moves too. Needs a body.
                                    hood_sim_load_state and hood_sim_teleport keep the ties */
 } hood_sim_config;
 

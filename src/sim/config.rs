@@ -194,7 +194,8 @@ pub struct SimConfig {
     /// (`None`: off). The "max distance" constraint of game-engine cloth, outside HOOD and the
     /// physics, for garments that must stay on whatever the motion (a top upside down); needs
     /// body collision. Applied after [`projection`](Self::projection), so that the cloth's
-    /// following is not undone. See [`DEFAULT_TETHER_SLACK`].
+    /// following is not undone, and the cloth follows the projection's moves as it follows the
+    /// pulls. See [`DEFAULT_TETHER_SLACK`].
     pub tether: Option<f32>,
     /// Solver refinement: this many L-BFGS iterations (1 ..= [`MAX_REFINE_ITERATIONS`]) of the
     /// physics objective (training form, collision weight [`REFINE_COLLISION_WEIGHT`]), started

@@ -9,8 +9,8 @@
 //! to the nearest one, with a length of that distance plus the slack. After every step a vertex
 //! farther than its length from its body vertex (at the new frame) is pulled straight back to that
 //! length, and its velocity takes the move, so the next step starts from where it was put. When no
-//! vertex is beyond its length nothing is touched: a garment that stays on is stepped exactly as
-//! without tethers.
+//! vertex is beyond its length (and the projection, when on, moved none) nothing is touched: a
+//! garment that stays on is stepped exactly as without tethers.
 //!
 //! The cloth around a pulled vertex follows it. Neighbours are tied to different body vertices
 //! at different distances, so a step that carries the cloth away pulls some vertices back and
@@ -21,6 +21,11 @@
 //! strain limit, but only where the tethers moved something (the step's own stretching elsewhere
 //! is left as it is). A last pass brings any vertex that following carried beyond its own length
 //! back onto it.
+//!
+//! With the collision projection on, it runs first and its moves count as the pulls' do: the
+//! cloth follows a vertex pushed out of the body as it follows one pulled back (each vertex is
+//! pushed along its own nearest face, and neighbours pushed out of different faces pull apart).
+//! The pass then runs whenever the projection or a tether moved something.
 
 use crate::body::{Nearest, PointGrid};
 use crate::error::{Error, Result};
@@ -79,6 +84,11 @@ pub(super) struct Tethers {
     rest_len: Vec<f32>,
     /// Where each vertex was before this step's pulls (m).
     before: Vec<[f32; 3]>,
+    /// Where each vertex was before this step's effects (m): before the collision projection
+    /// when [`start`](Self::start) recorded it, else `before`. The cloth follows every move since.
+    start: Vec<[f32; 3]>,
+    /// Whether [`start`](Self::start) recorded this step's `start`.
+    started: bool,
     /// Vertices moved by the last [`apply`](Self::apply).
     moved: usize,
 }
@@ -109,6 +119,8 @@ impl Tethers {
             edges,
             rest_len,
             before: vec![[0.0; 3]; n_garment],
+            start: vec![[0.0; 3]; n_garment],
+            started: false,
             moved: 0,
         })
     }
@@ -121,6 +133,7 @@ impl Tethers {
     /// Unties: the next step ties again (the garment was placed anew).
     pub(super) fn untie(&mut self) {
         self.tied = false;
+        self.started = false;
     }
 
     /// Ties every free vertex of `garment` (m) within [`TETHER_REACH`] of a vertex of `body` (m,
@@ -169,6 +182,16 @@ impl Tethers {
         self.moved = 0;
     }
 
+    /// Records `pos` (m) as where this step's effects start: the moves made between this and
+    /// [`apply`](Self::apply) (the collision projection's) are followed by the cloth as the
+    /// pulls are. Allocates nothing.
+    pub(super) fn start(&mut self, pos: &[[f32; 3]]) {
+        if self.tied {
+            self.start.copy_from_slice(pos);
+            self.started = true;
+        }
+    }
+
     /// Pulls every tethered vertex of `pos` (m) that is farther than its length from its body
     /// vertex in `body` (m, the frame `pos` belongs to) straight back to that length, brings the
     /// cloth around it along (see the module notes), and adds every move to `velocity`
@@ -179,7 +202,11 @@ impl Tethers {
             return;
         }
         self.before.copy_from_slice(pos);
-        if !self.pull_back(body, pos) {
+        if !core::mem::take(&mut self.started) {
+            self.start.copy_from_slice(pos);
+        }
+        let pulled = self.pull_back(body, pos);
+        if !pulled && self.start == self.before {
             return;
         }
         self.follow(pos);
@@ -219,7 +246,7 @@ impl Tethers {
     /// (both halfway when they moved alike); pinned vertices do not move.
     fn follow(&self, pos: &mut [[f32; 3]]) {
         let moved2 = |pos: &[[f32; 3]], i: usize| {
-            let d = sub3(pos[i], self.before[i]);
+            let d = sub3(pos[i], self.start[i]);
             dot3(d, d)
         };
         for sweep in 0..MAX_FOLLOW_SWEEPS {
@@ -270,6 +297,13 @@ mod tests {
     /// Distance between two points (m).
     fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
         norm3(sub3(a, b))
+    }
+
+    /// The largest strain (length over rest length, less 1) of the tethers' edges in `pos` (m).
+    fn largest_strain(t: &Tethers, pos: &[[f32; 3]]) -> f32 {
+        (t.edges.iter().zip(&t.rest_len))
+            .map(|(&[i, j], &rest)| dist(pos[i as usize], pos[j as usize]) / rest - 1.0)
+            .fold(0.0f32, f32::max)
     }
 
     /// A garment of `rest` (m) and `faces`.
@@ -332,18 +366,12 @@ mod tests {
         // Pulled alone, the edges from the first column would be 1.5 times their rest length.
         let mut alone = slid.clone();
         assert!(t.pull_back(&body, &mut alone));
-        let rest_len = t.rest_len.clone();
-        let strain = |pos: &[[f32; 3]]| {
-            (g.edges().iter().zip(&rest_len))
-                .map(|(&[i, j], &rest)| dist(pos[i as usize], pos[j as usize]) / rest - 1.0)
-                .fold(0.0f32, f32::max)
-        };
-        assert!(strain(&alone) > 0.45, "{}", strain(&alone));
+        assert!(largest_strain(&t, &alone) > 0.45, "{}", largest_strain(&t, &alone));
 
         let (mut pos, mut vel) = (slid.clone(), vec![[0.0; 3]; 22]);
         t.apply(&body, &mut pos, &mut vel);
         assert_eq!(t.moved(), 22);
-        assert!(strain(&pos) <= TETHER_FOLLOW_STRETCH + 1e-4, "{}", strain(&pos));
+        assert!(largest_strain(&t, &pos) <= TETHER_FOLLOW_STRETCH + 1e-4, "{}", largest_strain(&t, &pos));
         for (i, x) in pos.iter().enumerate() {
             assert!(dist(*x, body[i]) <= t.length[i] * (1.0 + 1e-5), "vertex {i} beyond its length");
             assert!((0..3).all(|k| (vel[i][k] - (x[k] - slid[i][k])).abs() < 1e-6), "velocity takes the move");
@@ -352,6 +380,38 @@ mod tests {
         let back = |i: usize| slid[i][0] - pos[i][0];
         assert!(back(0) > back(1) && back(1) > back(5) && back(5) >= back(10) - 1e-6);
         assert!((1..11).all(|i| pos[i][0] <= alone[i][0] + 1e-6));
+    }
+
+    /// With the collision projection on, the cloth follows its moves as it follows the pulls:
+    /// a vertex of a strip pushed 3 cm out (as the projection moves one out of the body) brings
+    /// its neighbours along, though no tether pulls; the velocities take only the follow's moves
+    /// (the projection added its own). Without the recorded start the same positions are left
+    /// as they are: the step's own stretch.
+    #[test]
+    fn the_cloth_follows_the_projections_moves() {
+        let (placed, faces) = grid(11, 2, 0.1, 0.01, 0.01);
+        let body: Vec<[f32; 3]> = placed.iter().map(|p| [p[0], 0.0, p[2]]).collect();
+        let g = garment(&placed, &faces);
+        let mut t = Tethers::new(&g, body.len(), 0.1).unwrap();
+        t.tie(&placed, &[false; 22], &body).unwrap();
+        let mut projected = placed.clone();
+        projected[5][1] += 0.03;
+        assert!(largest_strain(&t, &projected) > 1.5, "{}", largest_strain(&t, &projected));
+
+        let (mut pos, mut vel) = (projected.clone(), vec![[0.0; 3]; 22]);
+        t.start(&placed);
+        t.apply(&body, &mut pos, &mut vel);
+        assert!(largest_strain(&t, &pos) <= TETHER_FOLLOW_STRETCH + 1e-4, "{}", largest_strain(&t, &pos));
+        assert_eq!(pos[5], projected[5], "the vertex the projection moved most stays");
+        assert!(t.moved() >= 2 && t.moved() < 22, "{}", t.moved());
+        for (i, x) in pos.iter().enumerate() {
+            assert!(dist(*x, body[i]) <= t.length[i] * (1.0 + 1e-5), "vertex {i} beyond its length");
+            assert!((0..3).all(|k| (vel[i][k] - (x[k] - projected[i][k])).abs() < 1e-6), "velocity takes the move");
+        }
+        // The start is one step's: the next apply, with none recorded, leaves the stretch.
+        let (mut again, mut vel) = (projected.clone(), vec![[0.0; 3]; 22]);
+        t.apply(&body, &mut again, &mut vel);
+        assert_eq!((again, t.moved()), (projected, 0));
     }
 
     /// A sim's scene: a network that outputs nothing (its bytes), a 5 x 5 cloth 20 cm wide 1 cm
@@ -437,6 +497,47 @@ mod tests {
             }
         }
         assert!(both > 0, "the projection pushed past a length and the tethers pulled back");
+    }
+
+    /// On a sim with both effects: a cloth placed with one edge at its middle stretched by 70 %
+    /// is pushed out by the projection, and the cloth follows the push, though no tether pulls
+    /// (half a metre of slack); with the projection alone the edge stays stretched.
+    #[test]
+    fn with_the_projection_the_cloth_follows_its_moves() {
+        use crate::sim::{BodyDesc, Sim, SimConfig};
+
+        let (bytes, garment, body, mesh) = cloth_over_a_body();
+        let model = bytes.model().unwrap();
+        let rest = garment.rest().to_vec();
+        let strain = |pos: &[[f32; 3]], [i, j]: [u32; 2]| {
+            let (i, j) = (i as usize, j as usize);
+            dist(pos[i], pos[j]) / dist(rest[i], rest[j]) - 1.0
+        };
+        let projecting = SimConfig { startup: false, ..SimConfig::network() }.with_projection(Some(0.03));
+        let mut strained = 0.0f32;
+        for tether in [None, Some(0.5)] {
+            let desc = Some(BodyDesc { mesh: &mesh, positions: &body });
+            let mut sim = Sim::new(&model, &garment, desc, projecting.with_tether(tether)).unwrap();
+            // Vertex 13, beside the middle one (12) 5 cm along x, placed 8.5 cm from it.
+            let mut state = sim.state().clone();
+            state.pos[13][0] = 0.085;
+            assert!((strain(&state.pos, [12, 13]) - 0.7).abs() < 1e-4);
+            sim.set_state(&state).unwrap();
+            sim.step(&body).unwrap();
+            assert!(sim.last_projected() > 0);
+            let pos = sim.positions();
+            match tether {
+                None => strained = strain(pos, [12, 13]),
+                Some(_) => {
+                    assert!(sim.last_tethered() > 0, "the follow moved the cloth");
+                    let worst = garment.edges().iter().map(|&e| strain(pos, e)).fold(0.0f32, f32::max);
+                    assert!(worst <= TETHER_FOLLOW_STRETCH + 1e-4, "{worst}");
+                    let t = sim.body.as_ref().unwrap().tethers.as_ref().unwrap();
+                    assert!((0..25).all(|i| dist(pos[i], body[t.anchor[i] as usize]) < t.length[i]));
+                }
+            }
+        }
+        assert!(strained > 0.6, "the projection alone leaves the edge stretched: {strained}");
     }
 
     #[test]
