@@ -332,6 +332,9 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     assert_eq!(Some(rows[0][7].to_string()), after(&sim, "shift max "), "{sim}");
     let strain = after(&sim, "largest strain ").unwrap();
     assert_eq!(rows[0][17], strain);
+    let long = after(&sim, &format!("largest strain {strain} (")).unwrap();
+    assert_eq!(rows[0][18], long);
+    assert!(long.parse::<f64>().unwrap() <= strain.parse::<f64>().unwrap());
     let objective = after(&sim, "objective mean ").unwrap();
     assert_eq!(rows[0][13], objective.trim_end_matches(';'));
     // The peak is the largest of the per-frame objectives simulate prints, past frame 1.

@@ -180,6 +180,12 @@ pub struct FrameRecord {
     pub penetrating_percent: f64,
     /// Largest `|l / L - 1|` over the garment's edges.
     pub max_edge_strain: f64,
+    /// The same over the edges at least a quarter of the median edge long at rest
+    /// ([`quarter_median_edge_length`]): the fabric's strain, without the sliver edges of a
+    /// modelled mesh.
+    ///
+    /// [`quarter_median_edge_length`]: crate::physics::quarter_median_edge_length
+    pub max_long_edge_strain: f64,
     /// Largest vertex speed over the frame, m/s.
     pub max_speed: f64,
     /// Wall time of `Sim::step`, ms.

@@ -7,7 +7,10 @@ use crate::body::{BodyMesh, PointGrid, Winding};
 use crate::error::Result;
 use crate::features::DT;
 use crate::math::{norm3, sub3};
-use crate::physics::{face_frames, max_edge_strain, plane_distances, CentroidQuery, Cloth, FaceFrame, Objective};
+use crate::physics::{
+    face_frames, max_edge_strain, max_edge_strain_from, plane_distances, quarter_median_edge_length, CentroidQuery,
+    Cloth, FaceFrame, Objective,
+};
 use crate::physics::{Terms, PENETRATION_DEPTH};
 use crate::sim::SimState;
 use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, Query, StepBody, StepState};
@@ -71,6 +74,8 @@ impl BodyRing {
 /// step's state in f64.
 pub(super) struct Scorer {
     cloth: Cloth<f64>,
+    /// The shortest edge of the long-edge strain, m ([`quarter_median_edge_length`]).
+    long_edge: f64,
     pub(super) objective: Objective,
     solver: ImplicitStep<f64>,
     ring: Option<BodyRing>,
@@ -99,8 +104,10 @@ impl Scorer {
             }
         };
         let z = vec![[0.0f64; 3]; n];
+        let cloth = Cloth::new(g);
         Ok(Scorer {
-            cloth: Cloth::new(g),
+            long_edge: quarter_median_edge_length(&cloth),
+            cloth,
             objective,
             solver: ImplicitStep::new(n, 10),
             ring,
@@ -175,6 +182,7 @@ impl Scorer {
             terms,
             penetrating_percent,
             max_edge_strain: max_edge_strain(&self.cloth, &self.x),
+            max_long_edge_strain: max_edge_strain_from(&self.cloth, &self.x, self.long_edge),
             max_speed,
             step_ms,
             gap,

@@ -22,6 +22,9 @@ pub struct Summary {
     pub max_penetrating_percent: f64,
     /// Largest edge strain of any frame.
     pub max_edge_strain: f64,
+    /// Largest strain of any frame over the edges at least a quarter of the median edge long
+    /// ([`FrameRecord::max_long_edge_strain`](super::FrameRecord::max_long_edge_strain)).
+    pub max_long_edge_strain: f64,
     /// Largest vertex speed of any frame but teleports (which are no motion), m/s.
     pub max_speed: f64,
     /// Mean relative gap over the frames where it was computed and defined.
@@ -103,6 +106,7 @@ pub(super) fn summarise(frames: &[FrameRecord], finite: bool) -> Summary {
         s.mean_penetrating_percent += f.penetrating_percent / nf;
         s.max_penetrating_percent = s.max_penetrating_percent.max(f.penetrating_percent);
         s.max_edge_strain = s.max_edge_strain.max(f.max_edge_strain);
+        s.max_long_edge_strain = s.max_long_edge_strain.max(f.max_long_edge_strain);
         if f.kind != StepKind::Teleported {
             s.max_speed = s.max_speed.max(f.max_speed);
         }

@@ -616,7 +616,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         eprintln!("stopped at frame {f}: {e}");
     }
     say!(
-        "{} frames, {}: step median {:.2} ms (mean {:.2}); objective mean {:.4} J; penetrating mean {:.2}% (max {:.2}%); largest strain {:.3}, speed {:.2} m/s{}",
+        "{} frames, {}: step median {:.2} ms (mean {:.2}); objective mean {:.4} J; penetrating mean {:.2}% (max {:.2}%); largest strain {:.3} ({:.3} over edges at least a quarter of the median long), speed {:.2} m/s{}",
         s.frames,
         if s.finite { "finite throughout" } else { "NOT finite" },
         s.median_step_ms,
@@ -625,6 +625,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         s.mean_penetrating_percent,
         s.max_penetrating_percent,
         s.max_edge_strain,
+        s.max_long_edge_strain,
         s.max_speed,
         match (s.gap_mean, s.gap_p95) {
             (Some(m), Some(p)) => format!(
