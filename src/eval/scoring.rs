@@ -8,8 +8,8 @@ use crate::error::Result;
 use crate::features::DT;
 use crate::math::{norm3, sub3};
 use crate::physics::{
-    face_frames, max_edge_strain, max_edge_strain_from, plane_distances, quarter_median_edge_length, CentroidQuery,
-    Cloth, FaceFrame, Objective,
+    face_frames, max_edge_strains, plane_distances, quarter_median_edge_length, CentroidQuery, Cloth, FaceFrame,
+    Objective,
 };
 use crate::physics::{Terms, PENETRATION_DEPTH};
 use crate::sim::SimState;
@@ -174,6 +174,7 @@ impl Scorer {
         step_ms: f64,
         gap: Option<Gap>,
     ) -> FrameRecord {
+        let [max_edge_strain, max_long_edge_strain] = max_edge_strains(&self.cloth, &self.x, self.long_edge);
         let max_speed =
             self.x.iter().zip(&self.pos).map(|(a, b)| norm3(sub3(*a, *b))).fold(0.0f64, f64::max) / DT as f64;
         FrameRecord {
@@ -181,8 +182,8 @@ impl Scorer {
             kind,
             terms,
             penetrating_percent,
-            max_edge_strain: max_edge_strain(&self.cloth, &self.x),
-            max_long_edge_strain: max_edge_strain_from(&self.cloth, &self.x, self.long_edge),
+            max_edge_strain,
+            max_long_edge_strain,
             max_speed,
             step_ms,
             gap,

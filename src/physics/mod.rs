@@ -47,7 +47,7 @@ pub use collision::{
 pub use friction::{friction, within_friction_radius, FrictionFrames, FrictionParams, RadiusMode};
 pub use inertia::{gravity, inertia};
 pub use metrics::{
-    max_edge_strain, max_edge_strain_from, quarter_median_edge_length, score_rollout, score_rollout_with, FrameScore,
+    max_edge_strain, max_edge_strains, quarter_median_edge_length, score_rollout, score_rollout_with, FrameScore,
     RolloutScore, PENETRATION_DEPTH,
 };
 pub use objective::{CollisionInput, CollisionParams, FrictionInput, Objective, StepInputs, Terms};

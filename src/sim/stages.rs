@@ -1,8 +1,8 @@
 //! One pass of a step, as a pipeline of stages ([`Sim::advance`]): pins, the prediction (the
 //! network's, `predict.rs`, or the solver modes' coasting guess), back to the world frame,
-//! refinement, collision projection, body tethers, commit. Each stage writes the pass's next positions (m) and
-//! velocities (m/frame) into the sim's `new_pos` / `new_vel`; the state changes only at the
-//! commit, so that a refused pass leaves it as it was.
+//! refinement, collision projection, body tethers, commit. Each stage writes the pass's next
+//! positions (m) and velocities (m/frame) into the sim's `new_pos` / `new_vel`; the state changes
+//! only at the commit, so that a refused pass leaves it as it was.
 
 use super::body_query::BodyQuery;
 use super::network::Probe;
@@ -87,6 +87,7 @@ impl Sim<'_> {
             r.apply(&*self.exec, &input, self.clock.as_deref(), &mut self.new_pos, &mut self.new_vel)?;
         }
         if let Some(b) = &mut self.body {
+            let mut projected = false;
             if let Some(proj) = &mut b.projection {
                 if let Some(t) = &mut b.tethers {
                     // Where the tethers' follow counts moves from.
@@ -96,13 +97,15 @@ impl Sim<'_> {
                 let faces =
                     body_query(query, &mut self.query)?.faces_at(&b.mesh, body_next.unwrap_or(&self.state.body_pos))?;
                 proj.apply(&*self.exec, faces, &self.pinned, &mut self.new_pos, &mut self.new_vel)?;
+                projected = proj.moved() > 0;
             }
             if let Some(t) = &mut b.tethers {
                 // Tethers last, the cloth following the projection's moves as well as the pulls:
                 // the projection pushes each vertex out along its own nearest face, and after the
                 // tethers it undid their follow (on the held-out back flip a largest strain of
                 // 37.6; the t-shirt dancing 3.8 when only the pulls were followed, 1.4 now).
-                t.apply(body_next.unwrap_or(&self.state.body_pos), &mut self.new_pos, &mut self.new_vel);
+                let body = body_next.unwrap_or(&self.state.body_pos);
+                t.apply(body, &mut self.new_pos, &mut self.new_vel, projected);
             }
         }
         // Commit: nothing was refused.

@@ -85,10 +85,9 @@ pub(super) struct Tethers {
     /// Where each vertex was before this step's pulls (m).
     before: Vec<[f32; 3]>,
     /// Where each vertex was before this step's effects (m): before the collision projection
-    /// when [`start`](Self::start) recorded it, else `before`. The cloth follows every move since.
+    /// when it moved some ([`start`](Self::start)), else `before`. The cloth follows every move
+    /// since.
     start: Vec<[f32; 3]>,
-    /// Whether [`start`](Self::start) recorded this step's `start`.
-    started: bool,
     /// Vertices moved by the last [`apply`](Self::apply).
     moved: usize,
 }
@@ -120,7 +119,6 @@ impl Tethers {
             rest_len,
             before: vec![[0.0; 3]; n_garment],
             start: vec![[0.0; 3]; n_garment],
-            started: false,
             moved: 0,
         })
     }
@@ -133,7 +131,6 @@ impl Tethers {
     /// Unties: the next step ties again (the garment was placed anew).
     pub(super) fn untie(&mut self) {
         self.tied = false;
-        self.started = false;
     }
 
     /// Ties every free vertex of `garment` (m) within [`TETHER_REACH`] of a vertex of `body` (m,
@@ -184,29 +181,35 @@ impl Tethers {
 
     /// Records `pos` (m) as where this step's effects start: the moves made between this and
     /// [`apply`](Self::apply) (the collision projection's) are followed by the cloth as the
-    /// pulls are. Allocates nothing.
+    /// pulls are, when `apply` is told that some were made. Allocates nothing.
     pub(super) fn start(&mut self, pos: &[[f32; 3]]) {
         if self.tied {
             self.start.copy_from_slice(pos);
-            self.started = true;
         }
     }
 
     /// Pulls every tethered vertex of `pos` (m) that is farther than its length from its body
     /// vertex in `body` (m, the frame `pos` belongs to) straight back to that length, brings the
     /// cloth around it along (see the module notes), and adds every move to `velocity`
-    /// (m/frame). Allocates nothing.
-    pub(super) fn apply(&mut self, body: &[[f32; 3]], pos: &mut [[f32; 3]], velocity: &mut [[f32; 3]]) {
+    /// (m/frame). `projected`: whether the collision projection moved vertices since
+    /// [`start`](Self::start) recorded this step's start (the cloth then follows those moves
+    /// too; never without that record). Allocates nothing.
+    pub(super) fn apply(
+        &mut self,
+        body: &[[f32; 3]],
+        pos: &mut [[f32; 3]],
+        velocity: &mut [[f32; 3]],
+        projected: bool,
+    ) {
         self.moved = 0;
         if !self.tied {
             return;
         }
         self.before.copy_from_slice(pos);
-        if !core::mem::take(&mut self.started) {
+        if !projected {
             self.start.copy_from_slice(pos);
         }
-        let pulled = self.pull_back(body, pos);
-        if !pulled && self.start == self.before {
+        if !self.pull_back(body, pos) && !projected {
             return;
         }
         self.follow(pos);
@@ -334,7 +337,7 @@ mod tests {
         let mut pos = [[0.0, 0.02, 0.0], [2.0, 0.0, 0.05], [5.0, 5.0, 5.0], [1.4, 0.5, 0.5]];
         let mut vel = [[0.1, 0.0, 0.0]; 4];
         let before = pos;
-        t.apply(&body_next, &mut pos, &mut vel);
+        t.apply(&body_next, &mut pos, &mut vel, false);
         assert_eq!(t.moved(), 1);
         assert!((dist(pos[0], body_next[0]) - t.length[0]).abs() < 1e-6);
         // Straight back: on the segment from where it was to its body vertex.
@@ -369,7 +372,7 @@ mod tests {
         assert!(largest_strain(&t, &alone) > 0.45, "{}", largest_strain(&t, &alone));
 
         let (mut pos, mut vel) = (slid.clone(), vec![[0.0; 3]; 22]);
-        t.apply(&body, &mut pos, &mut vel);
+        t.apply(&body, &mut pos, &mut vel, false);
         assert_eq!(t.moved(), 22);
         assert!(largest_strain(&t, &pos) <= TETHER_FOLLOW_STRETCH + 1e-4, "{}", largest_strain(&t, &pos));
         for (i, x) in pos.iter().enumerate() {
@@ -385,8 +388,8 @@ mod tests {
     /// With the collision projection on, the cloth follows its moves as it follows the pulls:
     /// a vertex of a strip pushed 3 cm out (as the projection moves one out of the body) brings
     /// its neighbours along, though no tether pulls; the velocities take only the follow's moves
-    /// (the projection added its own). Without the recorded start the same positions are left
-    /// as they are: the step's own stretch.
+    /// (the projection added its own). When the projection moved nothing, the same positions
+    /// are left as they are: the step's own stretch.
     #[test]
     fn the_cloth_follows_the_projections_moves() {
         let (placed, faces) = grid(11, 2, 0.1, 0.01, 0.01);
@@ -400,7 +403,7 @@ mod tests {
 
         let (mut pos, mut vel) = (projected.clone(), vec![[0.0; 3]; 22]);
         t.start(&placed);
-        t.apply(&body, &mut pos, &mut vel);
+        t.apply(&body, &mut pos, &mut vel, true);
         assert!(largest_strain(&t, &pos) <= TETHER_FOLLOW_STRETCH + 1e-4, "{}", largest_strain(&t, &pos));
         assert_eq!(pos[5], projected[5], "the vertex the projection moved most stays");
         assert!(t.moved() >= 2 && t.moved() < 22, "{}", t.moved());
@@ -408,9 +411,9 @@ mod tests {
             assert!(dist(*x, body[i]) <= t.length[i] * (1.0 + 1e-5), "vertex {i} beyond its length");
             assert!((0..3).all(|k| (vel[i][k] - (x[k] - projected[i][k])).abs() < 1e-6), "velocity takes the move");
         }
-        // The start is one step's: the next apply, with none recorded, leaves the stretch.
+        // A step whose projection moved nothing leaves the same stretch: the step's own.
         let (mut again, mut vel) = (projected.clone(), vec![[0.0; 3]; 22]);
-        t.apply(&body, &mut again, &mut vel);
+        t.apply(&body, &mut again, &mut vel, false);
         assert_eq!((again, t.moved()), (projected, 0));
     }
 
