@@ -1,6 +1,7 @@
 //! Step latency measurement (feature `tools`) shared by `hood bench`, the criterion benches and the
 //! report: median wall time per step, useful FLOPs, GFLOP/s and efficiency against the machine's
-//! peak measured in the same run.
+//! peak measured in the same run, with the steps of the configurations compared taken in turns
+//! and their ratios taken round by round.
 
 use crate::error::Result;
 use crate::exec::{Executor, ThreadPool};
@@ -40,6 +41,8 @@ pub struct BenchRow {
     pub median_ms: f64,
     /// Fastest step, ms.
     pub min_ms: f64,
+    /// Every timed step's wall time, ms, in the order taken (one per round of `hood bench`).
+    pub times_ms: Vec<f64>,
     /// Useful FLOPs per step (matrix products, split first layer).
     pub flops: u64,
     /// Achieved GFLOP/s at the median.
@@ -166,80 +169,166 @@ pub fn core_to_core_ns() -> Option<f64> {
     Some(rounds[ROUNDS / 2])
 }
 
-/// Steps `w` with `model` (or, with `step` the solver, by the solver alone) `steps` times after
-/// `warmup` untimed steps and reports the median.
-///
-/// # Errors
-/// Errors of [`Sim::new`] and [`Sim::step`].
-#[allow(clippy::too_many_arguments)]
-pub fn bench_step(
-    w: &Workload,
-    model: &Model<'_>,
+/// One configuration's sim, stepped one timed step at a time so that `hood bench` can take
+/// the steps of several configurations in turns (rounds): noise from the rest of the machine then
+/// falls on all of them alike, and ratios between them are taken step by step.
+pub struct StepBench<'m> {
+    sim: Sim<'m>,
     step: StepMode,
     precision: Precision,
     threads: usize,
-    warmup: usize,
-    steps: usize,
-    peak: &peak::Peak,
-) -> Result<BenchRow> {
-    let cfg = SimConfig { precision, threads, startup: w.startup(), step, ..SimConfig::network() };
-    let body = w.body.as_ref().map(|(mesh, frames)| BodyDesc { mesh, positions: &frames[0] });
-    let mut sim = match &w.graph {
-        Some(g) => Sim::with_graph(model, &w.garment, g.clone(), body, cfg)?,
-        None => Sim::new(model, &w.garment, body, cfg)?,
-    };
-    // The sim's pool, counting its hand-offs (those of the last timed step are reported).
-    let handoffs_so_far = Arc::new(AtomicU64::new(0));
-    if threads > 1 {
-        let pool = ThreadPool::new(crate::limits::cap_threads(threads));
-        sim.set_executor(std::boxed::Box::new(CountingPool { pool, handoffs: handoffs_so_far.clone() }));
+    /// Hand-offs of the sim's pool so far (a counter the bench keeps while the sim owns the pool).
+    handoffs_so_far: Arc<AtomicU64>,
+    /// Hand-offs of the last timed step.
+    handoffs: u64,
+    /// Steps taken, untimed ones included: the workload's step index.
+    taken: usize,
+    /// Wall time of each timed step, ms, in the order taken.
+    times_ms: Vec<f64>,
+}
+
+impl<'m> StepBench<'m> {
+    /// A sim stepping `w` with `model` (or, with `step` the solver, by the solver alone) at
+    /// `precision` on `threads` threads, after `warmup` untimed steps.
+    ///
+    /// # Errors
+    /// Errors of [`Sim::new`] and [`Sim::step`].
+    pub fn new(
+        w: &Workload,
+        model: &'m Model<'m>,
+        step: StepMode,
+        precision: Precision,
+        threads: usize,
+        warmup: usize,
+    ) -> Result<StepBench<'m>> {
+        let cfg = SimConfig { precision, threads, startup: w.startup(), step, ..SimConfig::network() };
+        let body = w.body.as_ref().map(|(mesh, frames)| BodyDesc { mesh, positions: &frames[0] });
+        let mut sim = match &w.graph {
+            Some(g) => Sim::with_graph(model, &w.garment, g.clone(), body, cfg)?,
+            None => Sim::new(model, &w.garment, body, cfg)?,
+        };
+        let handoffs_so_far = Arc::new(AtomicU64::new(0));
+        if threads > 1 {
+            let pool = ThreadPool::new(crate::limits::cap_threads(threads));
+            sim.set_executor(std::boxed::Box::new(CountingPool { pool, handoffs: handoffs_so_far.clone() }));
+        }
+        let mut b =
+            StepBench { sim, step, precision, threads, handoffs_so_far, handoffs: 0, taken: 0, times_ms: Vec::new() };
+        for _ in 0..warmup {
+            b.step_once(w)?;
+        }
+        Ok(b)
     }
-    let count = || handoffs_so_far.load(Ordering::Relaxed);
-    let mut times = Vec::with_capacity(steps);
-    let mut handoffs = 0;
-    for t in 0..warmup + steps {
-        let next = w.prepare_step(&mut sim, t)?;
-        let before = count();
+
+    /// Takes one untimed step of `w`: before a timed step that follows other configurations',
+    /// it leaves the caches as a run of this configuration alone would.
+    ///
+    /// # Errors
+    /// Errors of [`Sim::step`].
+    pub fn untimed_step(&mut self, w: &Workload) -> Result<()> {
+        self.step_once(w).map(|_| ())
+    }
+
+    /// Takes one step of `w`, returning its wall time in ms.
+    fn step_once(&mut self, w: &Workload) -> Result<f64> {
+        let next = w.prepare_step(&mut self.sim, self.taken)?;
+        let before = self.handoffs_so_far.load(Ordering::Relaxed);
         let start = Instant::now();
-        sim.step(next)?;
-        handoffs = count() - before;
+        self.sim.step(next)?;
         let ms = start.elapsed().as_secs_f64() * 1e3;
-        if t >= warmup {
-            times.push(ms);
+        self.handoffs = self.handoffs_so_far.load(Ordering::Relaxed) - before;
+        self.taken += 1;
+        Ok(ms)
+    }
+
+    /// Takes one timed step of `w` (the workload the bench was made with) and records it.
+    ///
+    /// # Errors
+    /// Errors of [`Sim::step`].
+    pub fn time_step(&mut self, w: &Workload) -> Result<f64> {
+        let ms = self.step_once(w)?;
+        self.times_ms.push(ms);
+        Ok(ms)
+    }
+
+    /// The row of the timed steps so far: their median and the figures at it.
+    pub fn row(&self, w: &Workload, model: &Model<'_>, peak: &peak::Peak) -> BenchRow {
+        let mut sorted = self.times_ms.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median_ms = median_of_sorted(&sorted);
+        let flops = self.sim.last_step_flops();
+        let gflops = flops as f64 / (median_ms * 1e-3) / 1e9;
+        // The peak of the arithmetic the step ran: bf16 widened onto f32 FMAs peaks as f32 does.
+        let tier = self.sim.tier();
+        let native_bf16 = self.precision == Precision::Bf16 && tier >= Tier::Avx512Bf16 && peak.bf16_native;
+        let per_core = if native_bf16 { peak.bf16_gflops } else { peak.f32_gflops };
+        let peak_gflops = per_core * self.threads as f64;
+        BenchRow {
+            workload: w.name.clone(),
+            step: self.step,
+            vertices: w.garment.n_vertices(),
+            body_edges: self.sim.last_body_counts().0,
+            latent: model.spec().latent,
+            blocks: model.spec().blocks.len(),
+            precision: self.precision,
+            tier,
+            threads: self.threads,
+            median_ms,
+            min_ms: sorted.first().copied().unwrap_or(f64::NAN),
+            times_ms: self.times_ms.clone(),
+            flops,
+            gflops,
+            peak_gflops,
+            efficiency: gflops / peak_gflops,
+            handoffs: self.handoffs,
         }
     }
-    times.sort_by(f64::total_cmp);
-    let median_ms = times.get(times.len() / 2).copied().unwrap_or(f64::NAN);
-    let flops = sim.last_step_flops();
-    let gflops = flops as f64 / (median_ms * 1e-3) / 1e9;
-    // The peak of the arithmetic the step ran: bf16 widened onto f32 FMAs peaks as f32 does.
-    let tier = sim.tier();
-    let native_bf16 = precision == Precision::Bf16 && tier >= Tier::Avx512Bf16 && peak.bf16_native;
-    let per_core = if native_bf16 { peak.bf16_gflops } else { peak.f32_gflops };
-    let peak_gflops = per_core * threads as f64;
-    Ok(BenchRow {
-        workload: w.name.clone(),
-        step,
-        vertices: w.garment.n_vertices(),
-        body_edges: sim.last_body_counts().0,
-        latent: model.spec().latent,
-        blocks: model.spec().blocks.len(),
-        precision,
-        tier,
-        threads,
-        median_ms,
-        min_ms: times.first().copied().unwrap_or(f64::NAN),
-        flops,
-        gflops,
-        peak_gflops,
-        efficiency: gflops / peak_gflops,
-        handoffs,
-    })
+}
+
+/// The median of ascending `sorted` values (the upper one of an even count; NaN when empty).
+pub fn median_of_sorted(sorted: &[f64]) -> f64 {
+    sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// The median over rounds of `num[i] / den[i]`: a ratio of two configurations timed in the same
+/// rounds, taken round by round so that a slow spell of the machine, which falls on both steps
+/// of a round, cancels. `None` when the two have no round in common.
+pub fn paired_ratio(num: &[f64], den: &[f64]) -> Option<f64> {
+    let mut ratios: Vec<f64> =
+        num.iter().zip(den).filter(|(_, &d)| d > 0.0).map(|(&n, &d)| n / d).filter(|r| r.is_finite()).collect();
+    ratios.sort_by(f64::total_cmp);
+    (!ratios.is_empty()).then(|| median_of_sorted(&ratios))
+}
+
+/// The order in which round `round` takes the steps of `n` configurations: each round starts one
+/// configuration further on, so that no configuration always runs first (after the others'
+/// caches) or last.
+pub fn round_order(n: usize, round: usize) -> impl Iterator<Item = usize> {
+    (0..n).map(move |i| (i + round) % n.max(1))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bench_ratios_are_taken_round_by_round() {
+        // The median of the rounds' ratios (2, 1.05, 4), not the ratio of the medians (2.1).
+        assert_eq!(paired_ratio(&[100.0, 210.0, 400.0], &[50.0, 200.0, 100.0]), Some(2.0));
+        // Unequal lengths pair the rounds both took; zero or non-finite times are left out.
+        assert_eq!(paired_ratio(&[10.0, 30.0, 99.0], &[5.0, 0.0]), Some(2.0));
+        assert_eq!(paired_ratio(&[f64::NAN], &[1.0]), None);
+        assert_eq!(paired_ratio(&[], &[]), None);
+        assert_eq!(median_of_sorted(&[1.0, 2.0, 3.0]), 2.0);
+        assert!(median_of_sorted(&[]).is_nan());
+    }
+
+    #[test]
+    fn bench_rounds_start_one_configuration_further_on() {
+        let orders: Vec<Vec<usize>> = (0..4).map(|r| round_order(3, r).collect()).collect();
+        assert_eq!(orders, [[0, 1, 2], [1, 2, 0], [2, 0, 1], [0, 1, 2]]);
+        assert_eq!(round_order(0, 5).count(), 0);
+    }
 
     #[test]
     fn bench_placement_follows_the_latency_bands() {

@@ -595,3 +595,74 @@ fn eval_a_clip_starting_at_speed_starts_its_garment_moving() {
     assert!((moving - body_dx).abs() < 0.25 * body_dx.abs(), "{moving} vs {body_dx}");
     assert!((resting - body_dx).abs() > 0.5 * body_dx.abs(), "{resting} vs {body_dx}");
 }
+
+/// `hood bench` takes one timed step of every row of a workload per round, and one forward of the
+/// reference per thread count per round (a stand-in script here, which answers with fixed times
+/// and records what it was asked): every row and the reference get one time per round, and the
+/// report's ratios come out of them.
+#[cfg(feature = "cli")]
+#[test]
+fn eval_cli_bench_times_every_row_and_the_reference_in_rounds() {
+    let dir = std::env::temp_dir().join(format!("hood-bench-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let json_rows = |stdout: &[u8]| -> serde_json::Value {
+        let text = String::from_utf8_lossy(stdout);
+        serde_json::from_str(text.lines().rev().find(|l| l.starts_with('{')).expect("a JSON line")).unwrap()
+    };
+    // The procedural workload: four network rows and two solver rows, three rounds each.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+        .args(["bench", "--workload", "grid-1k", "--latent", "16", "--precision", "f32,bf16", "--threads", "1,2"])
+        .args(["--solver", "5", "--steps", "3", "--warmup", "1", "--json"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let bench = json_rows(&o.stdout);
+    let rows = bench["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 6, "{bench}");
+    for r in rows {
+        let times = r["times_ms"].as_array().unwrap();
+        assert_eq!(times.len(), 3, "{r}");
+        assert!(times.iter().all(|t| t.as_f64().is_some_and(|t| t > 0.0)), "{r}");
+    }
+
+    // The reference, served: needs the parity fixtures for the `tee` workload's scene.
+    let assets = common::shared_dir().join("assets");
+    if !common::shared_dir().join("fixtures/hood-parity/fixture_weights.safetensors").exists() {
+        common::skip("eval_cli_bench_times_every_row_and_the_reference_in_rounds (reference)", &assets);
+        return;
+    }
+    let asked = dir.join("asked.txt");
+    let script = dir.join("fake_reference.py");
+    std::fs::write(
+        &script,
+        format!(
+            "import json, sys\nassert '--serve' in sys.argv\nlog = open({:?}, 'w')\n\
+             for line in sys.stdin:\n    t = int(line)\n    log.write(f'{{t}}\\n'); log.flush()\n    \
+             print(json.dumps({{'vertices': 1311, 'threads': t, 'seconds': 0.5 * t, 'torch': 'stand-in'}}), flush=True)\n",
+            asked.display().to_string()
+        ),
+    )
+    .unwrap();
+    let report = dir.join("report.md");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_hood"))
+        .args(["bench", "--workload", "tee", "--latent", "16", "--precision", "f32", "--threads", "1,2"])
+        .args(["--steps", "2", "--warmup", "0", "--reference", "python3", "--reference-script"])
+        .arg(&script)
+        .arg("--assets")
+        .arg(&assets)
+        .arg("--markdown")
+        .arg(&report)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // One forward per thread count in each of the two rounds, in turn.
+    assert_eq!(std::fs::read_to_string(&asked).unwrap(), "1\n2\n1\n2\n");
+    let text = std::fs::read_to_string(&report).unwrap();
+    assert!(text.contains("| x 1 thread | x f32 | latency ns | hand-offs | x reference |"), "{text}");
+    assert!(
+        text.contains("| tee | 1311 | 1 | 500.0 | 500.0 |") && text.contains("| tee | 1311 | 2 | 1000.0 | 1000.0 |"),
+        "{text}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -25,7 +25,7 @@ unused at inference, and it needs the cloth's target positions).
 Usage::
 
     forward.py --scene SCENE.safetensors --weights fixture_weights.safetensors \\
-               [--check fixture_io.safetensors] [--time] [--threads N] \\
+               [--check fixture_io.safetensors] [--time | --serve] [--threads N] \\
                [--runs 10] [--warmup 3]
 
 ``--scene`` needs only these keys (anything else is ignored, except the
@@ -41,7 +41,11 @@ material_inputs_bending_mu_lambda (3,) f32; timestep (1,) f32.
 ``fixture_io.safetensors`` (exit code 1 when pred_pos is off by more than
 1e-6 m or decoder_output by more than 1e-4 relative). ``--time`` prints one
 line of JSON with the timings of the whole forward (median of ``--runs`` after
-``--warmup`` untimed runs, under ``torch.no_grad()``); all other output goes
+``--warmup`` untimed runs, under ``torch.no_grad()``). ``--serve`` times one
+forward per request, so that ``hood bench`` can take them in turns with its own
+steps: it reads a thread count per line on stdin and answers each with one line
+of JSON, the time of one forward at that count (after ``--warmup`` untimed ones
+the first time the count is asked), until stdin closes. All other output goes
 to stderr.
 
 Environment (CPU is enough)::
@@ -625,6 +629,29 @@ def run_timing(scene, params, threads, runs, warmup):
     }), flush=True)
 
 
+def serve(scene, params, warmup):
+    warmed = set()
+    with torch.no_grad():
+        for line in sys.stdin:
+            if not line.strip():
+                continue
+            threads = int(line)
+            torch.set_num_threads(threads)
+            if threads not in warmed:
+                for _ in range(warmup):
+                    forward(scene, params)
+                warmed.add(threads)
+            t0 = time.perf_counter()
+            forward(scene, params)
+            seconds = time.perf_counter() - t0
+            print(json.dumps({
+                "vertices": int(scene["cloth_pos"].shape[0]),
+                "threads": torch.get_num_threads(),
+                "seconds": seconds,
+                "torch": torch.__version__,
+            }), flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -632,6 +659,8 @@ def main():
     ap.add_argument("--weights", required=True, help="HOOD postcvpr state_dict as .safetensors")
     ap.add_argument("--check", metavar="FIXTURE_IO", help="compare intermediates with this fixture_io.safetensors")
     ap.add_argument("--time", action="store_true", help="time the forward and print one JSON line")
+    ap.add_argument("--serve", action="store_true",
+                    help="answer each thread count read on stdin with the time of one forward (one JSON line)")
     ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (default: torch's default)")
     ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--warmup", type=int, default=3)
@@ -651,7 +680,9 @@ def main():
         ok = run_check(scene, params, args.check)
     if args.time:
         run_timing(scene, params, threads, args.runs, args.warmup)
-    if not args.check and not args.time:
+    if args.serve:
+        serve(scene, params, args.warmup)
+    if not args.check and not args.time and not args.serve:
         with torch.no_grad():
             pred = forward(scene, params)
         log(f"pred_pos: shape {tuple(pred.shape)}, max |pred_pos - pos| = "

@@ -2,16 +2,18 @@
 //! table or JSON and optionally written as a Markdown report.
 
 use crate::machine::machine_line;
+use crate::progress::Progress;
 use crate::random_model;
-use crate::reference::{Reference, ReferenceTime, DEFAULT_SCRIPT};
+use crate::reference::{Forward, Reference, ReferenceTime, DEFAULT_SCRIPT};
 use clap::Args;
-use hood::bench::{bench_step, core_to_core_ns, machine_peak, BenchRow, Placement};
+use hood::bench::{core_to_core_ns, machine_peak, paired_ratio, round_order, BenchRow, Placement, StepBench};
 use hood::kernels::peak::Peak;
 use hood::model::{Model, ModelBytes, ModelSpec};
 use hood::sim::{Precision, StepMode};
-use hood::workloads::{workload, Workload, NAMES};
+use hood::workloads::{workload, NAMES};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 #[derive(Args)]
 pub(crate) struct BenchArgs {
@@ -43,12 +45,21 @@ pub(crate) struct BenchArgs {
     /// Thread counts.
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     threads: Vec<usize>,
-    /// Timed steps per configuration (the median is reported).
+    /// Rounds: each takes one timed step of every configuration of a workload in turn (and one
+    /// forward of the reference at each thread count), so that noise from the rest of the
+    /// machine falls on all of them alike. The median is reported, and ratios are taken round
+    /// by round.
     #[arg(long, default_value_t = 15)]
     steps: usize,
-    /// Untimed steps first.
+    /// Untimed steps of each configuration first.
     #[arg(long, default_value_t = 3)]
     warmup: usize,
+    /// Untimed steps of each configuration (and forwards of the reference) just before its timed
+    /// one in every round, so that the timed step finds the caches as a run of that
+    /// configuration alone leaves them; 0 times steps that follow other configurations' (colder
+    /// caches, about twice as fast a run).
+    #[arg(long, default_value_t = 1)]
+    round_warmup: usize,
     /// The assets folder; the tee workloads read the parity fixtures beside it (default:
     /// $HOOD_ASSETS, else `shared/assets` in the working directory or a parent).
     #[arg(long)]
@@ -62,16 +73,14 @@ pub(crate) struct BenchArgs {
     markdown: Option<PathBuf>,
     /// Also time the reference network's forward with this Python interpreter (torch, numpy
     /// and safetensors installed; `pip install torch==2.2.2 "numpy<2" safetensors`), on the
-    /// workloads with the fixture's scene (`tee`, `tee-sub`) at the same threads, after the
-    /// runtime's rows: the "x reference" column is its median over the row's.
+    /// workloads with the fixture's scene (`tee`, `tee-sub`) at the same threads, one forward
+    /// per thread count in each round: the "x reference" column is the median over rounds of
+    /// its time over the row's.
     #[arg(long)]
     reference: Option<PathBuf>,
     /// The reference's script.
     #[arg(long, default_value = DEFAULT_SCRIPT)]
     reference_script: PathBuf,
-    /// Timed forwards of the reference per thread count (after 3 untimed ones).
-    #[arg(long, default_value_t = 10)]
-    reference_runs: usize,
 }
 
 pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
@@ -123,57 +132,91 @@ pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
         eprintln!("{c}");
     }
     let mut core_to_core = None;
-    if a.threads.iter().any(|&t| t > 1) {
+    let multi_thread = a.threads.iter().any(|&t| t > 1);
+    if multi_thread {
         if let Some(ns) = core_to_core_ns() {
             eprintln!("core-to-core latency: {ns:.0} ns one way: {}", Placement::from_latency_ns(ns).describe());
             core_to_core = Some(ns);
         }
     }
-    // Each multi-thread row carries the latency measured just before it: the host may move the
-    // two threads between placements during a run.
-    let mut rows: Vec<BenchRow> = Vec::new();
-    let mut latencies: Vec<Option<f64>> = Vec::new();
     let reference = match (&a.reference, &assets) {
         (Some(python), Ok(dir)) => Some(Reference {
             python,
             script: &a.reference_script,
             weights: hood::assets::fixtures(dir).join("hood-parity/fixture_weights.safetensors"),
-            runs: a.reference_runs.max(1),
             warmup: 3,
         }),
         (Some(_), Err(e)) => return Err(e.clone()),
         (None, _) => None,
     };
+    let views: Vec<Model<'_>> = models.iter().map(|mb| mb.model()).collect::<hood::Result<_>>()?;
+    let rounds = a.steps.max(1);
+    // Each multi-thread row carries the median latency of its workload's rounds: the host may
+    // move the two threads between placements during a run.
+    let mut rows: Vec<BenchRow> = Vec::new();
+    let mut latencies: Vec<Option<f64>> = Vec::new();
     let mut references: Vec<ReferenceTime> = Vec::new();
-    let mut run = |w: &Workload, model: &Model<'_>, step, precision, threads: usize| -> hood::Result<()> {
-        let latency = if threads > 1 { core_to_core_ns() } else { None };
-        let r = bench_step(w, model, step, precision, threads, a.warmup, a.steps, &peak)?;
-        if !a.json {
-            print_row(&r, rows.is_empty());
-        }
-        rows.push(r);
-        latencies.push(latency);
-        Ok(())
-    };
     for w in &workloads {
-        for mb in &models {
-            let model = mb.model()?;
+        // Every configuration of the workload, and the reference, stepped in turns: one timed
+        // step of each per round, so that the machine's slow spells fall on all of them alike.
+        let mut benches: Vec<(&Model<'_>, StepBench<'_>)> = Vec::new();
+        for model in &views {
             for &p in &precisions {
                 for &t in &a.threads {
-                    run(w, &model, StepMode::Network, p, t)?;
+                    benches.push((model, StepBench::new(w, model, StepMode::Network, p, t, a.warmup)?));
                 }
             }
         }
-        if let Some(mb) = models.first() {
-            let model = mb.model()?;
+        if let Some(model) = views.first() {
             for &iterations in &a.solver {
                 for &t in &a.threads {
-                    run(w, &model, StepMode::Solver { iterations }, Precision::F32, t)?;
+                    let step = StepMode::Solver { iterations };
+                    benches.push((model, StepBench::new(w, model, step, Precision::F32, t, a.warmup)?));
                 }
             }
         }
-        if let (Some(r), Some(_)) = (&reference, &w.fixed_state) {
-            for t in r.time(w, &a.threads)? {
+        let mut server = match (&reference, &w.fixed_state) {
+            (Some(r), Some(_)) => Some(r.serve(w)?),
+            _ => None,
+        };
+        let mut forwards: Vec<Vec<Forward>> = vec![Vec::new(); a.threads.len()];
+        let mut round_latencies = Vec::new();
+        let bar = Progress::new("bench", "rounds", rounds as u64, Duration::from_secs(10));
+        bar.set_message(w.name.clone());
+        for round in 0..rounds {
+            if multi_thread {
+                round_latencies.extend(core_to_core_ns());
+            }
+            for i in round_order(benches.len(), round) {
+                for _ in 0..a.round_warmup {
+                    benches[i].1.untimed_step(w)?;
+                }
+                benches[i].1.time_step(w)?;
+            }
+            if let Some(server) = &mut server {
+                for (f, &t) in forwards.iter_mut().zip(&a.threads) {
+                    for _ in 0..a.round_warmup {
+                        server.forward(t)?;
+                    }
+                    f.push(server.forward(t)?);
+                }
+            }
+            bar.inc(1);
+        }
+        bar.finish();
+        drop(server);
+        round_latencies.sort_by(f64::total_cmp);
+        let latency = (!round_latencies.is_empty()).then(|| hood::bench::median_of_sorted(&round_latencies));
+        for (model, b) in &benches {
+            let r = b.row(w, model, &peak);
+            if !a.json {
+                print_row(&r, rows.is_empty());
+            }
+            latencies.push(if r.threads > 1 { latency } else { None });
+            rows.push(r);
+        }
+        for f in &forwards {
+            if let Some(t) = ReferenceTime::of(&w.name, f) {
                 if !a.json {
                     say!(
                         "{:<9} {:>6} reference forward (PyTorch {}), {} thread(s): median {:.2} ms, fastest {:.2} ms",
@@ -194,7 +237,7 @@ pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
     }
     if let Some(path) = &a.markdown {
         let choices = (!choices.is_empty()).then(|| choices.join(". "));
-        let text = markdown(&rows, &latencies, &references, &peak, choices.as_deref(), core_to_core);
+        let text = markdown(&rows, &latencies, &references, &peak, choices.as_deref(), core_to_core, a.round_warmup);
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| hood::Error::io(dir, e))?;
         }
@@ -284,6 +327,7 @@ fn to_json(rows: &[BenchRow], references: &[ReferenceTime], peak: &Peak) -> Stri
         threads: usize,
         median_ms: f64,
         min_ms: f64,
+        times_ms: &'a [f64],
         flops: u64,
         gflops: f64,
         peak_gflops: f64,
@@ -297,6 +341,7 @@ fn to_json(rows: &[BenchRow], references: &[ReferenceTime], peak: &Peak) -> Stri
         threads: usize,
         median_ms: f64,
         min_ms: f64,
+        times_ms: &'a [f64],
         torch: &'a str,
     }
     #[derive(serde::Serialize)]
@@ -319,6 +364,7 @@ fn to_json(rows: &[BenchRow], references: &[ReferenceTime], peak: &Peak) -> Stri
             threads: r.threads,
             median_ms: r.median_ms,
             min_ms: r.min_ms,
+            times_ms: &r.times_ms,
             flops: r.flops,
             gflops: r.gflops,
             peak_gflops: r.peak_gflops,
@@ -334,6 +380,7 @@ fn to_json(rows: &[BenchRow], references: &[ReferenceTime], peak: &Peak) -> Stri
             threads: t.threads,
             median_ms: t.median_ms,
             min_ms: t.min_ms,
+            times_ms: &t.times_ms,
             torch: &t.torch,
         })
         .collect();
@@ -363,6 +410,7 @@ fn markdown(
     peak: &Peak,
     choices: Option<&str>,
     core_to_core_ns: Option<f64>,
+    round_warmup: usize,
 ) -> String {
     let mut s = String::new();
     let command: Vec<String> = std::env::args().skip(1).collect();
@@ -396,43 +444,66 @@ fn markdown(
     }
     let _ = writeln!(
         s,
-        "\n\nmedian ms: median wall time of one step (fastest ms: the fastest; far apart, the machine was \
+        "\n\nEach workload is timed in rounds: a round takes one timed step of every row of the workload in \
+         turn, each round starting one row further on (and, with the reference, one forward of it at each \
+         thread count), so that the machine's slow spells fall on all rows alike; ratios between rows are the \
+         median over rounds of the round's ratio. {}\n\n\
+         median ms: median wall time of one step (fastest ms: the fastest; far apart, the machine was \
          busy elsewhere); GFLOP/step: the network's useful floating-point work \
          (matrix products); efficiency: achieved GFLOP/s over the peak times the threads; x 1 thread: the \
-         same step on one thread over this one; latency: the core-to-core latency measured just before a \
-         multi-thread row (under about 25 ns: one core's two hardware threads; over 120 ns: farther \
-         apart than a shared cache); hand-offs: jobs of the step split between threads (each a \
-         synchronisation, costlier the farther apart the cores); x reference: the reference forward's \
-         median at the same threads over this row's (below the table).\n"
+         same step on one thread over this one; x f32: the same step in f32 over this one in bf16; \
+         latency: the median core-to-core latency measured at the start of the workload's rounds (under \
+         about 25 ns: one core's two hardware threads; over 120 ns: farther apart than a shared cache); \
+         hand-offs: jobs of the step split between threads (each a synchronisation, costlier the farther \
+         apart the cores); x reference: the reference forward's time at the same threads over this row's \
+         (below the table).\n",
+        if round_warmup > 0 {
+            format!(
+                "Before its timed step in a round each row takes {round_warmup} untimed one(s) (the reference as \
+                 many forwards), so that the timed step finds the caches as a run of that row alone leaves them."
+            )
+        } else {
+            "The timed steps follow other rows' directly, with colder caches than a run of one row alone.".into()
+        }
     );
     let _ = writeln!(
         s,
-        "| workload | vertices | body edges | step | h | precision | tier | threads | median ms | fastest ms | GFLOP/step | GFLOP/s | efficiency | x 1 thread | latency ns | hand-offs | x reference |"
+        "| workload | vertices | body edges | step | h | precision | tier | threads | median ms | fastest ms | GFLOP/step | GFLOP/s | efficiency | x 1 thread | x f32 | latency ns | hand-offs | x reference |"
     );
-    let _ = writeln!(s, "|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(s, "|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for (r, latency) in rows.iter().zip(latencies) {
         let network = r.step == StepMode::Network;
-        let single = rows.iter().find(|o| {
-            o.threads == 1
-                && o.workload == r.workload
-                && o.step == r.step
-                && o.latent == r.latent
-                && o.blocks == r.blocks
-                && o.precision == r.precision
-        });
-        let speedup = match single {
-            Some(o) if r.threads > 1 && r.median_ms > 0.0 => format!("{:.2}", o.median_ms / r.median_ms),
-            _ => "-".into(),
+        // The same step at another thread count or precision.
+        let same = |threads: usize, precision: Precision| {
+            rows.iter().find(|o| {
+                o.threads == threads
+                    && o.workload == r.workload
+                    && o.step == r.step
+                    && o.latent == r.latent
+                    && o.blocks == r.blocks
+                    && o.precision == precision
+            })
         };
         let dash = || "-".to_string();
+        let ratio = |of: Option<&[f64]>| of.and_then(|t| paired_ratio(t, &r.times_ms));
+        let speedup = match same(1, r.precision) {
+            Some(o) if r.threads > 1 => ratio(Some(&o.times_ms)).map_or_else(dash, |x| format!("{x:.2}")),
+            _ => dash(),
+        };
+        let over_f32 = match same(r.threads, Precision::F32) {
+            Some(o) if r.precision == Precision::Bf16 => {
+                ratio(Some(&o.times_ms)).map_or_else(dash, |x| format!("{x:.2}"))
+            }
+            _ => dash(),
+        };
         let reference = references.iter().find(|t| t.workload == r.workload && t.threads == r.threads);
         let vs_reference = match reference {
-            Some(t) if network && r.median_ms > 0.0 => format!("{:.1}", t.median_ms / r.median_ms),
+            Some(t) if network => ratio(Some(&t.times_ms)).map_or_else(dash, |x| format!("{x:.1}")),
             _ => dash(),
         };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.workload,
             r.vertices,
             r.body_edges,
@@ -447,6 +518,7 @@ fn markdown(
             if network { format!("{:.1}", r.gflops) } else { dash() },
             if network { format!("{:.0} %", 100.0 * r.efficiency) } else { dash() },
             speedup,
+            over_f32,
             latency.map_or_else(dash, |ns| format!("{ns:.0}")),
             if r.threads > 1 { r.handoffs.to_string() } else { dash() },
             vs_reference
@@ -457,7 +529,7 @@ fn markdown(
             s,
             "\nThe reference: HOOD's network forward in PyTorch {} (`tools/reference/forward.py`, checked against \
              the parity fixtures; the work of HOOD's `model(batch)`, every body vertex through every block's node \
-             MLP), with the fixture's weights (h = 128) on the same scene, timed in the same run after the rows \
+             MLP), with the fixture's weights (h = 128) on the same scene, timed in the same rounds as the rows \
              above.\n",
             references[0].torch
         );
@@ -483,7 +555,11 @@ mod tests {
     use hood::kernels::Tier;
     use hood::sim::{Precision, StepMode};
 
-    fn row(workload: &str, step: StepMode, precision: Precision, threads: usize, median_ms: f64) -> BenchRow {
+    /// A row with one step time per round (three rounds).
+    fn row(workload: &str, step: StepMode, precision: Precision, threads: usize, times_ms: [f64; 3]) -> BenchRow {
+        let mut sorted = times_ms;
+        sorted.sort_by(f64::total_cmp);
+        let median_ms = sorted[1];
         BenchRow {
             workload: workload.into(),
             step,
@@ -495,7 +571,8 @@ mod tests {
             tier: Tier::Scalar,
             threads,
             median_ms,
-            min_ms: median_ms,
+            min_ms: sorted[0],
+            times_ms: times_ms.to_vec(),
             flops: 23_851_000_000,
             gflops: 23.851 / median_ms * 1e3,
             peak_gflops: 100.0 * threads as f64,
@@ -519,38 +596,47 @@ mod tests {
     }
 
     #[test]
-    fn the_report_gives_each_multi_thread_row_its_speed_up_over_one_thread() {
+    fn the_report_takes_ratios_between_rows_round_by_round() {
+        // The second round was slow for every row; f32 on two threads was also slowed in the
+        // last round alone, which moves its median (140) but not the median of its ratios to
+        // the others, taken round by round.
         let rows = [
-            row("tee", StepMode::Network, Precision::F32, 1, 200.0),
-            row("tee", StepMode::Network, Precision::F32, 2, 125.0),
-            row("tee", StepMode::Network, Precision::Bf16, 2, 100.0),
-            row("tee", StepMode::Network, Precision::Bf16, 1, 300.0),
-            row("tee", StepMode::Solver { iterations: 30 }, Precision::F32, 1, 80.0),
-            row("tee", StepMode::Solver { iterations: 30 }, Precision::F32, 2, 50.0),
+            row("tee", StepMode::Network, Precision::F32, 1, [200.0, 400.0, 200.0]),
+            row("tee", StepMode::Network, Precision::F32, 2, [125.0, 250.0, 140.0]),
+            row("tee", StepMode::Network, Precision::Bf16, 2, [100.0, 200.0, 100.0]),
+            row("tee", StepMode::Network, Precision::Bf16, 1, [300.0, 600.0, 300.0]),
+            row("tee", StepMode::Solver { iterations: 30 }, Precision::F32, 1, [80.0, 160.0, 80.0]),
+            row("tee", StepMode::Solver { iterations: 30 }, Precision::F32, 2, [50.0, 100.0, 50.0]),
         ];
         let peak = Peak { tier: Tier::Scalar, f32_gflops: 100.0, bf16_gflops: 100.0, bf16_native: false };
         let latencies = [None, Some(11.0), Some(60.0), None, None, Some(60.0)];
-        let reference = |threads, median_ms| ReferenceTime {
+        let reference = |threads, median_ms: f64| ReferenceTime {
             workload: "tee".into(),
             vertices: 1311,
             threads,
             median_ms,
             min_ms: median_ms,
+            times_ms: vec![median_ms, 2.0 * median_ms, median_ms],
             torch: "2.2.2".into(),
         };
         let references = [reference(1, 1000.0), reference(2, 750.0)];
-        let text = markdown(&rows, &latencies, &references, &peak, Some("bf16 widened"), Some(40.0));
+        let text = markdown(&rows, &latencies, &references, &peak, Some("bf16 widened"), Some(40.0), 1);
         assert!(text.starts_with("# Step latency\n"));
+        assert!(text.contains("each row takes 1 untimed one(s)"), "{text}");
         assert!(text.contains("\nMachine: "), "{text}");
         assert!(text.contains("f32 100.0 GFLOP/s") && text.contains("bf16 widened.") && text.contains("40 ns"));
-        // The reference's median over the row's, at the row's threads.
-        assert!(line(&text, "tee", "network", "f32", 1).ends_with("| - | - | - | 5.0 |"));
-        assert!(line(&text, "tee", "network", "f32", 2).ends_with("| 1.60 | 11 | 180 | 6.0 |"));
-        // Matched by precision, whatever the order of the rows.
-        assert!(line(&text, "tee", "network", "bf16", 2).ends_with("| 3.00 | 60 | 180 | 7.5 |"));
+        // The reference's time over the row's, at the row's threads, round by round.
+        assert!(line(&text, "tee", "network", "f32", 1).ends_with("| - | - | - | - | 5.0 |"));
+        assert!(line(&text, "tee", "network", "f32", 2).ends_with("| 1.60 | - | 11 | 180 | 6.0 |"));
+        // Matched by precision, whatever the order of the rows; bf16 against f32 at its threads.
+        assert!(line(&text, "tee", "network", "bf16", 2).ends_with("| 3.00 | 1.25 | 60 | 180 | 7.5 |"));
+        assert!(line(&text, "tee", "network", "bf16", 1).ends_with("| - | 0.67 | - | - | 3.3 |"));
         // A solver row has no network figures (nor a reference) and its own one-thread row.
         let solver = line(&text, "tee", "solver 30", "f32", 2);
-        assert!(solver.ends_with("| - | f32 | - | 2 | 50.00 | 50.00 | - | - | - | 1.60 | 60 | 180 | - |"), "{solver}");
+        assert!(
+            solver.ends_with("| - | f32 | - | 2 | 50.00 | 50.00 | - | - | - | 1.60 | - | 60 | 180 | - |"),
+            "{solver}"
+        );
         assert!(text.contains("| tee | 1311 | 2 | 750.0 | 750.0 |"), "{text}");
     }
 }

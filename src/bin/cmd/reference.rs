@@ -5,13 +5,14 @@
 //! the scene `hood bench` steps (`hood::workloads::reference_scene`), with the fixture's weights.
 
 use hood::workloads::{reference_scene, Workload};
+use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 
 /// The script's default location: beside the sources this binary was built from.
 pub(crate) const DEFAULT_SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tools/reference/forward.py");
 
-/// One reference timing: the forward of one workload at one thread count.
+/// One reference timing: the forwards of one workload at one thread count, one per round.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct ReferenceTime {
     /// The workload's name.
@@ -24,8 +25,29 @@ pub(crate) struct ReferenceTime {
     pub median_ms: f64,
     /// Fastest of them, ms.
     pub min_ms: f64,
+    /// Every timed forward, ms, in the order taken (one per round).
+    pub times_ms: Vec<f64>,
     /// PyTorch's version string.
     pub torch: String,
+}
+
+impl ReferenceTime {
+    /// The timing of `forwards` (all of one workload at one thread count), in round order.
+    pub(crate) fn of(workload: &str, forwards: &[Forward]) -> Option<ReferenceTime> {
+        let first = forwards.first()?;
+        let times_ms: Vec<f64> = forwards.iter().map(|f| f.seconds * 1e3).collect();
+        let mut sorted = times_ms.clone();
+        sorted.sort_by(f64::total_cmp);
+        Some(ReferenceTime {
+            workload: workload.to_string(),
+            vertices: first.vertices,
+            threads: first.threads,
+            median_ms: hood::bench::median_of_sorted(&sorted),
+            min_ms: sorted[0],
+            times_ms,
+            torch: first.torch.clone(),
+        })
+    }
 }
 
 /// How to run the reference.
@@ -36,80 +58,123 @@ pub(crate) struct Reference<'a> {
     pub script: &'a Path,
     /// The fixture's weights (`fixture_weights.safetensors`).
     pub weights: PathBuf,
-    /// Timed forwards per thread count (the median is reported).
-    pub runs: usize,
-    /// Untimed forwards before them.
+    /// Untimed forwards before the first timed one at each thread count.
     pub warmup: usize,
 }
 
 impl Reference<'_> {
-    /// Times the reference's forward on `w` at each of `threads`.
+    /// Starts the script on `w`'s scene (`--serve`), to time its forwards one at a time.
     ///
     /// # Errors
-    /// [`hood::Error::Io`] when the scene cannot be written or the interpreter not started;
-    /// [`hood::Error::Parse`] when the script fails or prints no timing line.
-    pub(crate) fn time(&self, w: &Workload, threads: &[usize]) -> hood::Result<Vec<ReferenceTime>> {
+    /// [`hood::Error::Io`] when the scene cannot be written or the interpreter not started.
+    pub(crate) fn serve(&self, w: &Workload) -> hood::Result<ReferenceServer> {
         let scene = std::env::temp_dir().join(format!("hood-reference-{}-{}.safetensors", std::process::id(), w.name));
         std::fs::write(&scene, reference_scene(w)?).map_err(|e| hood::Error::io(&scene, e))?;
-        let times = threads.iter().map(|&t| self.run(&scene, w, t)).collect();
-        let _ = std::fs::remove_file(&scene);
-        times
-    }
-
-    fn run(&self, scene: &Path, w: &Workload, threads: usize) -> hood::Result<ReferenceTime> {
-        let out = Command::new(self.python)
+        let spawned = Command::new(self.python)
             .arg(self.script)
             .arg("--scene")
-            .arg(scene)
+            .arg(&scene)
             .arg("--weights")
             .arg(&self.weights)
-            .args(["--time", "--threads", &threads.to_string()])
-            .args(["--runs", &self.runs.to_string(), "--warmup", &self.warmup.to_string()])
+            .args(["--serve", "--warmup", &self.warmup.to_string()])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
-            .output()
-            .map_err(|e| hood::Error::io(self.python, e))?;
-        let fail = |what: String| hood::Error::parse("reference forward", 0, what);
-        if !out.status.success() {
-            return Err(fail(format!("{} exited with {}", self.script.display(), out.status)));
-        }
-        let stdout = String::from_utf8_lossy(&out.stdout);
-        let line = stdout.lines().rev().find(|l| l.trim_start().starts_with('{'));
-        parse_timing(line.ok_or_else(|| fail("no timing line on stdout".into()))?, &w.name)
+            .spawn();
+        let mut child = match spawned {
+            Ok(c) => c,
+            Err(e) => {
+                let _ = std::fs::remove_file(&scene);
+                return Err(hood::Error::io(self.python, e));
+            }
+        };
+        let (stdin, stdout) = (child.stdin.take(), child.stdout.take().map(BufReader::new));
+        Ok(ReferenceServer { child, stdin, stdout, scene, script: self.script.display().to_string() })
     }
 }
 
-/// The script's timing line: `{"vertices": V, "threads": N, "median_s": .., "min_s": .., "torch": ..}`.
-fn parse_timing(line: &str, workload: &str) -> hood::Result<ReferenceTime> {
+/// One timed forward of the reference.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Forward {
+    /// Garment vertices of the scene.
+    pub vertices: usize,
+    /// Threads PyTorch ran on.
+    pub threads: usize,
+    /// Wall time, s.
+    pub seconds: f64,
+    /// PyTorch's version string.
+    pub torch: String,
+}
+
+/// The reference script serving one scene; stopped (and its scene file removed) when dropped.
+pub(crate) struct ReferenceServer {
+    child: Child,
+    stdin: Option<ChildStdin>,
+    stdout: Option<BufReader<ChildStdout>>,
+    scene: PathBuf,
+    script: String,
+}
+
+impl ReferenceServer {
+    /// Times one forward at `threads` threads (the first at a count follows the warm-up).
+    ///
+    /// # Errors
+    /// [`hood::Error::Parse`] when the script has stopped or answers with no timing line.
+    pub(crate) fn forward(&mut self, threads: usize) -> hood::Result<Forward> {
+        let fail = |what: String| hood::Error::parse("reference forward", 0, what);
+        let (Some(stdin), Some(stdout)) = (self.stdin.as_mut(), self.stdout.as_mut()) else {
+            return Err(fail(format!("{} has no pipes", self.script)));
+        };
+        writeln!(stdin, "{threads}")
+            .and_then(|_| stdin.flush())
+            .map_err(|e| fail(format!("{} stopped: {e}", self.script)))?;
+        let mut line = String::new();
+        match stdout.read_line(&mut line) {
+            Ok(0) => Err(fail(format!("{} exited before answering", self.script))),
+            Ok(_) => parse_forward(line.trim()),
+            Err(e) => Err(fail(format!("{}: {e}", self.script))),
+        }
+    }
+}
+
+impl Drop for ReferenceServer {
+    fn drop(&mut self) {
+        // Closing stdin ends the script's loop.
+        self.stdin = None;
+        let _ = self.child.wait();
+        let _ = std::fs::remove_file(&self.scene);
+    }
+}
+
+/// The script's answer: `{"vertices": V, "threads": N, "seconds": .., "torch": ..}`.
+fn parse_forward(line: &str) -> hood::Result<Forward> {
     #[derive(serde::Deserialize)]
     struct Line {
         vertices: usize,
         threads: usize,
-        median_s: f64,
-        min_s: f64,
+        seconds: f64,
         torch: String,
     }
     let l: Line =
         serde_json::from_str(line).map_err(|e| hood::Error::parse("reference forward", 0, format!("{e}: {line}")))?;
-    Ok(ReferenceTime {
-        workload: workload.to_string(),
-        vertices: l.vertices,
-        threads: l.threads,
-        median_ms: l.median_s * 1e3,
-        min_ms: l.min_s * 1e3,
-        torch: l.torch,
-    })
+    Ok(Forward { vertices: l.vertices, threads: l.threads, seconds: l.seconds, torch: l.torch })
 }
 
 #[cfg(test)]
 mod tests {
-    use super::parse_timing;
+    use super::{parse_forward, Forward, ReferenceTime};
 
     #[test]
-    fn the_reference_timing_line_is_read_in_milliseconds() {
-        let line = r#"{"vertices": 1311, "threads": 2, "median_s": 0.75, "min_s": 0.7, "runs": [0.7, 0.75, 0.8], "torch": "2.2.2+cu121"}"#;
-        let t = parse_timing(line, "tee").unwrap();
-        assert_eq!((t.workload.as_str(), t.vertices, t.threads), ("tee", 1311, 2));
-        assert_eq!((t.median_ms, t.min_ms, t.torch.as_str()), (750.0, 700.0, "2.2.2+cu121"));
-        assert!(parse_timing(r#"{"vertices": 1}"#, "tee").is_err());
+    fn the_reference_forwards_are_read_in_milliseconds_in_round_order() {
+        let line = r#"{"vertices": 1311, "threads": 2, "seconds": 0.75, "torch": "2.2.2+cu121"}"#;
+        let f = parse_forward(line).unwrap();
+        assert_eq!(f, Forward { vertices: 1311, threads: 2, seconds: 0.75, torch: "2.2.2+cu121".into() });
+        assert!(parse_forward(r#"{"vertices": 1}"#).is_err());
+        let forwards: Vec<Forward> = [0.8, 0.7, 0.75].iter().map(|&seconds| Forward { seconds, ..f.clone() }).collect();
+        let t = ReferenceTime::of("tee", &forwards).unwrap();
+        assert_eq!((t.workload.as_str(), t.vertices, t.threads, t.torch.as_str()), ("tee", 1311, 2, "2.2.2+cu121"));
+        assert_eq!((t.median_ms, t.min_ms), (750.0, 700.0));
+        assert_eq!(t.times_ms, [800.0, 700.0, 750.0]);
+        assert!(ReferenceTime::of("tee", &[]).is_none());
     }
 }
