@@ -55,13 +55,64 @@ pub struct BenchRow {
     /// other threads and waits for the last task): the synchronisation points of a step, whose
     /// cost grows with the core-to-core latency. 0 on one thread.
     pub handoffs: u64,
+    /// Share of the step's wall time inside those jobs (the rest runs on the calling thread
+    /// alone), over the timed steps. 0 on one thread.
+    pub in_jobs: f64,
+    /// Share of the threads' time inside those jobs that their tasks ran (the rest is waiting:
+    /// hand-offs, wake-ups and uneven splits), over the timed steps. 0 on one thread.
+    pub busy_in_jobs: f64,
 }
 
-/// A [`ThreadPool`] that counts the jobs of more than one task it is given, into a counter the
-/// bench keeps while the sim owns the pool.
+/// What a [`CountingPool`] has seen so far, in totals the bench reads before and after a step.
+#[derive(Default)]
+struct JobClock {
+    /// Jobs of two or more tasks.
+    handoffs: AtomicU64,
+    /// Wall time inside those jobs, from the hand-off to the last task's end, ns.
+    wall_ns: AtomicU64,
+    /// Time the tasks of those jobs ran, summed over tasks, ns.
+    busy_ns: AtomicU64,
+}
+
+/// Totals of a [`JobClock`] at one moment.
+#[derive(Clone, Copy, Default)]
+struct JobTotals {
+    handoffs: u64,
+    wall_ns: u64,
+    busy_ns: u64,
+}
+
+impl JobClock {
+    fn totals(&self) -> JobTotals {
+        JobTotals {
+            handoffs: self.handoffs.load(Ordering::Relaxed),
+            wall_ns: self.wall_ns.load(Ordering::Relaxed),
+            busy_ns: self.busy_ns.load(Ordering::Relaxed),
+        }
+    }
+}
+
+impl core::ops::Sub for JobTotals {
+    type Output = JobTotals;
+    fn sub(self, b: JobTotals) -> JobTotals {
+        JobTotals {
+            handoffs: self.handoffs - b.handoffs,
+            wall_ns: self.wall_ns - b.wall_ns,
+            busy_ns: self.busy_ns - b.busy_ns,
+        }
+    }
+}
+
+/// A [`ThreadPool`] that counts the jobs of more than one task it is given and clocks them (the
+/// job's wall time and its tasks' running time), into a clock the bench keeps while the sim
+/// owns the pool: where a multi-thread step's time goes.
 struct CountingPool {
     pool: ThreadPool,
-    handoffs: Arc<AtomicU64>,
+    clock: Arc<JobClock>,
+}
+
+fn nanos(since: Instant) -> u64 {
+    u64::try_from(since.elapsed().as_nanos()).unwrap_or(u64::MAX)
 }
 
 // SAFETY: runs every job on the pool, whose contract is the executor's.
@@ -70,10 +121,19 @@ unsafe impl Executor for CountingPool {
         self.pool.parallelism()
     }
     fn run(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
-        if n > 1 {
-            self.handoffs.fetch_add(1, Ordering::Relaxed);
+        if n <= 1 {
+            self.pool.run(n, task);
+            return;
         }
-        self.pool.run(n, task);
+        let c = &self.clock;
+        c.handoffs.fetch_add(1, Ordering::Relaxed);
+        let start = Instant::now();
+        self.pool.run(n, &|i| {
+            let t0 = Instant::now();
+            task(i);
+            c.busy_ns.fetch_add(nanos(t0), Ordering::Relaxed);
+        });
+        c.wall_ns.fetch_add(nanos(start), Ordering::Relaxed);
     }
 }
 
@@ -177,10 +237,12 @@ pub struct StepBench<'m> {
     step: StepMode,
     precision: Precision,
     threads: usize,
-    /// Hand-offs of the sim's pool so far (a counter the bench keeps while the sim owns the pool).
-    handoffs_so_far: Arc<AtomicU64>,
-    /// Hand-offs of the last timed step.
+    /// The clock of the sim's pool (kept by the bench while the sim owns the pool).
+    clock: Arc<JobClock>,
+    /// Hand-offs of the last step.
     handoffs: u64,
+    /// Totals of the clock over the timed steps.
+    timed: JobTotals,
     /// Steps taken, untimed ones included: the workload's step index.
     taken: usize,
     /// Wall time of each timed step, ms, in the order taken.
@@ -207,13 +269,22 @@ impl<'m> StepBench<'m> {
             Some(g) => Sim::with_graph(model, &w.garment, g.clone(), body, cfg)?,
             None => Sim::new(model, &w.garment, body, cfg)?,
         };
-        let handoffs_so_far = Arc::new(AtomicU64::new(0));
+        let clock = Arc::new(JobClock::default());
         if threads > 1 {
             let pool = ThreadPool::new(crate::limits::cap_threads(threads));
-            sim.set_executor(std::boxed::Box::new(CountingPool { pool, handoffs: handoffs_so_far.clone() }));
+            sim.set_executor(std::boxed::Box::new(CountingPool { pool, clock: clock.clone() }));
         }
-        let mut b =
-            StepBench { sim, step, precision, threads, handoffs_so_far, handoffs: 0, taken: 0, times_ms: Vec::new() };
+        let mut b = StepBench {
+            sim,
+            step,
+            precision,
+            threads,
+            clock,
+            handoffs: 0,
+            timed: JobTotals::default(),
+            taken: 0,
+            times_ms: Vec::new(),
+        };
         for _ in 0..warmup {
             b.step_once(w)?;
         }
@@ -229,16 +300,17 @@ impl<'m> StepBench<'m> {
         self.step_once(w).map(|_| ())
     }
 
-    /// Takes one step of `w`, returning its wall time in ms.
-    fn step_once(&mut self, w: &Workload) -> Result<f64> {
+    /// Takes one step of `w`, returning its wall time in ms and the pool's clock over it.
+    fn step_once(&mut self, w: &Workload) -> Result<(f64, JobTotals)> {
         let next = w.prepare_step(&mut self.sim, self.taken)?;
-        let before = self.handoffs_so_far.load(Ordering::Relaxed);
+        let before = self.clock.totals();
         let start = Instant::now();
         self.sim.step(next)?;
         let ms = start.elapsed().as_secs_f64() * 1e3;
-        self.handoffs = self.handoffs_so_far.load(Ordering::Relaxed) - before;
+        let jobs = self.clock.totals() - before;
+        self.handoffs = jobs.handoffs;
         self.taken += 1;
-        Ok(ms)
+        Ok((ms, jobs))
     }
 
     /// Takes one timed step of `w` (the workload the bench was made with) and records it.
@@ -246,8 +318,13 @@ impl<'m> StepBench<'m> {
     /// # Errors
     /// Errors of [`Sim::step`].
     pub fn time_step(&mut self, w: &Workload) -> Result<f64> {
-        let ms = self.step_once(w)?;
+        let (ms, jobs) = self.step_once(w)?;
         self.times_ms.push(ms);
+        self.timed = JobTotals {
+            handoffs: self.timed.handoffs + jobs.handoffs,
+            wall_ns: self.timed.wall_ns + jobs.wall_ns,
+            busy_ns: self.timed.busy_ns + jobs.busy_ns,
+        };
         Ok(ms)
     }
 
@@ -256,6 +333,7 @@ impl<'m> StepBench<'m> {
         let mut sorted = self.times_ms.clone();
         sorted.sort_by(f64::total_cmp);
         let median_ms = median_of_sorted(&sorted);
+        let total_ms: f64 = self.times_ms.iter().sum();
         let flops = self.sim.last_step_flops();
         let gflops = flops as f64 / (median_ms * 1e-3) / 1e9;
         // The peak of the arithmetic the step ran: bf16 widened onto f32 FMAs peaks as f32 does.
@@ -281,6 +359,12 @@ impl<'m> StepBench<'m> {
             peak_gflops,
             efficiency: gflops / peak_gflops,
             handoffs: self.handoffs,
+            in_jobs: self.timed.wall_ns as f64 / (total_ms * 1e6),
+            busy_in_jobs: if self.timed.wall_ns > 0 {
+                self.timed.busy_ns as f64 / (self.threads as f64 * self.timed.wall_ns as f64)
+            } else {
+                0.0
+            },
         }
     }
 }
@@ -321,6 +405,25 @@ mod tests {
         assert_eq!(paired_ratio(&[], &[]), None);
         assert_eq!(median_of_sorted(&[1.0, 2.0, 3.0]), 2.0);
         assert!(median_of_sorted(&[]).is_nan());
+    }
+
+    #[test]
+    fn bench_the_job_clock_sees_the_threads_wait_on_an_uneven_split() {
+        let clock = Arc::new(JobClock::default());
+        let pool = CountingPool { pool: ThreadPool::new(2), clock: clock.clone() };
+        // One task runs 20 ms, the other nothing: the threads are busy half the job's time.
+        pool.run(2, &|i| {
+            if i == 0 {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+        });
+        // A job of one task is no hand-off and is not clocked.
+        pool.run(1, &|_| std::thread::sleep(std::time::Duration::from_millis(5)));
+        let t = clock.totals() - JobTotals::default();
+        assert_eq!(t.handoffs, 1);
+        assert!(t.wall_ns >= 20_000_000 && t.busy_ns >= 20_000_000, "{} {}", t.wall_ns, t.busy_ns);
+        let busy = t.busy_ns as f64 / (2.0 * t.wall_ns as f64);
+        assert!((0.25..=0.55).contains(&busy), "busy {busy}");
     }
 
     #[test]

@@ -596,8 +596,8 @@ fn eval_a_clip_starting_at_speed_starts_its_garment_moving() {
     assert!((resting - body_dx).abs() > 0.5 * body_dx.abs(), "{resting} vs {body_dx}");
 }
 
-/// `hood bench` takes one timed step of every row of a workload per round, and one forward of the
-/// reference per thread count per round (a stand-in script here, which answers with fixed times
+/// `hood bench` takes one timed step of every row of a workload per round, and one timed forward
+/// of the reference per thread count per round (a stand-in script here, which answers with fixed times
 /// and records what it was asked): every row and the reference get one time per round, and the
 /// report's ratios come out of them.
 #[cfg(feature = "cli")]
@@ -656,10 +656,11 @@ fn eval_cli_bench_times_every_row_and_the_reference_in_rounds() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    // One forward per thread count in each of the two rounds, in turn.
-    assert_eq!(std::fs::read_to_string(&asked).unwrap(), "1\n2\n1\n2\n");
+    // In each of the two rounds, at each thread count in turn, an untimed forward (the round's
+    // warm-up) and a timed one.
+    assert_eq!(std::fs::read_to_string(&asked).unwrap(), "1\n1\n2\n2\n1\n1\n2\n2\n");
     let text = std::fs::read_to_string(&report).unwrap();
-    assert!(text.contains("| x 1 thread | x f32 | latency ns | hand-offs | x reference |"), "{text}");
+    assert!(text.contains("| x 1 thread | x f32 | latency ns | hand-offs | in jobs | busy | x reference |"), "{text}");
     assert!(
         text.contains("| tee | 1311 | 1 | 500.0 | 500.0 |") && text.contains("| tee | 1311 | 2 | 1000.0 | 1000.0 |"),
         "{text}"

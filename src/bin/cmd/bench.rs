@@ -258,7 +258,7 @@ fn step_name(step: StepMode) -> String {
 fn print_row(r: &BenchRow, header: bool) {
     if header {
         say!(
-            "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6} {:>9}",
+            "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10} {:>10} {:>9} {:>8} {:>6} {:>9} {:>7} {:>5}",
             "workload",
             "verts",
             "bodyE",
@@ -272,7 +272,9 @@ fn print_row(r: &BenchRow, header: bool) {
             "GFLOP/s",
             "peak",
             "eff",
-            "hand-offs"
+            "hand-offs",
+            "in jobs",
+            "busy"
         );
     }
     let network = r.step == StepMode::Network;
@@ -288,7 +290,7 @@ fn print_row(r: &BenchRow, header: bool) {
         ("-".into(), "-".into(), "-".into(), "-".into(), "-".into())
     };
     say!(
-        "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10.2} {:>10} {:>9} {:>8} {:>6} {:>9}",
+        "{:<9} {:>6} {:>6} {:>10} {:>4} {:>5} {:>10} {:>3} {:>10.2} {:>10} {:>9} {:>8} {:>6} {:>9} {:>7} {:>5}",
         r.workload,
         r.vertices,
         r.body_edges,
@@ -302,8 +304,19 @@ fn print_row(r: &BenchRow, header: bool) {
         gflops,
         peak,
         eff,
-        r.handoffs
+        r.handoffs,
+        percent_if_split(r, r.in_jobs),
+        percent_if_split(r, r.busy_in_jobs)
     );
+}
+
+/// `share` as a whole percentage on a multi-thread row, else `-`.
+fn percent_if_split(r: &BenchRow, share: f64) -> String {
+    if r.threads > 1 {
+        format!("{:.0}%", 100.0 * share)
+    } else {
+        "-".into()
+    }
 }
 
 /// `hood bench --json`: the machine's peak and one object per row.
@@ -333,6 +346,8 @@ fn to_json(rows: &[BenchRow], references: &[ReferenceTime], peak: &Peak) -> Stri
         peak_gflops: f64,
         efficiency: f64,
         handoffs: u64,
+        in_jobs: f64,
+        busy_in_jobs: f64,
     }
     #[derive(serde::Serialize)]
     struct Reference<'a> {
@@ -370,6 +385,8 @@ fn to_json(rows: &[BenchRow], references: &[ReferenceTime], peak: &Peak) -> Stri
             peak_gflops: r.peak_gflops,
             efficiency: r.efficiency,
             handoffs: r.handoffs,
+            in_jobs: r.in_jobs,
+            busy_in_jobs: r.busy_in_jobs,
         })
         .collect();
     let reference = references
@@ -455,7 +472,9 @@ fn markdown(
          latency: the median core-to-core latency measured at the start of the workload's rounds (under \
          about 25 ns: one core's two hardware threads; over 120 ns: farther apart than a shared cache); \
          hand-offs: jobs of the step split between threads (each a synchronisation, costlier the farther \
-         apart the cores); x reference: the reference forward's time at the same threads over this row's \
+         apart the cores); in jobs: the share of the step's time inside those jobs (the rest runs on one \
+         thread); busy: the share of the threads' time in those jobs that their tasks ran (the rest is \
+         hand-offs, wake-ups and uneven splits); x reference: the reference forward's time at the same threads over this row's \
          (below the table).\n",
         if round_warmup > 0 {
             format!(
@@ -468,9 +487,12 @@ fn markdown(
     );
     let _ = writeln!(
         s,
-        "| workload | vertices | body edges | step | h | precision | tier | threads | median ms | fastest ms | GFLOP/step | GFLOP/s | efficiency | x 1 thread | x f32 | latency ns | hand-offs | x reference |"
+        "| workload | vertices | body edges | step | h | precision | tier | threads | median ms | fastest ms | GFLOP/step | GFLOP/s | efficiency | x 1 thread | x f32 | latency ns | hand-offs | in jobs | busy | x reference |"
     );
-    let _ = writeln!(s, "|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(
+        s,
+        "|---|---:|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
     for (r, latency) in rows.iter().zip(latencies) {
         let network = r.step == StepMode::Network;
         // The same step at another thread count or precision.
@@ -503,7 +525,7 @@ fn markdown(
         };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.workload,
             r.vertices,
             r.body_edges,
@@ -521,6 +543,8 @@ fn markdown(
             over_f32,
             latency.map_or_else(dash, |ns| format!("{ns:.0}")),
             if r.threads > 1 { r.handoffs.to_string() } else { dash() },
+            percent_if_split(r, r.in_jobs).replace('%', " %"),
+            percent_if_split(r, r.busy_in_jobs).replace('%', " %"),
             vs_reference
         );
     }
@@ -578,6 +602,8 @@ mod tests {
             peak_gflops: 100.0 * threads as f64,
             efficiency: 0.5,
             handoffs: if threads > 1 { 180 } else { 0 },
+            in_jobs: if threads > 1 { 0.9 } else { 0.0 },
+            busy_in_jobs: if threads > 1 { 0.8 } else { 0.0 },
         }
     }
 
@@ -626,15 +652,15 @@ mod tests {
         assert!(text.contains("\nMachine: "), "{text}");
         assert!(text.contains("f32 100.0 GFLOP/s") && text.contains("bf16 widened.") && text.contains("40 ns"));
         // The reference's time over the row's, at the row's threads, round by round.
-        assert!(line(&text, "tee", "network", "f32", 1).ends_with("| - | - | - | - | 5.0 |"));
-        assert!(line(&text, "tee", "network", "f32", 2).ends_with("| 1.60 | - | 11 | 180 | 6.0 |"));
+        assert!(line(&text, "tee", "network", "f32", 1).ends_with("| - | - | - | - | - | - | 5.0 |"));
+        assert!(line(&text, "tee", "network", "f32", 2).ends_with("| 1.60 | - | 11 | 180 | 90 % | 80 % | 6.0 |"));
         // Matched by precision, whatever the order of the rows; bf16 against f32 at its threads.
-        assert!(line(&text, "tee", "network", "bf16", 2).ends_with("| 3.00 | 1.25 | 60 | 180 | 7.5 |"));
-        assert!(line(&text, "tee", "network", "bf16", 1).ends_with("| - | 0.67 | - | - | 3.3 |"));
+        assert!(line(&text, "tee", "network", "bf16", 2).ends_with("| 3.00 | 1.25 | 60 | 180 | 90 % | 80 % | 7.5 |"));
+        assert!(line(&text, "tee", "network", "bf16", 1).ends_with("| - | 0.67 | - | - | - | - | 3.3 |"));
         // A solver row has no network figures (nor a reference) and its own one-thread row.
         let solver = line(&text, "tee", "solver 30", "f32", 2);
         assert!(
-            solver.ends_with("| - | f32 | - | 2 | 50.00 | 50.00 | - | - | - | 1.60 | - | 60 | 180 | - |"),
+            solver.ends_with("| - | f32 | - | 2 | 50.00 | 50.00 | - | - | - | 1.60 | - | 60 | 180 | 90 % | 80 % | - |"),
             "{solver}"
         );
         assert!(text.contains("| tee | 1311 | 2 | 750.0 | 750.0 |"), "{text}");
