@@ -57,7 +57,7 @@ pub(crate) struct BenchArgs {
     /// Untimed steps of each configuration (and forwards of the reference) just before its timed
     /// one in every round, so that the timed step finds the caches as a run of that
     /// configuration alone leaves them; 0 times steps that follow other configurations' (colder
-    /// caches, about twice as fast a run).
+    /// caches; the run then takes about half as long).
     #[arg(long, default_value_t = 1)]
     round_warmup: usize,
     /// The assets folder; the tee workloads read the parity fixtures beside it (default:
