@@ -597,15 +597,12 @@ fn eval_a_clip_starting_at_speed_starts_its_garment_moving() {
 }
 
 /// `hood bench` takes one timed step of every row of a workload per round, and one timed forward
-/// of the reference per thread count per round (a stand-in script here, which answers with fixed times
-/// and records what it was asked): every row and the reference get one time per round, and the
-/// report's ratios come out of them.
+/// of the reference per thread count per round (a stand-in script here, which answers with fixed
+/// times and records what it was asked): every row and the reference get one time per round, and
+/// the report carries the reference's times.
 #[cfg(feature = "cli")]
 #[test]
 fn eval_cli_bench_times_every_row_and_the_reference_in_rounds() {
-    let dir = std::env::temp_dir().join(format!("hood-bench-test-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
     let json_rows = |stdout: &[u8]| -> serde_json::Value {
         let text = String::from_utf8_lossy(stdout);
         serde_json::from_str(text.lines().rev().find(|l| l.starts_with('{')).expect("a JSON line")).unwrap()
@@ -628,16 +625,26 @@ fn eval_cli_bench_times_every_row_and_the_reference_in_rounds() {
 
     // The reference, served: needs the parity fixtures for the `tee` workload's scene.
     let assets = common::shared_dir().join("assets");
-    if !common::shared_dir().join("fixtures/hood-parity/fixture_weights.safetensors").exists() {
-        common::skip("eval_cli_bench_times_every_row_and_the_reference_in_rounds (reference)", &assets);
+    let weights = common::shared_dir().join("fixtures/hood-parity/fixture_weights.safetensors");
+    if !weights.exists() {
+        common::skip("eval_cli_bench_times_every_row_and_the_reference_in_rounds (reference)", &weights);
         return;
     }
+    if std::process::Command::new("python3").arg("--version").output().is_err() {
+        println!("SKIPPED eval_cli_bench_times_every_row_and_the_reference_in_rounds (reference): no python3");
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("hood-bench-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
     let asked = dir.join("asked.txt");
     let script = dir.join("fake_reference.py");
     std::fs::write(
         &script,
         format!(
             "import json, sys\nassert '--serve' in sys.argv\nlog = open({:?}, 'w')\n\
+             print('loading (not an answer)', flush=True)\n\
+             print(json.dumps({{'ready': True, 'vertices': 1311, 'torch': 'stand-in'}}), flush=True)\n\
              for line in sys.stdin:\n    t = int(line)\n    log.write(f'{{t}}\\n'); log.flush()\n    \
              print(json.dumps({{'vertices': 1311, 'threads': t, 'seconds': 0.5 * t, 'torch': 'stand-in'}}), flush=True)\n",
             asked.display().to_string()

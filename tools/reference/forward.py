@@ -45,7 +45,8 @@ line of JSON with the timings of the whole forward (median of ``--runs`` after
 forward per request, so that ``hood bench`` can take them in turns with its own
 steps: it reads a thread count per line on stdin and answers each with one line
 of JSON, the time of one forward at that count (after ``--warmup`` untimed ones
-the first time the count is asked), until stdin closes. All other output goes
+the first time the count is asked), until stdin closes; a first line says it
+has loaded the scene and weights and is ready. All other output goes
 to stderr.
 
 Environment (CPU is enough)::
@@ -630,6 +631,14 @@ def run_timing(scene, params, threads, runs, warmup):
 
 
 def serve(scene, params, warmup):
+    # Answers go to the real stdout; anything else printed meanwhile goes to stderr.
+    answers, sys.stdout = sys.stdout, sys.stderr
+
+    def answer(**fields):
+        print(json.dumps({"vertices": int(scene["cloth_pos"].shape[0]), "torch": torch.__version__, **fields}),
+              file=answers, flush=True)
+
+    answer(ready=True)
     warmed = set()
     with torch.no_grad():
         for line in sys.stdin:
@@ -643,13 +652,7 @@ def serve(scene, params, warmup):
                 warmed.add(threads)
             t0 = time.perf_counter()
             forward(scene, params)
-            seconds = time.perf_counter() - t0
-            print(json.dumps({
-                "vertices": int(scene["cloth_pos"].shape[0]),
-                "threads": torch.get_num_threads(),
-                "seconds": seconds,
-                "torch": torch.__version__,
-            }), flush=True)
+            answer(threads=torch.get_num_threads(), seconds=time.perf_counter() - t0)
 
 
 def main():

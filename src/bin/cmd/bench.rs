@@ -45,8 +45,8 @@ pub(crate) struct BenchArgs {
     /// Thread counts.
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     threads: Vec<usize>,
-    /// Rounds: each takes one timed step of every configuration of a workload in turn (and one
-    /// forward of the reference at each thread count), so that noise from the rest of the
+    /// Rounds: each takes one timed step of every configuration of a workload in turn, then one
+    /// forward of the reference at each thread count, so that noise from the rest of the
     /// machine falls on all of them alike. The median is reported, and ratios are taken round
     /// by round.
     #[arg(long, default_value_t = 15)]
@@ -205,8 +205,7 @@ pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
         }
         bar.finish();
         drop(server);
-        round_latencies.sort_by(f64::total_cmp);
-        let latency = (!round_latencies.is_empty()).then(|| hood::bench::median_of_sorted(&round_latencies));
+        let latency = (!round_latencies.is_empty()).then(|| hood::bench::median(&round_latencies));
         for (model, b) in &benches {
             let r = b.row(w, model, &peak);
             if !a.json {
@@ -462,8 +461,8 @@ fn markdown(
     let _ = writeln!(
         s,
         "\n\nEach workload is timed in rounds: a round takes one timed step of every row of the workload in \
-         turn, each round starting one row further on (and, with the reference, one forward of it at each \
-         thread count), so that the machine's slow spells fall on all rows alike; ratios between rows are the \
+         turn, each round starting one row further on, then (with the reference) one forward of it at each \
+         thread count, so that the machine's slow spells fall on all rows alike; ratios between rows are the \
          median over rounds of the round's ratio. {}\n\n\
          median ms: median wall time of one step (fastest ms: the fastest; far apart, the machine was \
          busy elsewhere); GFLOP/step: the network's useful floating-point work \

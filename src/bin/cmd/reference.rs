@@ -36,14 +36,12 @@ impl ReferenceTime {
     pub(crate) fn of(workload: &str, forwards: &[Forward]) -> Option<ReferenceTime> {
         let first = forwards.first()?;
         let times_ms: Vec<f64> = forwards.iter().map(|f| f.seconds * 1e3).collect();
-        let mut sorted = times_ms.clone();
-        sorted.sort_by(f64::total_cmp);
         Some(ReferenceTime {
             workload: workload.to_string(),
             vertices: first.vertices,
             threads: first.threads,
-            median_ms: hood::bench::median_of_sorted(&sorted),
-            min_ms: sorted[0],
+            median_ms: hood::bench::median(&times_ms),
+            min_ms: times_ms.iter().copied().fold(f64::INFINITY, f64::min),
             times_ms,
             torch: first.torch.clone(),
         })
@@ -89,7 +87,14 @@ impl Reference<'_> {
             }
         };
         let (stdin, stdout) = (child.stdin.take(), child.stdout.take().map(BufReader::new));
-        Ok(ReferenceServer { child, stdin, stdout, scene, script: self.script.display().to_string() })
+        let mut server = ReferenceServer { child, stdin, stdout, scene, script: self.script.display().to_string() };
+        // Wait for the script to load torch, the scene and the weights, so that its start-up
+        // does not share the machine with the first round's steps.
+        let ready = server.answer()?;
+        if ready.get("ready").and_then(serde_json::Value::as_bool) != Some(true) {
+            return Err(hood::Error::parse("reference forward", 0, format!("not a ready line: {ready}")));
+        }
+        Ok(server)
     }
 }
 
@@ -122,32 +127,60 @@ impl ReferenceServer {
     /// [`hood::Error::Parse`] when the script has stopped or answers with no timing line.
     pub(crate) fn forward(&mut self, threads: usize) -> hood::Result<Forward> {
         let fail = |what: String| hood::Error::parse("reference forward", 0, what);
-        let (Some(stdin), Some(stdout)) = (self.stdin.as_mut(), self.stdout.as_mut()) else {
-            return Err(fail(format!("{} has no pipes", self.script)));
+        let Some(stdin) = self.stdin.as_mut() else {
+            return Err(fail(format!("{} has no stdin", self.script)));
         };
         writeln!(stdin, "{threads}")
             .and_then(|_| stdin.flush())
             .map_err(|e| fail(format!("{} stopped: {e}", self.script)))?;
+        let f = parse_forward(&self.answer()?)?;
+        if f.threads != threads {
+            return Err(fail(format!("asked for {threads} thread(s), the forward ran on {}", f.threads)));
+        }
+        Ok(f)
+    }
+
+    /// The script's next line of JSON (other lines on its stdout are passed over).
+    fn answer(&mut self) -> hood::Result<serde_json::Value> {
+        let fail = |what: String| hood::Error::parse("reference forward", 0, what);
+        let Some(stdout) = self.stdout.as_mut() else {
+            return Err(fail(format!("{} has no stdout", self.script)));
+        };
         let mut line = String::new();
-        match stdout.read_line(&mut line) {
-            Ok(0) => Err(fail(format!("{} exited before answering", self.script))),
-            Ok(_) => parse_forward(line.trim()),
-            Err(e) => Err(fail(format!("{}: {e}", self.script))),
+        loop {
+            line.clear();
+            match stdout.read_line(&mut line) {
+                Ok(0) => return Err(fail(format!("{} exited before answering", self.script))),
+                Ok(_) if line.trim_start().starts_with('{') => {
+                    return serde_json::from_str(line.trim()).map_err(|e| fail(format!("{e}: {}", line.trim())));
+                }
+                Ok(_) => continue,
+                Err(e) => return Err(fail(format!("{}: {e}", self.script))),
+            }
         }
     }
 }
 
 impl Drop for ReferenceServer {
     fn drop(&mut self) {
-        // Closing stdin ends the script's loop.
+        // Closing stdin ends the script's loop once its forward in progress (seconds at most)
+        // is done; one that is still running a minute on is stopped.
         self.stdin = None;
+        self.stdout = None;
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+        while matches!(self.child.try_wait(), Ok(None)) && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        if matches!(self.child.try_wait(), Ok(None)) {
+            let _ = self.child.kill();
+        }
         let _ = self.child.wait();
         let _ = std::fs::remove_file(&self.scene);
     }
 }
 
-/// The script's answer: `{"vertices": V, "threads": N, "seconds": .., "torch": ..}`.
-fn parse_forward(line: &str) -> hood::Result<Forward> {
+/// A forward's answer: `{"vertices": V, "threads": N, "seconds": .., "torch": ..}`.
+fn parse_forward(answer: &serde_json::Value) -> hood::Result<Forward> {
     #[derive(serde::Deserialize)]
     struct Line {
         vertices: usize,
@@ -155,8 +188,8 @@ fn parse_forward(line: &str) -> hood::Result<Forward> {
         seconds: f64,
         torch: String,
     }
-    let l: Line =
-        serde_json::from_str(line).map_err(|e| hood::Error::parse("reference forward", 0, format!("{e}: {line}")))?;
+    let l: Line = serde_json::from_value(answer.clone())
+        .map_err(|e| hood::Error::parse("reference forward", 0, format!("{e}: {answer}")))?;
     Ok(Forward { vertices: l.vertices, threads: l.threads, seconds: l.seconds, torch: l.torch })
 }
 
@@ -167,9 +200,9 @@ mod tests {
     #[test]
     fn the_reference_forwards_are_read_in_milliseconds_in_round_order() {
         let line = r#"{"vertices": 1311, "threads": 2, "seconds": 0.75, "torch": "2.2.2+cu121"}"#;
-        let f = parse_forward(line).unwrap();
+        let f = parse_forward(&serde_json::from_str(line).unwrap()).unwrap();
         assert_eq!(f, Forward { vertices: 1311, threads: 2, seconds: 0.75, torch: "2.2.2+cu121".into() });
-        assert!(parse_forward(r#"{"vertices": 1}"#).is_err());
+        assert!(parse_forward(&serde_json::json!({"vertices": 1})).is_err());
         let forwards: Vec<Forward> = [0.8, 0.7, 0.75].iter().map(|&seconds| Forward { seconds, ..f.clone() }).collect();
         let t = ReferenceTime::of("tee", &forwards).unwrap();
         assert_eq!((t.workload.as_str(), t.vertices, t.threads, t.torch.as_str()), ("tee", 1311, 2, "2.2.2+cu121"));
