@@ -506,20 +506,18 @@ fn markdown(
             })
         };
         let dash = || "-".to_string();
-        let ratio = |of: Option<&[f64]>| of.and_then(|t| paired_ratio(t, &r.times_ms));
+        let ratio = |of: &[f64]| paired_ratio(of, &r.times_ms);
         let speedup = match same(1, r.precision) {
-            Some(o) if r.threads > 1 => ratio(Some(&o.times_ms)).map_or_else(dash, |x| format!("{x:.2}")),
+            Some(o) if r.threads > 1 => ratio(&o.times_ms).map_or_else(dash, |x| format!("{x:.2}")),
             _ => dash(),
         };
         let over_f32 = match same(r.threads, Precision::F32) {
-            Some(o) if r.precision == Precision::Bf16 => {
-                ratio(Some(&o.times_ms)).map_or_else(dash, |x| format!("{x:.2}"))
-            }
+            Some(o) if r.precision == Precision::Bf16 => ratio(&o.times_ms).map_or_else(dash, |x| format!("{x:.2}")),
             _ => dash(),
         };
         let reference = references.iter().find(|t| t.workload == r.workload && t.threads == r.threads);
         let vs_reference = match reference {
-            Some(t) if network => ratio(Some(&t.times_ms)).map_or_else(dash, |x| format!("{x:.1}")),
+            Some(t) if network => ratio(&t.times_ms).map_or_else(dash, |x| format!("{x:.1}")),
             _ => dash(),
         };
         let _ = writeln!(
