@@ -29,12 +29,16 @@ pub struct Peak {
 
 /// Best of `reps` timed runs of `f(iters)` that performs `flops_per_iter` per iteration, sized to
 /// last about `target_ms` each.
+///
+/// Every call passes its count through [`std::hint::black_box`]: the loops are pure functions
+/// of their arguments, and with the same count in every repetition the optimiser may otherwise
+/// run one and reuse its result for the rest, which then time nothing.
 fn best_gflops(flops_per_iter: f64, target_ms: f64, reps: usize, mut f: impl FnMut(usize) -> f32) -> f64 {
     // Calibrate: grow until a run takes at least 2 ms.
     let mut iters = 1usize << 12;
     loop {
         let t = Stopwatch::start();
-        std::hint::black_box(f(iters));
+        std::hint::black_box(f(std::hint::black_box(iters)));
         let s = t.seconds();
         if s > 2e-3 || iters > 1 << 30 {
             iters = ((iters as f64) * (target_ms * 1e-3 / s.max(1e-9))).max(1.0) as usize;
@@ -45,7 +49,7 @@ fn best_gflops(flops_per_iter: f64, target_ms: f64, reps: usize, mut f: impl FnM
     let mut best = 0.0f64;
     for _ in 0..reps {
         let t = Stopwatch::start();
-        std::hint::black_box(f(iters));
+        std::hint::black_box(f(std::hint::black_box(iters)));
         let s = t.seconds();
         best = best.max(flops_per_iter * iters as f64 / s / 1e9);
     }
