@@ -122,6 +122,24 @@ mod pool {
         }
     }
 
+    /// Runs task `i` of the current job and counts it done.
+    ///
+    /// # Safety
+    /// The caller holds a valid claim of task `i`, or is the job's own caller (which wrote
+    /// `task`) running the task 0 it kept for itself.
+    unsafe fn run_task(s: &Shared, i: usize) {
+        // SAFETY: by the contract (see `Shared::task`).
+        if let Some(t) = unsafe { *s.task.get() } {
+            // A panicking task must still count as done: otherwise the caller would wait
+            // forever (or, unwinding, leave workers running a task whose captures are gone).
+            if let Err(payload) = catch_unwind(AssertUnwindSafe(|| t(i))) {
+                let mut first = s.panic.lock().unwrap_or_else(|e| e.into_inner());
+                first.get_or_insert(payload);
+            }
+        }
+        s.done.fetch_add(1, Ordering::Release);
+    }
+
     /// Claims and runs tasks until a claim comes back invalid; returns that claim's job number.
     /// Claims may move on to jobs published meanwhile.
     fn claim(s: &Shared) -> u64 {
@@ -131,16 +149,8 @@ mod pool {
             if i >= n {
                 return job_of(w);
             }
-            // SAFETY: read under a valid claim (see `Shared::task`).
-            if let Some(t) = unsafe { *s.task.get() } {
-                // A panicking task must still count as done: otherwise the caller would wait
-                // forever (or, unwinding, leave workers running a task whose captures are gone).
-                if let Err(payload) = catch_unwind(AssertUnwindSafe(|| t(i as usize))) {
-                    let mut first = s.panic.lock().unwrap_or_else(|e| e.into_inner());
-                    first.get_or_insert(payload);
-                }
-            }
-            s.done.fetch_add(1, Ordering::Release);
+            // SAFETY: a valid claim of task `i`.
+            unsafe { run_task(s, i as usize) };
         }
     }
 
@@ -251,11 +261,16 @@ mod pool {
             // `done == n`), so no thread reads `task` now.
             unsafe { *s.task.get() = Some(task_static) };
             s.done.store(0, Ordering::Relaxed);
-            s.claim.store(word(job, n), Ordering::SeqCst);
+            // Workers claim from task 1; task 0 is the caller's. With one task per thread, jobs
+            // split alike then give each thread the same rows every time, which stay in its
+            // core's caches (a shared claim for task 0 gave it to whichever thread came first).
+            s.claim.store(word(job, n) | 1, Ordering::SeqCst);
             if s.sleepers.load(Ordering::SeqCst) > 0 {
                 let _g = s.lock.lock().unwrap_or_else(|e| e.into_inner());
                 s.wake.notify_all();
             }
+            // SAFETY: this thread wrote `task` for this job; task 0 is claimed by no one else.
+            unsafe { run_task(s, 0) };
             claim(s);
             // The last tasks may still run on workers: spin, then yield.
             let mut spins = 0u32;
@@ -322,6 +337,33 @@ mod tests {
             });
             assert_eq!(sum.load(Ordering::Relaxed), n * (n - 1) / 2);
         }
+    }
+
+    /// Task 0 of every job runs on the calling thread, so jobs split alike keep each thread on
+    /// the same rows. Before, the caller and a spinning worker raced for it.
+    #[cfg(feature = "std")]
+    #[test]
+    fn sim_thread_pool_keeps_task_zero_on_the_caller() {
+        let pool = ThreadPool::new(2);
+        let caller = std::thread::current().id();
+        let elsewhere = AtomicUsize::new(0);
+        for round in 0..2000usize {
+            pool.run(2, &|i| {
+                if i == 0 && std::thread::current().id() != caller {
+                    elsewhere.fetch_add(1, Ordering::Relaxed);
+                }
+                // Long enough for the other thread to claim while this one works.
+                let t = std::time::Instant::now();
+                while t.elapsed() < std::time::Duration::from_micros(2) {
+                    core::hint::spin_loop();
+                }
+            });
+            if round % 500 == 499 {
+                // Jobs after the worker fell asleep, too.
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+        }
+        assert_eq!(elsewhere.load(Ordering::Relaxed), 0, "jobs whose task 0 ran off the calling thread");
     }
 
     #[cfg(feature = "std")]
