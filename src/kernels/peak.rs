@@ -4,11 +4,12 @@
 //! f32: a loop of independent FMA chains (12 accumulators, enough to cover FMA latency × ports
 //! on current x86 cores) on the widest vectors the tier has; on the portable tier chains of
 //! eight-lane multiply-adds in plain Rust, as its kernels compute them, vectorised by the
-//! compiler for the target (the best of 4, 8 and 12 chains). bf16: the same with `vdpbf16ps` where the CPU has AVX-512-BF16, four
-//! independent `tdpbf16ps` on the AMX tier; elsewhere the bf16 kernels run on f32 FMAs, so their
-//! peak is the f32 peak. Runs are timed on thread CPU time where available ([`Stopwatch`]), so
-//! other processes on a shared machine do not count against the loop. One FLOP is one multiply or
-//! one add (an FMA lane counts 2, a `vdpbf16ps` lane 4).
+//! compiler for the target (the best of 4, 8 and 12 chains). bf16: the same with `vdpbf16ps`
+//! where the CPU has AVX-512-BF16, four independent `tdpbf16ps` on the AMX tier; elsewhere the
+//! bf16 kernels run on f32 FMAs, so their peak is the f32 peak. Runs are timed on thread CPU
+//! time where available ([`Stopwatch`]), so other processes on a shared machine do not count
+//! against the loop. One FLOP is one multiply or one add (an FMA lane counts 2, a `vdpbf16ps`
+//! lane 4).
 
 pub use super::stopwatch::{thread_cpu_seconds, Stopwatch};
 use super::{Kernels, Tier};
