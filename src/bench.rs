@@ -356,7 +356,7 @@ impl<'m> StepBench<'m> {
             tier,
             threads: self.threads,
             median_ms,
-            min_ms: self.times_ms.iter().copied().reduce(f64::min).unwrap_or(f64::NAN),
+            min_ms: fastest(&self.times_ms),
             times_ms: self.times_ms.clone(),
             flops,
             gflops,
@@ -381,6 +381,11 @@ pub fn median(v: &[f64]) -> f64 {
     } else {
         crate::eval::percentile(&mut v.to_vec(), 0.5)
     }
+}
+
+/// The smallest of `v` (the fastest of a row's step times); NaN when `v` is empty.
+pub fn fastest(v: &[f64]) -> f64 {
+    v.iter().copied().reduce(f64::min).unwrap_or(f64::NAN)
 }
 
 /// The median over rounds of `num[i] / den[i]`: a ratio of two configurations timed in the same
@@ -413,6 +418,8 @@ mod tests {
         assert_eq!(paired_ratio(&[], &[]), None);
         assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
         assert!(median(&[]).is_nan());
+        assert_eq!(fastest(&[3.0, 1.0, 2.0]), 1.0);
+        assert!(fastest(&[]).is_nan());
     }
 
     #[test]
