@@ -1,6 +1,9 @@
-//! Edge-MLP chain and plain packed linear on ~30k edges, f32 and bf16, h = 128, 64, 32.
-//! Prints useful FLOPs (from shapes), GFLOP/s and efficiency against the single-core peak
-//! measured in the same run, then hands the same closures to criterion.
+//! Edge-MLP chain and plain packed linear, f32 and bf16, h = 128, 64, 32, at two sizes: 6,000
+//! edges over 2,000 nodes (a garment of the fixture t-shirt's size, whose buffers stay in a
+//! server core's L2 and L3 as in the step) and 30,000 over 10,000 (buffers that outgrow the
+//! last-level cache, so that memory bandwidth shows). Prints useful FLOPs (from shapes), GFLOP/s
+//! and efficiency against the single-core peak measured in the same run, then hands the same
+//! closures to criterion.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use half::bf16;
@@ -11,8 +14,8 @@ use hood::kernels::{
 };
 use std::hint::black_box;
 
-const EDGES: usize = 30_000;
-const NODES: usize = 10_000;
+/// (edges, nodes) of each size; linear layers run on as many rows as there are edges.
+const SIZES: [(usize, usize); 2] = [(6_000, 2_000), (30_000, 10_000)];
 
 struct Rng(u64);
 impl Rng {
@@ -64,6 +67,17 @@ fn best_secs(reps: usize, mut f: impl FnMut()) -> f64 {
     t[0]
 }
 
+/// One printed row: time, useful GFLOP, rate and its share of the peak (`peak` in GFLOP/s).
+fn print_row(what: &str, secs: f64, flops: f64, peak: f64) {
+    let rate = flops / secs / 1e9;
+    println!(
+        "kernels: {what} {:.2} ms, {:.2} GFLOP useful, {rate:.1} GFLOP/s, {:.0}% of peak",
+        secs * 1e3,
+        flops / 1e9,
+        100.0 * rate / peak
+    );
+}
+
 fn bench(c: &mut Criterion) {
     let k = Kernels::best();
     let p = peak::measure(k, 20.0);
@@ -79,68 +93,58 @@ fn bench(c: &mut Criterion) {
     let mut rng = Rng(42);
     let mut g = c.benchmark_group("kernels");
     g.sample_size(10);
-    for h in [128usize, 64, 32] {
-        let (l1, l2, l3) = (Packed::new(&mut rng, h, h), Packed::new(&mut rng, h, h), Packed::new(&mut rng, h, h));
-        let (b1, b2, b3) = (rng.vec(h, 0.1), rng.vec(h, 0.1), rng.vec(h, 0.1));
-        let (gamma, beta) = (rng.vec(h, 1.0), rng.vec(h, 0.1));
-        let pt = rng.vec(NODES * h, 1.0);
-        let ps = rng.vec(NODES * h, 1.0);
-        let target: Vec<u32> = (0..EDGES).map(|e| (e * NODES / EDGES) as u32).collect();
-        let source: Vec<u32> = (0..EDGES).map(|e| ((e * 7919) % NODES) as u32).collect();
-        let latent0 = rng.vec(EDGES * h, 1.0);
-        let mut latent = latent0.clone();
-        let mut agg = vec![0.0f32; NODES * h];
-        let mut scratch = vec![0.0f32; edge_mlp_scratch_len(h, h)];
-        let x = rng.vec(EDGES * h, 1.0);
-        let mut out = vec![0.0f32; EDGES * h];
-        // bf16 operands need the larger scratch (room to widen weights where needed).
-        let ops_f = [Operand { x: &x, w: l2.w(true) }];
-        let mut lscratch = vec![0.0f32; linear_scratch_len(&ops_f, h)];
-        for bf in [false, true] {
-            let prec = if bf { "bf16" } else { "f32" };
-            let peak_g = if bf { p.bf16_gflops } else { p.f32_gflops };
-            let mlp = EdgeMlp {
-                w1_edge: l1.w(bf),
-                b1: &b1,
-                w2: l2.w(bf),
-                b2: &b2,
-                w3: l3.w(bf),
-                b3: &b3,
-                layer_norm: Some(LayerNorm { gamma: &gamma, beta: &beta }),
-            };
-            let inputs = EdgeInputs { p_target: &pt, p_source: &ps, target: &target, source: &source };
-            let flops = (EDGES * 3 * 2 * h * h) as f64;
-            // Latents are not reset between runs (a copy would be timed too); the residual sum only
-            // grows them by O(1) LayerNorm outputs per run.
-            latent.copy_from_slice(&latent0);
-            let mut run_edge = || {
-                k.edge_mlp(&mlp, black_box(&inputs), &mut latent, &mut agg, &mut scratch).unwrap();
-            };
-            let s = best_secs(15, &mut run_edge);
-            println!(
-                "kernels: edge_mlp h={h:>3} {prec:>4} {EDGES} edges: {:.2} ms, {:.2} GFLOP useful, {:.1} GFLOP/s, {:.0}% of peak",
-                s * 1e3,
-                flops / 1e9,
-                flops / s / 1e9,
-                100.0 * flops / s / 1e9 / peak_g
-            );
-            g.throughput(Throughput::Elements(flops as u64));
-            g.bench_function(format!("edge_mlp_h{h}_{prec}"), |b| b.iter(&mut run_edge));
+    for (edges, nodes) in SIZES {
+        for h in [128usize, 64, 32] {
+            let (l1, l2, l3) = (Packed::new(&mut rng, h, h), Packed::new(&mut rng, h, h), Packed::new(&mut rng, h, h));
+            let (b1, b2, b3) = (rng.vec(h, 0.1), rng.vec(h, 0.1), rng.vec(h, 0.1));
+            let (gamma, beta) = (rng.vec(h, 1.0), rng.vec(h, 0.1));
+            let pt = rng.vec(nodes * h, 1.0);
+            let ps = rng.vec(nodes * h, 1.0);
+            let target: Vec<u32> = (0..edges).map(|e| (e * nodes / edges) as u32).collect();
+            let source: Vec<u32> = (0..edges).map(|e| ((e * 7919) % nodes) as u32).collect();
+            let latent0 = rng.vec(edges * h, 1.0);
+            let mut latent = latent0.clone();
+            let mut agg = vec![0.0f32; nodes * h];
+            let mut scratch = vec![0.0f32; edge_mlp_scratch_len(h, h)];
+            let x = rng.vec(edges * h, 1.0);
+            let mut out = vec![0.0f32; edges * h];
+            // bf16 operands need the larger scratch (room to widen weights where needed).
+            let ops_f = [Operand { x: &x, w: l2.w(true) }];
+            let mut lscratch = vec![0.0f32; linear_scratch_len(&ops_f, h)];
+            for bf in [false, true] {
+                let prec = if bf { "bf16" } else { "f32" };
+                let peak_g = if bf { p.bf16_gflops } else { p.f32_gflops };
+                let mlp = EdgeMlp {
+                    w1_edge: l1.w(bf),
+                    b1: &b1,
+                    w2: l2.w(bf),
+                    b2: &b2,
+                    w3: l3.w(bf),
+                    b3: &b3,
+                    layer_norm: Some(LayerNorm { gamma: &gamma, beta: &beta }),
+                };
+                let inputs = EdgeInputs { p_target: &pt, p_source: &ps, target: &target, source: &source };
+                let flops = (edges * 3 * 2 * h * h) as f64;
+                // Latents are not reset between runs (a copy would be timed too); the residual sum only
+                // grows them by O(1) LayerNorm outputs per run.
+                latent.copy_from_slice(&latent0);
+                let mut run_edge = || {
+                    k.edge_mlp(&mlp, black_box(&inputs), &mut latent, &mut agg, &mut scratch).unwrap();
+                };
+                let s = best_secs(15, &mut run_edge);
+                print_row(&format!("edge_mlp h={h:>3} {prec:>4} {edges:>6} edges:"), s, flops, peak_g);
+                g.throughput(Throughput::Elements(flops as u64));
+                g.bench_function(format!("edge_mlp_h{h}_{prec}_e{edges}"), |b| b.iter(&mut run_edge));
 
-            let ops = [Operand { x: &x, w: l2.w(bf) }];
-            let epi = Epilogue { relu: true, ..Epilogue::default() };
-            let lflops = (EDGES * 2 * h * h) as f64;
-            let mut run_lin = || k.linear(black_box(&ops), Some(&b2), &epi, &mut out, &mut lscratch).unwrap();
-            let s = best_secs(15, &mut run_lin);
-            println!(
-                "kernels: linear   h={h:>3} {prec:>4} {EDGES} rows:  {:.2} ms, {:.2} GFLOP useful, {:.1} GFLOP/s, {:.0}% of peak",
-                s * 1e3,
-                lflops / 1e9,
-                lflops / s / 1e9,
-                100.0 * lflops / s / 1e9 / peak_g
-            );
-            g.throughput(Throughput::Elements(lflops as u64));
-            g.bench_function(format!("linear_h{h}_{prec}"), |b| b.iter(&mut run_lin));
+                let ops = [Operand { x: &x, w: l2.w(bf) }];
+                let epi = Epilogue { relu: true, ..Epilogue::default() };
+                let lflops = (edges * 2 * h * h) as f64;
+                let mut run_lin = || k.linear(black_box(&ops), Some(&b2), &epi, &mut out, &mut lscratch).unwrap();
+                let s = best_secs(15, &mut run_lin);
+                print_row(&format!("linear   h={h:>3} {prec:>4} {edges:>6} rows: "), s, lflops, peak_g);
+                g.throughput(Throughput::Elements(lflops as u64));
+                g.bench_function(format!("linear_h{h}_{prec}_e{edges}"), |b| b.iter(&mut run_lin));
+            }
         }
     }
     g.finish();
