@@ -29,8 +29,12 @@ impl Rng {
 }
 
 const ROWS: [usize; 7] = [0, 1, 5, 15, 17, 33, 100];
-const K_SET: [usize; 9] = [3, 9, 12, 24, 32, 64, 128, 384, 512];
-const N_SET: [usize; 6] = [3, 9, 32, 64, 128, 144];
+/// Inputs: odd counts (a padded pair), and 40 and 66 (20 and 33 pairs: whole AMX tiles of 16
+/// pairs with some left over, which that tier adds with `vdpbf16ps`).
+const K_SET: [usize; 11] = [3, 9, 12, 24, 32, 40, 64, 66, 128, 384, 512];
+/// Outputs: partial panels of 16 columns, and 17 and 40 (a second AMX output tile that is
+/// partial).
+const N_SET: [usize; 8] = [3, 9, 17, 32, 40, 64, 128, 144];
 
 /// SIMD tiers this host runs; prints the ones it must skip.
 fn simd_tiers(test: &str) -> Vec<Kernels> {
