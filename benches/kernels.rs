@@ -7,6 +7,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use half::bf16;
+use hood::bench::fastest;
 use hood::kernels::{
     edge_mlp_scratch_len, linear_scratch_len, pack_bf16, pack_f32, packed_len_bf16, packed_len_f32,
     peak::{self, Stopwatch},
@@ -56,15 +57,14 @@ impl Packed {
 /// measured the same way, so on a shared machine the ratio compares like with like).
 fn best_secs(reps: usize, mut f: impl FnMut()) -> f64 {
     f();
-    let mut t: Vec<f64> = (0..reps)
+    let t: Vec<f64> = (0..reps)
         .map(|_| {
             let s = Stopwatch::start();
             f();
             s.seconds()
         })
         .collect();
-    t.sort_by(|a, b| a.partial_cmp(b).unwrap());
-    t[0]
+    fastest(&t)
 }
 
 /// One printed row: time, useful GFLOP, rate and its share of the peak (`peak` in GFLOP/s).
