@@ -178,6 +178,205 @@ macro_rules! zero {
     };
 }
 
+/// The four tile operations [`gemm`] issues, on the tile unit ([`Hardware`]) or, in tests, on a
+/// software model of it (`Emulator`), so that the product's tiling, tails and layouts are checked
+/// on CPUs without AMX. Tiles are numbered as in the instructions (`tmm0`-`tmm7`) and configured
+/// as [`configure`] does: 16 rows of 64 bytes.
+///
+/// # Safety
+/// An implementation must do what the instruction it stands for does, on the memory it names.
+pub(crate) unsafe trait TileUnit {
+    /// Whether this process may use the unit (for the hardware: [`usable`]).
+    fn available() -> bool;
+    /// Sets the unit up for this thread (for the hardware: [`configure`]).
+    ///
+    /// # Safety
+    /// [`TileUnit::available`] returned true.
+    unsafe fn configure();
+    /// Undoes [`TileUnit::configure`] (for the hardware: [`release`]).
+    ///
+    /// # Safety
+    /// As [`TileUnit::configure`].
+    unsafe fn release();
+    /// A handle on a unit that [`configure`] (for the hardware) has set up on this thread.
+    ///
+    /// # Safety
+    /// [`TileUnit::available`] returned true, and for the hardware the tiles are configured.
+    unsafe fn on_this_thread() -> Self;
+    /// `tilezero tmmT`.
+    fn zero<const T: usize>(&mut self);
+    /// `tileloadd tmmT, [p + stride]`: 16 rows of 64 bytes, the rows `stride` bytes apart.
+    ///
+    /// # Safety
+    /// The 16 rows are readable.
+    unsafe fn load<const T: usize>(&mut self, p: *const f32, stride: usize);
+    /// `tilestored [p + 64], tmmT`: 16 rows of 64 bytes, packed.
+    ///
+    /// # Safety
+    /// 1 KiB is writable at `p`.
+    unsafe fn store<const T: usize>(&mut self, p: *mut f32);
+    /// `tdpbf16ps tmmC, tmmA, tmmB`: per row `m` and column `n` of C,
+    /// `C[m][n] += Σ_k A[m][2k] · B[k][2n] + A[m][2k+1] · B[k][2n+1]` over the bf16 pairs.
+    fn dot<const C: usize, const A: usize, const B: usize>(&mut self);
+}
+
+/// The tile unit itself.
+pub(crate) struct Hardware(());
+
+// SAFETY: each method is the instruction it names; `on_this_thread` requires the configuration.
+unsafe impl TileUnit for Hardware {
+    fn available() -> bool {
+        usable()
+    }
+    #[inline(always)]
+    unsafe fn configure() {
+        // SAFETY: forwarded contract.
+        unsafe { configure() }
+    }
+    #[inline(always)]
+    unsafe fn release() {
+        // SAFETY: forwarded contract.
+        unsafe { release() }
+    }
+    #[inline(always)]
+    unsafe fn on_this_thread() -> Self {
+        Hardware(())
+    }
+    #[inline(always)]
+    fn zero<const T: usize>(&mut self) {
+        const { assert!(T < 8) };
+        // SAFETY: a `Hardware` exists only on a configured thread (`on_this_thread`'s contract);
+        // the instruction touches no memory.
+        unsafe {
+            match T {
+                0 => zero!("0"),
+                1 => zero!("1"),
+                2 => zero!("2"),
+                3 => zero!("3"),
+                4 => zero!("4"),
+                5 => zero!("5"),
+                6 => zero!("6"),
+                _ => zero!("7"),
+            }
+        }
+    }
+    #[inline(always)]
+    unsafe fn load<const T: usize>(&mut self, p: *const f32, stride: usize) {
+        const { assert!(T >= 4 && T < 8) };
+        // SAFETY: configured (as above); the caller guarantees the rows are readable.
+        unsafe {
+            match T {
+                4 => load!("4", p, stride),
+                5 => load!("5", p, stride),
+                6 => load!("6", p, stride),
+                _ => load!("7", p, stride),
+            }
+        }
+    }
+    #[inline(always)]
+    unsafe fn store<const T: usize>(&mut self, p: *mut f32) {
+        const { assert!(T < 4) };
+        // SAFETY: configured (as above); the caller guarantees 1 KiB is writable at `p`.
+        unsafe {
+            match T {
+                0 => store!("0", p),
+                1 => store!("1", p),
+                2 => store!("2", p),
+                _ => store!("3", p),
+            }
+        }
+    }
+    #[inline(always)]
+    fn dot<const C: usize, const A: usize, const B: usize>(&mut self) {
+        // The four products `gemm` uses: output tile (row tile, panel) from A tile 4 + row tile
+        // and B tile 6 + panel.
+        const { assert!(C < 4 && A == 4 + C / 2 && B == 6 + C % 2) };
+        // SAFETY: configured (as above); the instruction touches no memory.
+        unsafe {
+            match C {
+                0 => dot!("0", "4", "6"),
+                1 => dot!("1", "4", "7"),
+                2 => dot!("2", "5", "6"),
+                _ => dot!("3", "5", "7"),
+            }
+        }
+    }
+}
+
+/// A software model of the tile unit, for tests on CPUs without AMX: eight tiles of 16 rows of
+/// 16 words, and `tdpbf16ps` as Intel's pseudocode defines it (per pair the even then the odd
+/// product accumulated in f32, rounded to nearest even, subnormal inputs read as zero and
+/// subnormal sums flushed to zero).
+#[cfg(test)]
+pub(crate) struct Emulator {
+    tiles: [[u32; TILE_ROWS * 16]; 8],
+}
+
+#[cfg(test)]
+impl Emulator {
+    /// A bf16 (the high half of an f32) as f32, subnormals read as zero.
+    fn widen(bits: u32) -> f32 {
+        let v = f32::from_bits(bits << 16);
+        if v.is_subnormal() {
+            0.0
+        } else {
+            v
+        }
+    }
+}
+
+// SAFETY: each method does what its instruction does, on the memory the instruction would touch.
+#[cfg(test)]
+unsafe impl TileUnit for Emulator {
+    fn available() -> bool {
+        true
+    }
+    unsafe fn configure() {}
+    unsafe fn release() {}
+    unsafe fn on_this_thread() -> Self {
+        // Tiles start zeroed, as `ldtilecfg` leaves them.
+        Emulator { tiles: [[0; TILE_ROWS * 16]; 8] }
+    }
+    fn zero<const T: usize>(&mut self) {
+        self.tiles[T] = [0; TILE_ROWS * 16];
+    }
+    unsafe fn load<const T: usize>(&mut self, p: *const f32, stride: usize) {
+        for r in 0..TILE_ROWS {
+            // SAFETY: the caller guarantees row `r` (64 bytes at `p + r · stride`) is readable.
+            let row = unsafe { core::slice::from_raw_parts((p as *const u8).add(r * stride), 64) };
+            for (w, b) in self.tiles[T][r * 16..(r + 1) * 16].iter_mut().zip(row.chunks_exact(4)) {
+                *w = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            }
+        }
+    }
+    unsafe fn store<const T: usize>(&mut self, p: *mut f32) {
+        for (i, w) in self.tiles[T].iter().enumerate() {
+            // SAFETY: the caller guarantees 1 KiB is writable at `p`; a tile is 1 KiB.
+            unsafe { (p as *mut u8).add(4 * i).cast::<[u8; 4]>().write_unaligned(w.to_le_bytes()) };
+        }
+    }
+    fn dot<const C: usize, const A: usize, const B: usize>(&mut self) {
+        let (a, b) = (self.tiles[A], self.tiles[B]);
+        let c = &mut self.tiles[C];
+        for m in 0..TILE_ROWS {
+            for n in 0..16 {
+                let mut acc = f32::from_bits(c[m * 16 + n]);
+                for k in 0..TILE_PAIRS {
+                    let (x, w) = (a[m * 16 + k], b[k * 16 + n]);
+                    // The product of two bf16 is exact in f32: one rounding per accumulation.
+                    for half in [0, 16] {
+                        acc += Self::widen((x >> half) & 0xFFFF) * Self::widen((w >> half) & 0xFFFF);
+                        if acc.is_subnormal() {
+                            acc = 0.0f32.copysign(acc);
+                        }
+                    }
+                }
+                c[m * 16 + n] = acc.to_bits();
+            }
+        }
+    }
+}
+
 /// Four output tiles (2 row tiles × 2 panels) of 16 × 16 `f32`.
 #[repr(C, align(64))]
 struct Out([[f32; TILE_ROWS * PANEL]; 4]);
@@ -186,15 +385,15 @@ struct Out([[f32; TILE_ROWS * PANEL]; 4]);
 #[repr(C, align(64))]
 struct RowTail([f32; TILE_ROWS * TILE_PAIRS]);
 
-/// `out[rows × n] (+)= epilogue(Σ segs)` on the tile unit (the bf16 half of `frame::gemm`).
+/// `out[rows × n] (+)= epilogue(Σ segs)` on the tile unit `U` (the bf16 half of `frame::gemm`).
 ///
 /// # Safety
-/// The CPU supports `S` (AVX-512-BF16) and AMX is usable and configured ([`configure`]); the
+/// The CPU supports `S` (AVX-512-BF16) and `U` is set up on this thread ([`TileUnit::configure`]); the
 /// operands are those `frame::gemm` takes: every segment has `rows` rows of `ldx` slots and packed
 /// weights of `ceil(n/16)` panels of `pairs` input pairs; `out` has `rows` rows of stride
 /// `ldo >= n`; the epilogue's pointers cover `rows` rows of `n` columns.
 #[inline(always)]
-pub(crate) unsafe fn gemm<S: Simd>(
+pub(crate) unsafe fn gemm<S: Simd, U: TileUnit>(
     s: S,
     segs: &[SegBf16],
     rows: usize,
@@ -203,13 +402,15 @@ pub(crate) unsafe fn gemm<S: Simd>(
     ldo: usize,
     epi: &TileEpi,
 ) {
+    // SAFETY: the caller's contract.
+    let u = &mut unsafe { U::on_this_thread() };
     let panels = n.div_ceil(PANEL);
     let mut c = Out([[0.0; TILE_ROWS * PANEL]; 4]);
     let mut tail = RowTail([0.0; TILE_ROWS * TILE_PAIRS]);
     // SAFETY (whole body): tile loads read 16 rows of 64 bytes at a row stride that keeps them
     // inside the operand (full row tiles) or in `tail` (the last, partial one); weight tiles read
     // 16 whole pair rows of a panel that exists; stores go to `c`; the epilogue writes rows below
-    // `rows` and columns below `n`. AMX is configured (the caller's contract).
+    // `rows` and columns below `n`. The unit is set up (the caller's contract).
     unsafe {
         for p0 in (0..panels).step_by(2) {
             let two_panels = p0 + 1 < panels;
@@ -217,48 +418,48 @@ pub(crate) unsafe fn gemm<S: Simd>(
                 let nr = (rows - r0).min(2 * TILE_ROWS);
                 let two_rows = nr > TILE_ROWS;
                 // Only the output tiles this block covers.
-                zero!("0");
+                u.zero::<0>();
                 if two_panels {
-                    zero!("1");
+                    u.zero::<1>();
                 }
                 if two_rows {
-                    zero!("2");
+                    u.zero::<2>();
                     if two_panels {
-                        zero!("3");
+                        u.zero::<3>();
                     }
                 }
                 for seg in segs {
                     let kp = 2 * seg.pairs;
                     for q in (0..seg.pairs / TILE_PAIRS).map(|i| i * TILE_PAIRS) {
                         let w0 = seg.w.add(p0 * PANEL * kp + q * 2 * PANEL);
-                        load!("6", w0, 64usize);
+                        u.load::<6>(w0 as *const f32, 64);
                         if two_panels {
-                            load!("7", w0.add(PANEL * kp), 64usize);
+                            u.load::<7>(w0.add(PANEL * kp) as *const f32, 64);
                         }
                         let a0 = a_tile(seg, r0, nr.min(TILE_ROWS), q, &mut tail);
-                        load!("4", a0.0, a0.1);
-                        dot!("0", "4", "6");
+                        u.load::<4>(a0.0, a0.1);
+                        u.dot::<0, 4, 6>();
                         if two_panels {
-                            dot!("1", "4", "7");
+                            u.dot::<1, 4, 7>();
                         }
                         if two_rows {
                             let a1 = a_tile(seg, r0 + TILE_ROWS, nr - TILE_ROWS, q, &mut tail);
-                            load!("5", a1.0, a1.1);
-                            dot!("2", "5", "6");
+                            u.load::<5>(a1.0, a1.1);
+                            u.dot::<2, 5, 6>();
                             if two_panels {
-                                dot!("3", "5", "7");
+                                u.dot::<3, 5, 7>();
                             }
                         }
                     }
                 }
-                store!("0", c.0[0].as_mut_ptr());
+                u.store::<0>(c.0[0].as_mut_ptr());
                 if two_panels {
-                    store!("1", c.0[1].as_mut_ptr());
+                    u.store::<1>(c.0[1].as_mut_ptr());
                 }
                 if two_rows {
-                    store!("2", c.0[2].as_mut_ptr());
+                    u.store::<2>(c.0[2].as_mut_ptr());
                     if two_panels {
-                        store!("3", c.0[3].as_mut_ptr());
+                        u.store::<3>(c.0[3].as_mut_ptr());
                     }
                 }
                 for r in 0..nr {
@@ -317,13 +518,14 @@ pub(crate) fn peak_loop(_t: super::x86::AmxBf16, iters: usize) -> f32 {
     // the stores write `c`.
     unsafe {
         configure();
+        let mut u = Hardware::on_this_thread();
         for _ in 0..iters {
-            dot!("0", "4", "6");
-            dot!("1", "4", "7");
-            dot!("2", "5", "6");
-            dot!("3", "5", "7");
+            u.dot::<0, 4, 6>();
+            u.dot::<1, 4, 7>();
+            u.dot::<2, 5, 6>();
+            u.dot::<3, 5, 7>();
         }
-        store!("0", c.0[0].as_mut_ptr());
+        u.store::<0>(c.0[0].as_mut_ptr());
         release();
     }
     c.0[0][0]

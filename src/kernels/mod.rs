@@ -174,7 +174,7 @@ pub fn detected_tier() -> Tier {
 fn probe() -> Tier {
     #[cfg(target_arch = "x86_64")]
     {
-        if x86::AmxBf16::new().is_some() {
+        if x86::AmxBf16::<amx::Hardware>::new().is_some() {
             return Tier::Amx;
         }
         if x86::Avx512Bf16::new().is_some() {
@@ -227,6 +227,9 @@ enum Backend {
     Avx512Bf16(x86::Avx512Bf16),
     #[cfg(target_arch = "x86_64")]
     Amx(x86::AmxBf16),
+    /// The AMX path with the tiles modelled in software (tests on CPUs without AMX).
+    #[cfg(all(test, target_arch = "x86_64"))]
+    AmxEmulated(x86::AmxBf16<amx::Emulator>),
 }
 
 /// A chosen kernel path. Holding one proves the CPU supports it (its x86 variants are made only
@@ -353,6 +356,13 @@ impl Kernels {
         Some(Kernels { backend })
     }
 
+    /// The AMX path with its tiles modelled in software ([`amx::Emulator`]), where the CPU has
+    /// AVX-512-BF16: the tile products' tiling, tails and layouts, checked without AMX.
+    #[cfg(all(test, target_arch = "x86_64"))]
+    pub(crate) fn amx_emulated() -> Option<Kernels> {
+        Some(Kernels { backend: Backend::AmxEmulated(x86::AmxBf16::new()?) })
+    }
+
     /// The path this value runs.
     pub fn tier(&self) -> Tier {
         match self.backend {
@@ -366,6 +376,8 @@ impl Kernels {
             Backend::Avx512Bf16(_) => Tier::Avx512Bf16,
             #[cfg(target_arch = "x86_64")]
             Backend::Amx(_) => Tier::Amx,
+            #[cfg(all(test, target_arch = "x86_64"))]
+            Backend::AmxEmulated(_) => Tier::Amx,
         }
     }
 
@@ -419,6 +431,8 @@ impl Kernels {
             Backend::Avx512Bf16(t) => t.linear(ops, bias, epilogue, out, scratch),
             #[cfg(target_arch = "x86_64")]
             Backend::Amx(t) => t.linear(ops, bias, epilogue, out, scratch),
+            #[cfg(all(test, target_arch = "x86_64"))]
+            Backend::AmxEmulated(t) => t.linear(ops, bias, epilogue, out, scratch),
         }
         Ok(())
     }
@@ -491,6 +505,8 @@ impl Kernels {
             Backend::Avx512Bf16(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
             #[cfg(target_arch = "x86_64")]
             Backend::Amx(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
+            #[cfg(all(test, target_arch = "x86_64"))]
+            Backend::AmxEmulated(t) => t.edge_mlp(mlp, edges, latent, aggregate, scratch),
         }
         Ok(())
     }

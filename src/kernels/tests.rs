@@ -36,12 +36,18 @@ const K_SET: [usize; 11] = [3, 9, 12, 24, 32, 40, 64, 66, 128, 384, 512];
 /// partial).
 const N_SET: [usize; 8] = [3, 9, 17, 32, 40, 64, 128, 144];
 
-/// SIMD tiers this host runs; prints the ones it must skip.
+/// SIMD tiers this host runs; prints the ones it must skip. Without AMX, the AMX path runs on
+/// the software model of the tiles where the CPU has AVX-512-BF16 (its vector half).
 fn simd_tiers(test: &str) -> Vec<Kernels> {
     let mut v = Vec::new();
     for t in Tier::ALL.into_iter().skip(1) {
         match Kernels::with_tier(t) {
             Some(k) => v.push(k),
+            #[cfg(target_arch = "x86_64")]
+            None if t == Tier::Amx && Kernels::amx_emulated().is_some() => {
+                println!("{test}: tier amx on emulated tiles (this CPU lacks AMX)");
+                v.extend(Kernels::amx_emulated());
+            }
             None => println!("{test}: SKIPPED tier {} (this CPU lacks it)", t.name()),
         }
     }

@@ -8,7 +8,9 @@
 #![cfg_attr(not(feature = "std"), allow(clippy::nonminimal_bool, clippy::eq_op))]
 
 use core::arch::x86_64::*;
+use core::marker::PhantomData;
 
+use super::amx::TileUnit;
 use super::frame::{self, Simd};
 use super::{EdgeInputs, EdgeMlp, Epilogue, Operand};
 
@@ -56,14 +58,27 @@ impl Avx512Bf16 {
 }
 
 /// Proof that the CPU has AVX-512-BF16 and AMX-BF16, and that this process may use the tiles
-/// (see [`super::amx`]).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct AmxBf16(Avx512Bf16);
+/// (see [`super::amx`]). In tests `U` may be the software model of the tiles
+/// ([`super::amx::Emulator`]), which needs only AVX-512-BF16.
+pub(crate) struct AmxBf16<U = super::amx::Hardware>(Avx512Bf16, PhantomData<fn() -> U>);
 
-impl AmxBf16 {
+// By hand: derived impls would ask the same of `U`, which is only a marker here.
+impl<U> Clone for AmxBf16<U> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<U> Copy for AmxBf16<U> {}
+impl<U> core::fmt::Debug for AmxBf16<U> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("AmxBf16")
+    }
+}
+
+impl<U: TileUnit> AmxBf16<U> {
     pub(crate) fn new() -> Option<Self> {
         let v = Avx512Bf16::new()?;
-        super::amx::usable().then_some(Self(v))
+        U::available().then_some(Self(v, PhantomData))
     }
 }
 
@@ -384,7 +399,7 @@ impl Simd for Avx512Bf16 {
 /// The AVX-512-BF16 vocabulary, with bf16 products on the tile unit.
 // SAFETY (the `unsafe` of the register-only methods of `avx512_bf16_vocabulary!`): as for
 // `Avx512Bf16`, which an `AmxBf16` holds (only `AmxBf16::new` makes one, from an `Avx512Bf16`).
-impl Simd for AmxBf16 {
+impl<U: TileUnit> Simd for AmxBf16<U> {
     avx512_bf16_vocabulary!();
 
     #[inline(always)]
@@ -420,20 +435,20 @@ impl Simd for AmxBf16 {
         ldo: usize,
         epi: &frame::TileEpi,
     ) -> bool {
-        // SAFETY: forwarded contract of `frame::gemm`; the token proves AMX is usable and the
-        // frame configured the tiles (`bf16_begin`).
-        unsafe { super::amx::gemm(self.0, segs, rows, n, out, ldo, epi) };
+        // SAFETY: forwarded contract of `frame::gemm`; the token proves the tile unit usable
+        // (`U::available`) and the frame set it up on this thread (`bf16_begin`).
+        unsafe { super::amx::gemm::<_, U>(self.0, segs, rows, n, out, ldo, epi) };
         true
     }
     #[inline(always)]
     fn bf16_begin(self) {
-        // SAFETY: the token proves AMX is usable in this process.
-        unsafe { super::amx::configure() }
+        // SAFETY: the token proves the unit usable in this process.
+        unsafe { U::configure() }
     }
     #[inline(always)]
     fn bf16_end(self) {
         // SAFETY: as above.
-        unsafe { super::amx::release() }
+        unsafe { U::release() }
     }
 }
 
@@ -497,6 +512,8 @@ entries!(Avx2Fma, "avx2,fma");
 entries!(Avx512, "avx2,fma,avx512f");
 entries!(Avx512Bf16, "avx2,fma,avx512f,avx512bf16");
 entries!(AmxBf16, "avx2,fma,avx512f,avx512bf16");
+#[cfg(test)]
+entries!(AmxBf16<super::amx::Emulator>, "avx2,fma,avx512f,avx512bf16");
 
 /// Throughput loops for [`super::peak`]: `iters` rounds of 12 independent accumulator chains.
 /// Returns a value depending on every chain so the work cannot be elided.
