@@ -265,6 +265,13 @@ fn runtime_teleport_carries_the_garment_rigidly() {
     // And stepping goes on from there, finite.
     let p = sim.step(&turned).unwrap();
     assert!(p.iter().all(|q| q.iter().all(|x| x.is_finite())));
+    // A finite motion that would carry the garment past f32's range is refused, state unchanged.
+    let far = hood::body::rigid::RigidMotion { rotation: glam::Quat::IDENTITY, translation: glam::Vec3::splat(3e38) };
+    sim.teleport(&far, &turned).unwrap();
+    let before = (sim.positions().to_vec(), sim.state().velocity.clone());
+    let err = sim.teleport(&far, &turned).unwrap_err();
+    assert!(matches!(err, hood::Error::NonFinite { .. }), "{err}");
+    assert_eq!((sim.positions().to_vec(), sim.state().velocity.clone()), before);
 }
 
 #[test]
@@ -286,6 +293,15 @@ fn runtime_fixed_step_driver_runs_at_30_hz() {
         }
         let steps = d.model_steps();
         assert!(steps.abs_diff(want) <= 1, "{hz} Hz for 1 s: {steps} model steps");
+    }
+    // A hitch: an engine frame of 1e20 s (or 5 s) is simulated as `MAX_ENGINE_DT`, 30 steps,
+    // instead of looping for ever.
+    for dt in [1e20f32, 5.0] {
+        let mut d = hood::sim::FixedStep::new(scene.sim(&model, SimConfig::network()).unwrap());
+        d.update(dt, &scene.body_rest).unwrap();
+        let steps = d.model_steps();
+        let want = (hood::sim::MAX_ENGINE_DT / hood::sim::MODEL_DT).round() as u64;
+        assert!(steps.abs_diff(want) <= 1, "dt {dt}: {steps} model steps");
     }
 }
 

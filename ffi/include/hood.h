@@ -59,6 +59,9 @@
  *   sim may overlap each other. Calls on a sim (hood_sim_step above all) take no lock: the check
  *   is one atomic operation on the sim's own state, so sims on different threads never wait for
  *   each other. Only hood_sim_new and hood_sim_free take a global lock, briefly.
+ * - A model or garment is read by calls on it, and by hood_sim_new, only while the call runs; a
+ *   hood_model_free or hood_garment_free meanwhile (from another thread, or from the log callback
+ *   during that call) returns HOOD_ERR_BUSY and frees nothing.
  * - hood_last_error() is per thread.
  * - Callbacks (the executor's run, the log callback) must not throw a C++ exception or otherwise
  *   unwind into the library: that aborts the process. Catch inside the callback.
@@ -145,15 +148,15 @@ typedef uint32_t hood_status;
 #define HOOD_ERR_MODEL_IN_USE 102u     /* hood_model_free on a model that live sims still use */
 #define HOOD_ERR_PANIC 103u            /* an internal error (a bug in hood); the handle may be unusable */
 #define HOOD_ERR_BAD_POINTER 104u      /* a pointer misaligned for its type, or an output overlapping an input */
-#define HOOD_ERR_BUSY 105u             /* the sim is in use by a call on another thread */
+#define HOOD_ERR_BUSY 105u             /* the handle is in use by another call: a sim on another thread, or a model or garment being read */
 #define HOOD_ERR_STRUCT_SIZE 106u      /* struct_size is not one this library knows: the caller was built against another header */
 #define HOOD_ERR_TOO_LATE 107u         /* hood_set_allocator after the library has allocated (call it first) */
 
 /* The message of the most recent failing call on this thread ("" if none): NUL-terminated, owned
  * by the library, valid until the next hood_* call on this thread. Successful calls leave it. */
 HOOD_API const char *HOOD_CALL hood_last_error(void);
-/* The name and meaning of a status code, e.g. "HOOD_ERR_BUSY: the sim is in use by a call on
- * another thread"; "unknown status" for a code this library does not have. NUL-terminated, static
+/* The name and meaning of a status code, e.g. "HOOD_ERR_NULL_POINTER: a required pointer argument
+ * is NULL"; "unknown status" for a code this library does not have. NUL-terminated, static
  * storage; never fails and leaves hood_last_error alone. */
 HOOD_API const char *HOOD_CALL hood_status_string(hood_status code);
 
@@ -214,7 +217,8 @@ typedef struct hood_model hood_model;
  * `bytes` must be HOOD_MODEL_ALIGN-aligned (else HOOD_ERR_CORRUPT_DATA) and must stay valid and
  * unmodified until hood_model_free(*out) returns HOOD_OK. */
 HOOD_API hood_status HOOD_CALL hood_model_load(const uint8_t *bytes, size_t len, hood_model **out);
-/* Frees a model (NULL: nothing to do). HOOD_ERR_MODEL_IN_USE while sims made from it live. */
+/* Frees a model (NULL: nothing to do). HOOD_ERR_MODEL_IN_USE while sims made from it live;
+ * HOOD_ERR_BUSY, freeing nothing, while another call reads it (see Threads). */
 HOOD_API hood_status HOOD_CALL hood_model_free(hood_model *model);
 /* Whether the model file holds bf16 weights too (needed for HOOD_PRECISION_BF16): 1 or 0. */
 HOOD_API hood_status HOOD_CALL hood_model_has_bf16(const hood_model *model, uint32_t *out);
@@ -274,7 +278,8 @@ typedef struct hood_garment hood_garment;
 HOOD_API hood_status HOOD_CALL hood_garment_new(const float *rest, size_t n_vertices, const uint32_t *indices,
                                                 size_t n_faces, const hood_material *materials, size_t n_materials,
                                                 const uint8_t *pinned, hood_garment **out);
-/* Frees a garment (NULL: nothing to do). */
+/* Frees a garment (NULL: nothing to do); HOOD_ERR_BUSY, freeing nothing, while another call reads
+ * it (see Threads). */
 HOOD_API hood_status HOOD_CALL hood_garment_free(hood_garment *garment);
 HOOD_API hood_status HOOD_CALL hood_garment_vertex_count(const hood_garment *garment, size_t *out);
 HOOD_API hood_status HOOD_CALL hood_garment_face_count(const hood_garment *garment, size_t *out);
@@ -350,23 +355,27 @@ typedef struct hood_sim_config {
                                    the motion (a top upside down). Applied after the collision
                                    projection when both are on, the cloth then following the
                                    projection's moves too. Needs a body.
-                                   hood_sim_load_state and hood_sim_teleport keep the ties */
+                                   hood_sim_load_state and hood_sim_teleport keep the ties. A
+                                   struct_size that ends before this field (an older header)
+                                   reads as the default 0.05 m, not 0 */
 } hood_sim_config;
 
-/* The defaults: body collision, pinning, start-up, auto-teleport (0.45 m) and the speed limit
+/* The defaults into a caller's config: hood_sim_config_init(&cfg, sizeof cfg) writes exactly
+ * struct_size bytes (the fields this library knows, zeros after them) and sets struct_size. The
+ * defaults: body collision, pinning, start-up, auto-teleport (0.45 m) and the speed limit
  * (0.12 m/frame, 3.6 m/s) on; collision projection off (margin 0.002 m); tethers off
- * (slack 0.05 m); refinement off (10 iterations); f32; 1 thread;
- * sleeping after 3 frames below 1e-5 m/frame (when enabled). Writes the library's
- * sizeof(hood_sim_config) bytes, struct_size included (set to that size). A NULL `out` is ignored
- * (only hood_last_error records it). */
-HOOD_API void HOOD_CALL hood_sim_config_default(hood_sim_config *out);
-/* The same defaults for code that may run with a newer library than its header:
- * hood_sim_config_init(&cfg, sizeof cfg) writes exactly the caller's struct_size bytes (the
- * fields the library knows, zeros after them) and sets struct_size, where
- * hood_sim_config_default writes the library's own sizeof(hood_sim_config). A struct_size the
- * library cannot serve (smaller than its struct, over 4096, or misaligned) gives
+ * (slack 0.05 m); refinement off (10 iterations); the solver step mode at 30 iterations; f32;
+ * 1 thread; sleeping after 3 frames below 1e-5 m/frame (when enabled). A struct_size the library
+ * cannot serve (smaller than the struct of version 0.2.0, over 4096, or misaligned) gives
  * HOOD_ERR_STRUCT_SIZE and writes nothing. */
 HOOD_API hood_status HOOD_CALL hood_sim_config_init(hood_sim_config *out, size_t struct_size);
+/* hood_sim_config_init(out, sizeof *out), its status dropped: through this header the name is a
+ * macro. The exported function of that name (what a program built against version 0.2.0 calls,
+ * or a binding that loads symbols) cannot know its caller's size: it writes the defaults of the
+ * fields of version 0.2.0 (through solver_iterations) and sets struct_size to that size, so the
+ * fields added since read as unset. A NULL `out` is ignored (only hood_last_error records it). */
+HOOD_API void HOOD_CALL hood_sim_config_default(hood_sim_config *out);
+#define hood_sim_config_default(out) ((void)hood_sim_config_init((out), sizeof *(out)))
 
 /* The body of a scene. `positions`: 3 * n_vertices floats, the body at the first frame (m).
  * `indices`: 3 * n_faces. `omitted` (optional, NULL for none): n_vertices flags, nonzero = the
@@ -484,7 +493,7 @@ HOOD_API hood_status HOOD_CALL hood_sim_reset(hood_sim *sim, const float *positi
  * is nearest; omitted vertices do not matter here), or behind that plane, moves along the face's
  * normal to 2 mm in front of it; every other vertex stays. `body`: as for hood_sim_new, at the
  * frame the sim starts from (wound inside out: HOOD_ERR_INSIDE_OUT). `positions`: 3 * n_vertices
- * floats, all finite (else HOOD_ERR_NON_FINITE), read and overwritten in place; they must not
+ * floats (n_vertices at most HOOD_MAX_VERTICES, else HOOD_ERR_CAPACITY_EXCEEDED), all finite (else HOOD_ERR_NON_FINITE), read and overwritten in place; they must not
  * overlap the body's arrays or `pinned` (HOOD_ERR_BAD_POINTER). `pinned` (optional, NULL for
  * none): n_vertices flags, nonzero = the vertex stays. `moved` (optional, NULL to ignore):
  * receives how many vertices moved. On error neither `positions` nor `moved` is written. Needs no
@@ -538,7 +547,8 @@ typedef struct hood_driver hood_driver;
 HOOD_API hood_status HOOD_CALL hood_driver_new(hood_sim *sim, hood_driver **out);
 /* Frees a driver (NULL: nothing to do); HOOD_ERR_BUSY while another thread updates it. */
 HOOD_API hood_status HOOD_CALL hood_driver_free(hood_driver *driver);
-/* Advances engine time by `dt` seconds (finite, >= 0, else HOOD_ERR_OUT_OF_RANGE). `body_now`:
+/* Advances engine time by `dt` seconds (finite, >= 0, else HOOD_ERR_OUT_OF_RANGE; over 1 s it
+ * is simulated as 1 s, 30 model steps, as engines clamp their time step after a hitch). `body_now`:
  * the body's vertices at the new engine time, 3 * n_body_vertices floats (NULL with 0 without a
  * body). `garment_out`: receives the interpolated garment, 3 * n_garment_vertices floats. Bad
  * input is refused before any step; a step's error ends the update with that status (the steps

@@ -10,9 +10,35 @@ use std::sync::atomic::{AtomicPtr, AtomicU8, Ordering};
 /// `free(ptr, size, align, user)`.
 #[derive(Clone, Copy)]
 pub struct Hooks {
-    pub alloc: unsafe extern "C" fn(usize, usize, *mut c_void) -> *mut c_void,
-    pub free: unsafe extern "C" fn(*mut c_void, usize, usize, *mut c_void),
+    pub alloc: AllocFn,
+    pub free: FreeFn,
     pub user: *mut c_void,
+}
+
+/// The engine's `alloc`.
+pub type AllocFn = unsafe extern "C-unwind" fn(usize, usize, *mut c_void) -> *mut c_void;
+/// The engine's `free`.
+pub type FreeFn = unsafe extern "C-unwind" fn(*mut c_void, usize, usize, *mut c_void);
+
+/// Calls the engine's `alloc`. An allocator must not unwind: an exception thrown out of the
+/// engine's function (against the header's contract) stops at this `extern "C"` boundary, which
+/// aborts the process, instead of unwinding through Rust's allocator (undefined behaviour).
+///
+/// # Safety
+/// `f` keeps the header's contract for `alloc`.
+unsafe extern "C" fn call_alloc(f: AllocFn, size: usize, align: usize, user: *mut c_void) -> *mut c_void {
+    // SAFETY: the caller's promise.
+    unsafe { f(size, align, user) }
+}
+
+/// Calls the engine's `free`, as [`call_alloc`] calls its `alloc`.
+///
+/// # Safety
+/// `f` keeps the header's contract for `free`, and `ptr` came from its `alloc` with this size
+/// and alignment.
+unsafe extern "C" fn call_free(f: FreeFn, ptr: *mut c_void, size: usize, align: usize, user: *mut c_void) {
+    // SAFETY: the caller's promise.
+    unsafe { f(ptr, size, align, user) }
 }
 
 /// Nothing allocated yet, no hooks.
@@ -77,7 +103,7 @@ unsafe impl GlobalAlloc for Hooked {
             // SAFETY: the caller's layout, non-zero-sized (`GlobalAlloc` contract).
             None => unsafe { System.alloc(layout) },
             // SAFETY: the engine's function, called as the header documents.
-            Some(h) => unsafe { (h.alloc)(layout.size(), layout.align(), h.user) }.cast(),
+            Some(h) => unsafe { call_alloc(h.alloc, layout.size(), layout.align(), h.user) }.cast(),
         }
     }
 
@@ -86,7 +112,7 @@ unsafe impl GlobalAlloc for Hooked {
             // SAFETY: `ptr` came from `System.alloc` with `layout` (the choice never changes).
             None => unsafe { System.dealloc(ptr, layout) },
             // SAFETY: `ptr` came from `h.alloc` with this size and alignment.
-            Some(h) => unsafe { (h.free)(ptr.cast(), layout.size(), layout.align(), h.user) },
+            Some(h) => unsafe { call_free(h.free, ptr.cast(), layout.size(), layout.align(), h.user) },
         }
     }
 }

@@ -124,6 +124,8 @@ pub unsafe extern "C" fn hood_garment_push_out(
         require(positions, "positions")?;
         // SAFETY: the caller's promise.
         let (b, mesh, body_pos) = unsafe { read_body(body)? };
+        // Absurd counts are refused before anything is allocated (as `hood_garment_new` does).
+        hood::limits::garment(n_vertices, 0)?;
         // The in/out array overlaps no input (checked before any of it is read as a slice).
         byte_len_ok::<[f32; 3]>(n_vertices)?;
         let point = size_of::<[f32; 3]>();

@@ -1,7 +1,7 @@
 //! The sim's configuration: `hood_sim_config`, its defaults, and its translation into a
 //! [`SimConfig`].
 
-use crate::arrays::{aligned, require, write_out};
+use crate::arrays::{aligned, require};
 use crate::consts::{
     ALL_EFFECTS, HOOD_EFFECT_AUTO_TELEPORT, HOOD_EFFECT_BODY_COLLISION, HOOD_EFFECT_COLLISION_PROJECTION,
     HOOD_EFFECT_NORMALS, HOOD_EFFECT_PINNING, HOOD_EFFECT_REFINE, HOOD_EFFECT_SLEEPING, HOOD_EFFECT_SPEED_LIMIT,
@@ -91,17 +91,20 @@ fn default_config() -> hood_sim_config {
     }
 }
 
-/// The defaults, with `struct_size` set to this library's `sizeof(hood_sim_config)`.
+/// The defaults of the fields version 0.2.0 had, with `struct_size` set to that size: a caller
+/// built against that header allocated no more, and this symbol cannot know a caller's size. The
+/// header maps the name to [`hood_sim_config_init`] with the caller's `sizeof`.
 ///
 /// # Safety
-/// `out` is NULL (ignored) or writable.
+/// `out` is NULL (ignored) or points to the 0.2.0 struct's bytes, writable and aligned.
 #[no_mangle]
 pub unsafe extern "C" fn hood_sim_config_default(out: *mut hood_sim_config) {
     // No status to return: a (never expected) panic just leaves `out` unwritten.
     let _ = guard(|| {
         require(out, "out")?;
-        // SAFETY: non-null; writable by the caller's promise.
-        unsafe { write_out(out, default_config()) };
+        aligned(out, "out")?;
+        // SAFETY: non-null and aligned; the 0.2.0 struct's bytes are writable (caller).
+        unsafe { write_sized(out, default_config(), hood_sim_config::MIN_SIZE) };
         Ok(())
     });
 }
@@ -128,7 +131,11 @@ pub unsafe extern "C" fn hood_sim_config_init(out: *mut hood_sim_config, struct_
     })
 }
 
-pub(crate) fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
+/// The runtime's configuration from a caller's `hood_sim_config`, checked.
+///
+/// `size` is the caller's `struct_size`: a field past it (an older header's struct) keeps its
+/// default, which for every field but `tether_slack` is its zero.
+pub(crate) fn sim_config(c: &hood_sim_config, size: usize) -> Result<SimConfig> {
     if c.effects & !ALL_EFFECTS != 0 {
         return Err(Error::OutOfRange { what: "config effects (unknown flag)", index: c.effects as usize }.into());
     }
@@ -160,7 +167,14 @@ pub(crate) fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
     // The margin's range is checked by the sim (0 <= margin < hood::sim::PROJECTION_REACH).
     let projection = (c.effects & HOOD_EFFECT_COLLISION_PROJECTION != 0).then_some(c.projection_margin);
     // The slack's range is checked by the sim (0 <= slack <= hood::sim::MAX_TETHER_SLACK).
-    let tether = (c.effects & HOOD_EFFECT_TETHER != 0).then_some(c.tether_slack);
+    // Zero is a slack (tight ties), so an older header's struct, which ends before the field,
+    // gets the default instead.
+    let slack = if size > std::mem::offset_of!(hood_sim_config, tether_slack) {
+        c.tether_slack
+    } else {
+        hood::sim::DEFAULT_TETHER_SLACK
+    };
+    let tether = (c.effects & HOOD_EFFECT_TETHER != 0).then_some(slack);
     // The count's range is checked by the sim (1 ..= hood::sim::MAX_REFINE_ITERATIONS).
     let refine = (c.effects & HOOD_EFFECT_REFINE != 0).then_some(c.refine_iterations);
     // Likewise (and the sim refuses it beside HOOD_EFFECT_REFINE).

@@ -25,8 +25,10 @@ pub struct hood_executor {
     pub user: *mut c_void,
     /// Tasks worth splitting into (0 counts as 1).
     pub parallelism: u32,
-    /// Runs `task(ctx, i)` for every `i < n_tasks`.
-    pub run: Option<unsafe extern "C" fn(user: *mut c_void, n_tasks: u32, task: hood_task_fn, ctx: *mut c_void)>,
+    /// Runs `task(ctx, i)` for every `i < n_tasks`. `C-unwind`: an exception thrown out of it,
+    /// against the header's contract, unwinds to the export's boundary and aborts the process
+    /// there (through an `extern "C"` type it would be undefined behaviour).
+    pub run: Option<unsafe extern "C-unwind" fn(user: *mut c_void, n_tasks: u32, task: hood_task_fn, ctx: *mut c_void)>,
 }
 
 // SAFETY: `#[repr(C)]`, `struct_size` first, only integers, a raw pointer and an optional
@@ -38,7 +40,7 @@ unsafe impl Extensible for hood_executor {
 /// Adapts a C job system to [`Executor`].
 struct CExecutor {
     raw: hood_executor,
-    run: unsafe extern "C" fn(*mut c_void, u32, hood_task_fn, *mut c_void),
+    run: unsafe extern "C-unwind" fn(*mut c_void, u32, hood_task_fn, *mut c_void),
 }
 
 // SAFETY: the header makes `user` and `run` usable from the thread that steps the sim (the

@@ -3,9 +3,10 @@
 use crate::arrays::{points, require, slice, write_out};
 use crate::extensible::{read_struct_array, Extensible};
 use crate::guard::guard;
-use crate::registry::{check_live, register, unregister, Kind};
+use crate::registry::{register, unregister, use_live, Kind};
 use crate::status::hood_status;
 use hood::mesh::{Garment, GarmentDesc, Material};
+use hood::Error;
 
 /// Material of a cloth vertex, SI units.
 #[repr(C)]
@@ -55,6 +56,9 @@ pub unsafe extern "C" fn hood_garment_new(
         require(indices, "indices")?;
         // Absurd counts are refused before any array is viewed or anything allocated.
         hood::limits::garment(n_vertices, n_faces)?;
+        if ![0, 1, n_vertices].contains(&n_materials) {
+            return Err(Error::SizeMismatch { what: "materials", expected: n_vertices, got: n_materials }.into());
+        }
         // SAFETY: array sizes are the caller's promise (header).
         let rest = unsafe { points(rest, n_vertices, "rest")? };
         // SAFETY: as above; `[u32; 3]` has u32 alignment and no padding.
@@ -85,7 +89,7 @@ pub unsafe extern "C" fn hood_garment_new(
 /// `garment` is NULL or a handle (checked against the registry).
 #[no_mangle]
 pub unsafe extern "C" fn hood_garment_free(garment: *mut hood_garment) -> hood_status {
-    guard(|| unregister(garment, Kind::Garment, "garment").map(drop))
+    guard(|| unregister(garment, Kind::Garment, "garment", |_| Ok(())).map(drop))
 }
 
 /// Number of garment vertices.
@@ -95,7 +99,7 @@ pub unsafe extern "C" fn hood_garment_free(garment: *mut hood_garment) -> hood_s
 #[no_mangle]
 pub unsafe extern "C" fn hood_garment_vertex_count(garment: *const hood_garment, out: *mut usize) -> hood_status {
     guard(|| {
-        check_live(garment, Kind::Garment, "garment")?;
+        let _use = use_live(garment, Kind::Garment, "garment")?;
         require(out, "out")?;
         // SAFETY: a live garment handle; `out` non-null.
         unsafe { write_out(out, (*garment).garment.n_vertices()) };
@@ -110,7 +114,7 @@ pub unsafe extern "C" fn hood_garment_vertex_count(garment: *const hood_garment,
 #[no_mangle]
 pub unsafe extern "C" fn hood_garment_face_count(garment: *const hood_garment, out: *mut usize) -> hood_status {
     guard(|| {
-        check_live(garment, Kind::Garment, "garment")?;
+        let _use = use_live(garment, Kind::Garment, "garment")?;
         require(out, "out")?;
         // SAFETY: a live garment handle; `out` non-null.
         unsafe { write_out(out, (*garment).garment.faces().len()) };

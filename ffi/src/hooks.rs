@@ -22,9 +22,9 @@ pub struct hood_allocator {
     /// Passed back to both functions.
     pub user: *mut c_void,
     /// Allocates `size` bytes aligned to `align` (NULL on failure).
-    pub alloc: Option<unsafe extern "C" fn(size: usize, align: usize, user: *mut c_void) -> *mut c_void>,
+    pub alloc: Option<unsafe extern "C-unwind" fn(size: usize, align: usize, user: *mut c_void) -> *mut c_void>,
     /// Frees a block of `alloc` with its size and alignment.
-    pub free: Option<unsafe extern "C" fn(ptr: *mut c_void, size: usize, align: usize, user: *mut c_void)>,
+    pub free: Option<unsafe extern "C-unwind" fn(ptr: *mut c_void, size: usize, align: usize, user: *mut c_void)>,
 }
 
 // SAFETY: `#[repr(C)]`, `struct_size` first, an integer, a raw pointer and optional function
@@ -63,8 +63,10 @@ pub unsafe extern "C" fn hood_set_allocator(allocator: *const hood_allocator) ->
     }
 }
 
-/// The log callback's type (`extern "C"` is cdecl on 32-bit Windows, as `HOOD_CALL` declares it).
-pub type hood_log_fn = Option<unsafe extern "C" fn(level: u32, message: *const c_char, user: *mut c_void)>;
+/// The log callback's type (`extern "C-unwind"` is cdecl on 32-bit Windows, as `HOOD_CALL`
+/// declares it; `-unwind` so that an exception thrown out of it, against the header's contract,
+/// aborts the process at the export's boundary instead of being undefined behaviour).
+pub type hood_log_fn = Option<unsafe extern "C-unwind" fn(level: u32, message: *const c_char, user: *mut c_void)>;
 
 /// Sets (or with NULL removes) the log callback (see the header).
 ///

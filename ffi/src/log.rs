@@ -7,7 +7,7 @@ use std::ffi::{c_char, c_void, CString};
 use std::sync::{Mutex, Once};
 
 /// The caller's log function: `(level, message, user)`.
-pub type LogFn = unsafe extern "C" fn(u32, *const c_char, *mut c_void);
+pub type LogFn = unsafe extern "C-unwind" fn(u32, *const c_char, *mut c_void);
 
 /// The callback and its `user` pointer.
 #[derive(Clone, Copy)]

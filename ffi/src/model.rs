@@ -4,7 +4,7 @@ use crate::arrays::{require, slice, slice_mut, write_out};
 use crate::consts::{HOOD_EFFECT_BODY_COLLISION, HOOD_EFFECT_PINNING};
 use crate::extensible::{struct_size, write_extensible, Extensible};
 use crate::guard::guard;
-use crate::registry::{check_live, live, register, Kind};
+use crate::registry::{register, unregister, use_live, Kind};
 use crate::status::{hood_status, Failure, Result};
 use hood::model::Model;
 use hood::Error;
@@ -55,20 +55,12 @@ pub unsafe extern "C" fn hood_model_free(model: *mut hood_model) -> hood_status 
         if model.is_null() {
             return Ok(());
         }
-        let mut reg = live();
-        if reg.get(&(model as usize)) != Some(&Kind::Model) {
-            return Err(Failure::Handle("model"));
-        }
-        // SAFETY: registered as a live model, so the pointer is a valid `hood_model`.
-        let sims = unsafe { &*model }.sims.load(Ordering::SeqCst);
-        if sims > 0 {
-            return Err(Failure::InUse(sims));
-        }
-        reg.remove(&(model as usize));
-        drop(reg);
-        // SAFETY: it was registered (from `Box::into_raw`) and has just been unregistered.
-        drop(unsafe { Box::from_raw(model) });
-        Ok(())
+        // The sims are counted under the registry's lock, which `unregister` holds.
+        let sims_left = |m: &hood_model| match m.sims.load(Ordering::SeqCst) {
+            0 => Ok(()),
+            n => Err(Failure::InUse(n)),
+        };
+        unregister(model, Kind::Model, "model", sims_left).map(drop)
     })
 }
 
@@ -79,7 +71,7 @@ pub unsafe extern "C" fn hood_model_free(model: *mut hood_model) -> hood_status 
 #[no_mangle]
 pub unsafe extern "C" fn hood_model_has_bf16(model: *const hood_model, out: *mut u32) -> hood_status {
     guard(|| {
-        check_live(model, Kind::Model, "model")?;
+        let _use = use_live(model, Kind::Model, "model")?;
         require(out, "out")?;
         // SAFETY: a live model handle.
         let m = unsafe { &*model };
@@ -152,7 +144,7 @@ fn model_text(m: &Model<'_>, which: u32) -> Result<String> {
 #[no_mangle]
 pub unsafe extern "C" fn hood_model_get_info(model: *const hood_model, out: *mut hood_model_info) -> hood_status {
     guard(|| {
-        check_live(model, Kind::Model, "model")?;
+        let _use = use_live(model, Kind::Model, "model")?;
         // SAFETY: a live model handle.
         let h = unsafe { &*model };
         let (m, spec) = (&h.model, h.model.spec());
@@ -192,7 +184,7 @@ pub unsafe extern "C" fn hood_model_text(
     len: usize,
 ) -> hood_status {
     guard(|| {
-        check_live(model, Kind::Model, "model")?;
+        let _use = use_live(model, Kind::Model, "model")?;
         require(out, "out")?;
         // SAFETY: a live model handle.
         let text = model_text(&unsafe { &*model }.model, which)?;

@@ -8,12 +8,12 @@ use crate::consts::{
     HOOD_LOG_WARNING, HOOD_STEP_OVER_BUDGET, HOOD_STEP_PROJECTED, HOOD_STEP_REFINED, HOOD_STEP_SLEPT,
     HOOD_STEP_SPEED_LIMITED, HOOD_STEP_STARTUP, HOOD_STEP_TELEPORTED, HOOD_STEP_TETHERED,
 };
-use crate::extensible::{read_struct, write_extensible, Extensible};
+use crate::extensible::{read_extensible, write_extensible, Extensible};
 use crate::garment::hood_garment;
 use crate::guard::guard;
 use crate::log;
 use crate::model::hood_model;
-use crate::registry::{check_live, live, Kind};
+use crate::registry::{live, use_live, Kind};
 use crate::slots;
 use crate::status::{hood_status, Failure, Result};
 use hood::error::check_len;
@@ -78,14 +78,16 @@ pub unsafe extern "C" fn hood_sim_new(
 ) -> hood_status {
     guard(|| {
         require(out, "out")?;
-        check_live(garment, Kind::Garment, "garment")?;
+        // Held to the end: a log callback below may try to free the garment (refused meanwhile).
+        let _garment_in_use = use_live(garment, Kind::Garment, "garment")?;
         let cfg = if config.is_null() {
             SimConfig::default()
         } else {
             // SAFETY: non-null; `struct_size` readable bytes (caller).
-            sim_config(&unsafe { read_struct(config, "config")? })?
+            let (c, size) = unsafe { read_extensible(config, None, None, "config")? };
+            sim_config(&c, size)?
         };
-        // SAFETY: a live garment handle (checked above).
+        // SAFETY: a live garment handle, held by `_garment_in_use`.
         let garment = &unsafe { &*garment }.garment;
         let body_parts = if body.is_null() {
             None
@@ -101,7 +103,7 @@ pub unsafe extern "C" fn hood_sim_new(
             if model.is_null() {
                 return Err(Failure::Null("model"));
             }
-            if reg.get(&(model as usize)) != Some(&Kind::Model) {
+            if reg.get(&(model as usize)).map(|e| e.kind) != Some(Kind::Model) {
                 return Err(Failure::Handle("model"));
             }
             // SAFETY: a live model handle.

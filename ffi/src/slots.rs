@@ -24,8 +24,9 @@ const WRITER: u32 = LIVE - 1;
 
 /// Slots in segment 0; segment `k` holds `FIRST_SEGMENT << k`.
 const FIRST_SEGMENT: usize = 64;
-/// Segments at most (far more slots than an address space holds sims).
-const SEGMENTS: usize = 40;
+/// Segments at most (far more slots than an address space holds sims); fewer where `usize` is
+/// narrower than 64 bits, so that [`CAPACITY`] fits it.
+const SEGMENTS: usize = if usize::BITS >= 64 { 40 } else { usize::BITS as usize - 8 };
 /// Slots in all segments: the most sims live at once.
 pub const CAPACITY: usize = FIRST_SEGMENT * ((1 << SEGMENTS) - 1);
 /// Freed slots kept out of use before one is reused (see the module docs).

@@ -102,7 +102,10 @@ impl Failure {
             Failure::Handle(what) => format!("{what} is not a live handle (already freed, or never created)"),
             Failure::InUse(n) => format!("the model is still used by {n} sim(s); free them first"),
             Failure::Busy(what) => {
-                format!("{what} is in use by a call on another thread (one thread at a time per sim)")
+                format!(
+                    "{what} is in use by another call: one on another thread (one thread at a time per sim), or, \
+                     for a model or garment, one that is reading it"
+                )
             }
             Failure::StructSize(msg) => msg.clone(),
             Failure::TooLate(what) => format!("{what}: the library has allocated already (call it before any other)"),
@@ -141,7 +144,7 @@ fn status_text(code: hood_status) -> &'static CStr {
         HOOD_ERR_BAD_POINTER => {
             c"HOOD_ERR_BAD_POINTER: a pointer misaligned for its type, or an output overlapping an input"
         }
-        HOOD_ERR_BUSY => c"HOOD_ERR_BUSY: the sim is in use by a call on another thread",
+        HOOD_ERR_BUSY => c"HOOD_ERR_BUSY: the handle is in use by another call: a sim on another thread, or a model or garment being read",
         HOOD_ERR_STRUCT_SIZE => {
             c"HOOD_ERR_STRUCT_SIZE: struct_size is not one this library knows: the caller was built against another header"
         }

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{network_config, random_model_bytes};
+use common::{default_config, network_config, random_model_bytes};
 use hood::model::ModelBytes;
 use hood_ffi::*;
 use std::ffi::CStr;
@@ -126,7 +126,7 @@ fn executor(user: *mut std::ffi::c_void, parallelism: u32, run: Option<RunFn>) -
     hood_executor { struct_size: size_of_u32::<hood_executor>(), user, parallelism, run }
 }
 
-type RunFn = unsafe extern "C" fn(*mut std::ffi::c_void, u32, hood_task_fn, *mut std::ffi::c_void);
+type RunFn = unsafe extern "C-unwind" fn(*mut std::ffi::c_void, u32, hood_task_fn, *mut std::ffi::c_void);
 
 fn material(density: f32, mu: f32, lambda: f32, bending: f32) -> hood_material {
     hood_material { struct_size: size_of_u32::<hood_material>(), density, mu, lambda, bending }
@@ -312,8 +312,7 @@ fn bad_pointers_and_thread_counts_give_status_and_change_nothing() {
         // An absurd thread count is refused, and the model is not left "in use".
         let g = sc.garment();
         let bd = sc.body_desc();
-        let mut cfg = std::mem::zeroed();
-        hood_sim_config_default(&mut cfg);
+        let mut cfg = default_config();
         cfg.threads = u32::MAX;
         let mut s = null_mut();
         assert_eq!(hood_sim_new(l.model, g, &bd, &cfg, &mut s), HOOD_ERR_OUT_OF_RANGE);
@@ -498,8 +497,7 @@ fn misaligned_and_corrupt_models_are_refused() {
         assert_eq!(bf, 0);
         let sc = scene(5);
         let g = sc.garment();
-        let mut cfg = std::mem::zeroed();
-        hood_sim_config_default(&mut cfg);
+        let mut cfg = default_config();
         cfg.solver_iterations = 0; // bf16 is the network's arithmetic
         cfg.precision = HOOD_PRECISION_BF16;
         let mut sim = null_mut();
@@ -582,8 +580,7 @@ fn model_freed_while_a_sim_lives_is_refused() {
         assert_eq!(hood_sim_free(b), HOOD_OK);
         // A failed sim creation does not leave a count behind.
         let g = sc.garment();
-        let mut cfg = std::mem::zeroed();
-        hood_sim_config_default(&mut cfg);
+        let mut cfg = default_config();
         cfg.solver_iterations = 0; // bf16 is the network's arithmetic
         cfg.precision = HOOD_PRECISION_BF16;
         let mut sim = null_mut();
@@ -720,30 +717,44 @@ fn teleport_moves_state_rigidly_and_translation_commutes_with_steps() {
 #[repr(C)]
 struct TestExec {
     mode: u32, // 0: all tasks in reverse; 1: skip the last task; 2: call an index past the end;
-    // 3: call index 0 twice; 4: as 0, but first wait until `release` is set (after setting `entered`)
+    // 3: call index 0 twice; 4: as 0, but first wait until `release` is set (after setting `entered`);
+    // 5: as 0 for the first `fail_after` runs, then as 1
     calls: std::sync::atomic::AtomicUsize,
     entered: std::sync::atomic::AtomicBool,
     release: std::sync::atomic::AtomicBool,
+    fail_after: usize,
 }
 
 impl TestExec {
     fn new(mode: u32) -> TestExec {
-        TestExec { mode, calls: Default::default(), entered: Default::default(), release: Default::default() }
+        TestExec {
+            mode,
+            calls: Default::default(),
+            entered: Default::default(),
+            release: Default::default(),
+            fail_after: 0,
+        }
     }
 }
 
-unsafe extern "C" fn test_run(user: *mut std::ffi::c_void, n: u32, task: hood_task_fn, ctx: *mut std::ffi::c_void) {
+unsafe extern "C-unwind" fn test_run(
+    user: *mut std::ffi::c_void,
+    n: u32,
+    task: hood_task_fn,
+    ctx: *mut std::ffi::c_void,
+) {
     // SAFETY: `user` is the `TestExec` the test registered; `task` is the library's trampoline.
     let e = unsafe { &*(user as *const TestExec) };
     let task = task.unwrap();
-    e.calls.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    let before = e.calls.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
     if e.mode == 4 {
         e.entered.store(true, std::sync::atomic::Ordering::SeqCst);
         while !e.release.load(std::sync::atomic::Ordering::SeqCst) {
             std::thread::yield_now();
         }
     }
-    let upto = if e.mode == 1 { n.saturating_sub(1) } else { n };
+    let skip_last = e.mode == 1 || (e.mode == 5 && before >= e.fail_after);
+    let upto = if skip_last { n.saturating_sub(1) } else { n };
     for i in (0..upto).rev() {
         // SAFETY: the executor contract.
         unsafe { task(ctx, i) };
@@ -795,6 +806,41 @@ fn executor_callback_runs_the_step_and_misuse_is_caught() {
     assert_eq!(step(a, &sc.body_at(4, [0.0; 3]), &mut out_a), HOOD_OK);
     assert_eq!(step(b, &sc.body_at(4, [0.0; 3]), &mut out_b), HOOD_OK);
     assert_eq!(out_a, out_b);
+    // The first step runs a start-up pass, then the regular one: an executor that breaks the
+    // contract in either leaves the state as it was, and the sim then steps as a fresh one does.
+    let first = TestExec::new(0);
+    let exec = executor(&first as *const TestExec as *mut _, 3, Some(test_run));
+    let counted = sc.sim(l.model);
+    // SAFETY: `first` outlives its use (the sim is freed below).
+    unsafe {
+        assert_eq!(hood_sim_set_executor(counted, &exec), HOOD_OK);
+        assert_eq!(step(counted, &sc.body_at(1, [0.0; 3]), &mut out_a), HOOD_OK);
+        assert_eq!(hood_sim_free(counted), HOOD_OK);
+    }
+    let runs = first.calls.load(std::sync::atomic::Ordering::SeqCst);
+    assert!(runs > 4, "{runs} executor runs in a first step");
+    // Failing at the first run (the start-up pass) and at the last (the regular pass).
+    for fail_after in [0, runs - 1] {
+        let bad = TestExec { fail_after, ..TestExec::new(5) };
+        let exec = executor(&bad as *const TestExec as *mut _, 3, Some(test_run));
+        let (c, fresh) = (sc.sim(l.model), sc.sim(l.model));
+        let (p0, v0) = (positions(c, n), velocities(c, n));
+        // SAFETY: `bad` outlives its use (removed below).
+        unsafe {
+            assert_eq!(hood_sim_set_executor(c, &exec), HOOD_OK);
+            assert_eq!(step(c, &sc.body_at(1, [0.0; 3]), &mut out_a), HOOD_ERR_PANIC, "fail after {fail_after}");
+            assert_eq!(hood_sim_set_executor(c, null()), HOOD_OK);
+        }
+        assert_eq!((positions(c, n), velocities(c, n)), (p0, v0), "fail after {fail_after}: state changed");
+        assert_eq!(step(c, &sc.body_at(1, [0.0; 3]), &mut out_a), HOOD_OK);
+        assert_eq!(step(fresh, &sc.body_at(1, [0.0; 3]), &mut out_b), HOOD_OK);
+        assert_eq!(out_a, out_b, "fail after {fail_after}: the next step is not a first step");
+        // SAFETY: live sims.
+        unsafe {
+            assert_eq!(hood_sim_free(c), HOOD_OK);
+            assert_eq!(hood_sim_free(fresh), HOOD_OK);
+        }
+    }
     // SAFETY: live sims.
     unsafe {
         assert_eq!(hood_sim_free(a), HOOD_OK);
@@ -811,8 +857,7 @@ fn config_effects_are_honoured() {
     let bd = sc.body_desc();
     // SAFETY: live handles, arrays of the stated lengths.
     unsafe {
-        let mut cfg = std::mem::zeroed();
-        hood_sim_config_default(&mut cfg);
+        let mut cfg = default_config();
         assert_eq!(cfg.effects & HOOD_EFFECT_NORMALS, 0);
         assert_eq!(cfg.solver_iterations, 30, "the default step is the solver's");
         // The network's step, with which refinement combines.
@@ -1172,11 +1217,7 @@ fn sim_config_and_body_struct_sizes_are_checked() {
     let g = sc.garment();
     let bd = sc.body_desc();
     // SAFETY: writable out-parameter.
-    let cfg = unsafe {
-        let mut cfg: hood_sim_config = std::mem::zeroed();
-        hood_sim_config_default(&mut cfg);
-        cfg
-    };
+    let cfg = default_config();
     assert_eq!(cfg.struct_size as usize, size_of::<hood_sim_config>(), "hood_sim_config_default sets struct_size");
     let dangling = std::ptr::dangling_mut::<hood_sim>();
     // Creates a sim (freed at once); a refusal must leave `out` alone.
@@ -1316,6 +1357,12 @@ fn material_arrays_with_a_larger_stride_give_the_same_sim() {
     let (s, g) = garment(wide.as_ptr().cast(), 1);
     assert_eq!(s, HOOD_OK, "{}", last_error());
     assert_eq!(run(g), one);
+    // A count other than 0, 1 or n_vertices is refused before an element is read (or room for
+    // them allocated: 2^50 of them would abort the process).
+    for count in [2, n + 1, 1 << 50] {
+        assert_eq!(garment(mats.as_ptr(), count).0, HOOD_ERR_SIZE_MISMATCH, "{count} materials");
+        assert!(last_error().contains("materials"), "{}", last_error());
+    }
 
     // A nonzero byte in one element's tail.
     let mut bad = wide.clone();
@@ -1351,13 +1398,13 @@ fn status_string_is_static_and_leaves_the_last_error() {
     let p = hood_status_string(HOOD_ERR_BUSY);
     // SAFETY: static NUL-terminated strings.
     let text = |p| unsafe { CStr::from_ptr(p) }.to_str().unwrap();
-    assert_eq!(text(p), "HOOD_ERR_BUSY: the sim is in use by a call on another thread");
+    assert_eq!(text(p), "HOOD_ERR_BUSY: the handle is in use by another call: a sim on another thread, or a model or garment being read");
     assert_eq!(text(hood_status_string(HOOD_ERR_STRUCT_SIZE)).split(':').next(), Some("HOOD_ERR_STRUCT_SIZE"));
     assert_eq!(text(hood_status_string(108)), "unknown status");
     assert_eq!(last_error(), e, "hood_status_string changed the last error");
     // Still valid after other calls, and the same storage.
     assert_eq!(hood_status_string(HOOD_ERR_BUSY), p);
-    assert_eq!(text(p), "HOOD_ERR_BUSY: the sim is in use by a call on another thread");
+    assert_eq!(text(p), "HOOD_ERR_BUSY: the handle is in use by another call: a sim on another thread, or a model or garment being read");
 }
 
 #[test]
@@ -1410,7 +1457,7 @@ fn saved_state_round_trips_bitwise_and_damaged_bytes_change_nothing() {
 
 #[test]
 fn config_init_writes_the_callers_size_and_refuses_what_it_cannot_serve() {
-    let mut def = hood_sim_config_default_value();
+    let mut def = default_config();
     // A caller built against a newer header: 16 more bytes, which init zeroes.
     #[repr(C)]
     #[derive(Clone, Copy)]
@@ -1441,7 +1488,7 @@ fn config_init_writes_the_callers_size_and_refuses_what_it_cannot_serve() {
         assert_eq!(s, HOOD_ERR_STRUCT_SIZE, "size {bad}");
         assert_eq!((c.cfg.effects, c.extra), (12345, [7; 4]), "size {bad}");
     }
-    // The current size: identical to hood_sim_config_default.
+    // The current size: identical to the header's hood_sim_config_default.
     let mut cur = def;
     cur.effects = 0;
     // SAFETY: a whole struct.
@@ -1452,13 +1499,35 @@ fn config_init_writes_the_callers_size_and_refuses_what_it_cannot_serve() {
     assert_eq!(unsafe { hood_sim_config_init(null_mut(), 64) }, HOOD_ERR_NULL_POINTER);
 }
 
-fn hood_sim_config_default_value() -> hood_sim_config {
-    let mut c = std::mem::MaybeUninit::<hood_sim_config>::zeroed();
-    // SAFETY: writable.
-    unsafe {
-        hood_sim_config_default(c.as_mut_ptr());
-        c.assume_init()
+/// The exported `hood_sim_config_default` (a program built against the 0.2.0 header calls it;
+/// the header now maps the name to `hood_sim_config_init`) writes the 0.2.0 struct and not a
+/// byte past it, where the caller's struct may end.
+#[test]
+fn config_default_symbol_writes_only_the_oldest_struct() {
+    #[repr(C)]
+    struct Padded {
+        cfg: std::mem::MaybeUninit<hood_sim_config>,
+        extra: [u32; 4],
     }
+    let old = std::mem::offset_of!(hood_sim_config, solver_budget_us);
+    let mut p = Padded { cfg: std::mem::MaybeUninit::uninit(), extra: [0; 4] };
+    let base = &mut p as *mut Padded as *mut u8;
+    let len = size_of::<Padded>();
+    // SAFETY: `len` bytes of `p`; then the call writes within its first `old` bytes (the test's
+    // claim), and every byte is initialised before it is read.
+    let bytes = unsafe {
+        std::ptr::write_bytes(base, 0xAB, len);
+        hood_sim_config_default(p.cfg.as_mut_ptr());
+        std::slice::from_raw_parts(base, len).to_vec()
+    };
+    assert!(bytes[old..].iter().all(|&b| b == 0xAB), "wrote past the 0.2.0 struct");
+    let mut want = default_config();
+    // SAFETY: a whole struct, and more than `old` bytes.
+    assert_eq!(unsafe { hood_sim_config_init(&mut want, old) }, HOOD_OK);
+    // SAFETY: `want` is plain data of at least `old` bytes.
+    let want = unsafe { std::slice::from_raw_parts(&want as *const hood_sim_config as *const u8, old) };
+    assert_eq!(&bytes[..old], want);
+    assert_eq!(u32::from_ne_bytes(bytes[..4].try_into().unwrap()) as usize, old, "struct_size");
 }
 
 fn last_effects(sim: *const hood_sim) -> u32 {
@@ -1743,10 +1812,10 @@ fn driver_matches_the_rust_fixed_step_bitwise() {
 /// allocator is refused; `tests/examples.rs` installs one from C.
 #[test]
 fn an_allocator_after_the_first_allocation_is_refused() {
-    unsafe extern "C" fn no_alloc(_: usize, _: usize, _: *mut std::ffi::c_void) -> *mut std::ffi::c_void {
+    unsafe extern "C-unwind" fn no_alloc(_: usize, _: usize, _: *mut std::ffi::c_void) -> *mut std::ffi::c_void {
         null_mut()
     }
-    unsafe extern "C" fn no_free(_: *mut std::ffi::c_void, _: usize, _: usize, _: *mut std::ffi::c_void) {}
+    unsafe extern "C-unwind" fn no_free(_: *mut std::ffi::c_void, _: usize, _: usize, _: *mut std::ffi::c_void) {}
     let a = hood_allocator {
         struct_size: size_of_u32::<hood_allocator>(),
         user: null_mut(),
@@ -1880,9 +1949,9 @@ fn garment_push_out_refuses_bad_input_and_writes_nothing() {
     assert_eq!(call(&hood_body_desc { n_vertices: 10, ..bd }, &mut fresh(), null()), HOOD_ERR_INDEX_OUT_OF_RANGE);
     assert_eq!(call(&hood_body_desc { n_faces: 0, ..bd }, &mut fresh(), null()), HOOD_ERR_EMPTY);
     let mut x = fresh();
-    // SAFETY: refused before the count is used to read (its byte size overflows).
+    // SAFETY: refused before the count is used to read (beyond the vertex limit).
     let s = unsafe { hood_garment_push_out(&bd, x.as_mut_ptr().cast(), usize::MAX / 4, null(), &mut moved) };
-    assert_eq!(s, HOOD_ERR_OUT_OF_RANGE, "{}", last_error());
+    assert_eq!(s, HOOD_ERR_CAPACITY_EXCEEDED, "{}", last_error());
     assert_eq!((bits(&x), moved), (bits(&start), 7));
     // Non-finite garment positions (a pinned one too) and body positions.
     for (i, v) in [(5, f32::NAN), (0, f32::INFINITY), (n - 1, f32::NEG_INFINITY)] {

@@ -15,7 +15,7 @@ use std::sync::Mutex;
 static MESSAGES: Mutex<Vec<(u32, String)>> = Mutex::new(Vec::new());
 static TOKEN: u8 = 7;
 
-unsafe extern "C" fn collect(level: u32, message: *const c_char, user: *mut c_void) {
+unsafe extern "C-unwind" fn collect(level: u32, message: *const c_char, user: *mut c_void) {
     assert_eq!(user as *const u8, &TOKEN as *const u8, "the callback got another user pointer");
     // SAFETY: a NUL-terminated string valid during the call (the header's contract).
     let text = unsafe { CStr::from_ptr(message) }.to_string_lossy().into_owned();
@@ -56,7 +56,7 @@ fn sim_on(model: *const hood_model, rings: usize, segments: usize, threads: u32)
 }
 
 /// An executor that runs no task: the step panics inside the library (`HOOD_ERR_PANIC`).
-unsafe extern "C" fn run_nothing(_: *mut c_void, _: u32, _: hood_task_fn, _: *mut c_void) {}
+unsafe extern "C-unwind" fn run_nothing(_: *mut c_void, _: u32, _: hood_task_fn, _: *mut c_void) {}
 
 /// Steps `sim` on [`run_nothing`]: the caught panic's status and message.
 fn failing_step(sim: *mut hood_sim) -> (hood_status, String) {
@@ -160,4 +160,54 @@ fn a_caught_panic_prints_to_stderr_only_without_a_callback() {
         assert!(o.status.success(), "{mode}: {stderr}");
         assert_eq!(stderr.contains("exactly once"), printed, "{mode}: stderr is\n{stderr}");
     }
+}
+
+/// The garment `free_the_garment` frees, and what the free returned.
+static REENTRANT_GARMENT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+static REENTRANT_STATUS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(u32::MAX);
+
+/// A log callback that calls back into the library: it frees the garment of the call that logs.
+unsafe extern "C-unwind" fn free_the_garment(_: u32, _: *const c_char, _: *mut c_void) {
+    let g = REENTRANT_GARMENT.load(std::sync::atomic::Ordering::SeqCst) as *mut hood_garment;
+    // SAFETY: a garment handle (checked by the library).
+    let s = unsafe { hood_garment_free(g) };
+    REENTRANT_STATUS.store(s, std::sync::atomic::Ordering::SeqCst);
+}
+
+/// `hood_sim_new` logs (more threads than cores) while it reads the garment; a log callback that
+/// frees that garment is refused with `HOOD_ERR_BUSY` instead of freeing what the call then reads.
+/// In a child process: the callback is process-wide.
+#[test]
+fn a_callback_cannot_free_the_garment_a_call_reads() {
+    if std::env::var("HOOD_LOG_CHILD").as_deref() != Ok("reentrant") {
+        let o = Command::new(std::env::current_exe().unwrap())
+            .args(["--exact", "a_callback_cannot_free_the_garment_a_call_reads", "--nocapture"])
+            .env("HOOD_LOG_CHILD", "reentrant")
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        return;
+    }
+    with_model(|model| {
+        let (rest, faces) = hood::mesh::shapes::grid(6, 6, 0.6, 0.6, 0.32);
+        let (mut g, mut s) = (null_mut(), null_mut());
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let cfg = hood_sim_config { threads: cores as u32 + 1, ..network_config() };
+        // SAFETY: arrays of the stated lengths; live handles; the callback keeps the contract.
+        unsafe {
+            let (r, f) = (rest.as_ptr().cast(), faces.as_ptr().cast());
+            assert_eq!(hood_garment_new(r, rest.len(), f, faces.len(), null(), 0, null(), &mut g), HOOD_OK);
+            REENTRANT_GARMENT.store(g as usize, std::sync::atomic::Ordering::SeqCst);
+            assert_eq!(hood_set_log_callback(Some(free_the_garment), null_mut()), HOOD_OK);
+            assert_eq!(hood_sim_new(model, g, null(), &cfg, &mut s), HOOD_OK, "{}", last_error());
+            assert_eq!(hood_set_log_callback(None, null_mut()), HOOD_OK);
+            assert_eq!(REENTRANT_STATUS.load(std::sync::atomic::Ordering::SeqCst), HOOD_ERR_BUSY);
+            // Still live, and freed once the call is over.
+            let mut n = 0;
+            assert_eq!(hood_garment_vertex_count(g, &mut n), HOOD_OK);
+            assert_eq!(n, rest.len());
+            assert_eq!(hood_garment_free(g), HOOD_OK);
+            assert_eq!(hood_sim_free(s), HOOD_OK);
+        }
+    });
 }

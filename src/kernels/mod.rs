@@ -356,7 +356,7 @@ impl Kernels {
         Some(Kernels { backend })
     }
 
-    /// The AMX path with its tiles modelled in software ([`amx::Emulator`]), where the CPU has
+    /// The AMX path with its tiles modelled in software (`amx::Emulator`), where the CPU has
     /// AVX-512-BF16: the tile products' tiling, tails and layouts, checked without AMX.
     #[cfg(all(test, target_arch = "x86_64"))]
     pub(crate) fn amx_emulated() -> Option<Kernels> {

@@ -59,7 +59,7 @@ impl Avx512Bf16 {
 
 /// Proof that the CPU has AVX-512-BF16 and AMX-BF16, and that this process may use the tiles
 /// (see [`super::amx`]). In tests `U` may be the software model of the tiles
-/// ([`super::amx::Emulator`]), which needs only AVX-512-BF16.
+/// (`amx::Emulator`, a test-only type), which needs only AVX-512-BF16.
 pub(crate) struct AmxBf16<U = super::amx::Hardware>(Avx512Bf16, PhantomData<fn() -> U>);
 
 // By hand: derived impls would ask the same of `U`, which is only a marker here.

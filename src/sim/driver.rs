@@ -10,6 +10,11 @@ use alloc::vec::Vec;
 /// Model frame length, seconds.
 pub const MODEL_DT: f64 = 1.0 / 30.0;
 
+/// The longest engine frame an update simulates, seconds (30 model steps): time beyond it is
+/// dropped, as engines clamp their physics time step after a hitch (a pause, a loading stall), so
+/// that one update's cost stays bounded. The body still ends at the frame's pose.
+pub const MAX_ENGINE_DT: f64 = 1.0;
+
 /// Drives a [`Sim`] at 30 Hz from engine frames of any length. Allocates nothing per update.
 pub struct FixedStep<'m> {
     sim: Sim<'m>,
@@ -35,7 +40,8 @@ impl<'m> FixedStep<'m> {
     /// Advances engine time by `dt` seconds, with `body_now` the body at the new engine time
     /// (ignored without a body). Runs as many model steps as 30 Hz frames were crossed, with
     /// the body linearly interpolated to each frame's time, and returns the garment
-    /// interpolated to engine time (one model frame behind, as fixed-step rendering is).
+    /// interpolated to engine time (one model frame behind, as fixed-step rendering is). A `dt`
+    /// over [`MAX_ENGINE_DT`] is simulated as that long.
     ///
     /// # Errors
     /// [`Error::OutOfRange`] for a negative or non-finite `dt`; bad body input is refused
@@ -88,6 +94,7 @@ impl Interpolator {
         if !(dt >= 0.0 && dt.is_finite()) {
             return Err(Error::OutOfRange { what: "engine frame time", index: 0 });
         }
+        let dt = dt.min(MAX_ENGINE_DT);
         for (what, expected, got) in [
             ("driven sim garment vertices", self.out.len(), sim.positions().len()),
             ("driven sim body vertices", self.engine_body.len(), sim.state().body_pos.len()),

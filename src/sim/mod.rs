@@ -51,7 +51,7 @@ pub use config::{
     Precision, SimConfig, Sleeping, StepMode, DEFAULT_SOLVER_ITERATIONS, DEFAULT_SPEED_LIMIT, DEFAULT_TELEPORT,
     MAX_THREADS,
 };
-pub use driver::{FixedStep, Interpolator};
+pub use driver::{FixedStep, Interpolator, MAX_ENGINE_DT, MODEL_DT};
 pub use effects::StepEffects;
 pub use graph::Graph;
 pub use inputs::BODY_EDGE_RADIUS;
@@ -608,22 +608,18 @@ impl<'m> Sim<'m> {
             self.advance(query, next, carry, DT, observer)?;
         } else {
             // Start-up: static body (next = current), dt = 1/3 s, no velocity; then the regular
-            // step. Both or neither: a refusal of either restores the state from before.
+            // step. Both or neither: a refusal of either, or a panic unwinding out of either (an
+            // engine's executor that broke its contract), restores the state from before.
             copy_state(&mut self.before_startup, &self.state);
-            let last_carry = self.last_carry;
-            self.state.velocity.iter_mut().for_each(|v| *v = [0.0; 3]);
-            let both = self.advance(query.as_deref_mut(), None, [0.0; 3], DT_STARTUP, observer).and_then(|()| {
-                startup_projected = self.last_projected() > 0;
-                startup_tethered = self.last_tethered() > 0;
-                self.state.started = true;
-                self.advance(query, next, carry, DT, observer)
-            });
-            if let Err(e) = both {
-                core::mem::swap(&mut self.state, &mut self.before_startup);
-                self.last_carry = last_carry;
-                self.update_output_normals();
-                return Err(e);
-            }
+            let mut rollback = StartupRollback { last_carry: self.last_carry, sim: self, done: false };
+            let sim = &mut *rollback.sim;
+            sim.state.velocity.iter_mut().for_each(|v| *v = [0.0; 3]);
+            sim.advance(query.as_deref_mut(), None, [0.0; 3], DT_STARTUP, observer)?;
+            startup_projected = sim.last_projected() > 0;
+            startup_tethered = sim.last_tethered() > 0;
+            sim.state.started = true;
+            sim.advance(query, next, carry, DT, observer)?;
+            rollback.done = true;
         }
         self.rest_frames = rest_frames;
         self.last_effects = StepEffects {
@@ -675,11 +671,20 @@ impl<'m> Sim<'m> {
     /// way [`Sim::last_effects`] then reads [`StepEffects::teleported`] alone.
     ///
     /// # Errors
-    /// [`Error::SizeMismatch`], [`Error::NonFinite`] for bad body input (state unchanged).
+    /// [`Error::SizeMismatch`], [`Error::NonFinite`] for bad body input, and
+    /// [`Error::NonFinite`] for a motion that would carry the garment out of `f32` (state
+    /// unchanged).
     pub fn teleport(&mut self, motion: &RigidMotion, body_now: &[[f32; 3]]) -> Result<()> {
         self.check_body_frame(body_now)?;
         if !motion.rotation.is_finite() || !motion.translation.is_finite() {
             return Err(Error::NonFinite { what: "teleport motion", index: 0 });
+        }
+        // A finite motion can still overflow far from the origin: checked before anything moves.
+        let n = self.state.pos.len();
+        let moved = self.state.pos.iter().chain(&self.pin_targets).map(|&p| motion.apply(p));
+        let turned = self.state.velocity.iter().map(|&v| motion.rotate(v));
+        if let Some(i) = moved.chain(turned).position(|p| !finite3(p)) {
+            return Err(Error::NonFinite { what: "teleported garment vertex", index: i % n.max(1) });
         }
         for p in self.state.pos.iter_mut().chain(self.pin_targets.iter_mut()) {
             *p = motion.apply(*p);
@@ -704,6 +709,24 @@ impl<'m> Sim<'m> {
 /// (present whenever the sim's configuration reads the body: [`Sim::with_graph`] sizes it).
 fn body_query<'q>(shared: Option<&'q mut BodyQuery>, own: &'q mut Option<BodyQuery>) -> Result<&'q mut BodyQuery> {
     shared.or(own.as_mut()).ok_or(Error::UnsupportedEffect { effect: "a step without its body query" })
+}
+
+/// Undoes a start-up step that did not finish: unless `done`, puts back the state saved in
+/// `before_startup` when dropped, so on an error return and on a panic alike.
+struct StartupRollback<'s, 'm> {
+    sim: &'s mut Sim<'m>,
+    last_carry: [f32; 3],
+    done: bool,
+}
+
+impl Drop for StartupRollback<'_, '_> {
+    fn drop(&mut self) {
+        if !self.done {
+            core::mem::swap(&mut self.sim.state, &mut self.sim.before_startup);
+            self.sim.last_carry = self.last_carry;
+            self.sim.update_output_normals();
+        }
+    }
 }
 
 /// Copies `src` into `dst`, of the same lengths, without allocating (unlike `clone_from`, which

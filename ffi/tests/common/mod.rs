@@ -89,12 +89,19 @@ pub fn on_path(tool: &str) -> bool {
     Command::new(tool).arg("--version").output().map(|o| o.status.success()).unwrap_or(false)
 }
 
-/// `hood_sim_config_default`'s config with the network's step (`solver_iterations` 0).
-pub fn network_config() -> hood_ffi::hood_sim_config {
+/// The default config, as the header's `hood_sim_config_default(&cfg)` gives it
+/// (`hood_sim_config_init` with this struct's size).
+pub fn default_config() -> hood_ffi::hood_sim_config {
     let mut c = std::mem::MaybeUninit::<hood_ffi::hood_sim_config>::zeroed();
-    // SAFETY: writable; the library fills every field.
+    // SAFETY: a whole, writable struct; the library fills every field.
     unsafe {
-        hood_ffi::hood_sim_config_default(c.as_mut_ptr());
-        hood_ffi::hood_sim_config { solver_iterations: 0, ..c.assume_init() }
+        let s = hood_ffi::hood_sim_config_init(c.as_mut_ptr(), size_of::<hood_ffi::hood_sim_config>());
+        assert_eq!(s, hood_ffi::HOOD_OK);
+        c.assume_init()
     }
+}
+
+/// [`default_config`] with the network's step (`solver_iterations` 0).
+pub fn network_config() -> hood_ffi::hood_sim_config {
+    hood_ffi::hood_sim_config { solver_iterations: 0, ..default_config() }
 }
