@@ -115,7 +115,8 @@ impl Hierarchy {
     ///
     /// # Errors
     /// [`Error::IndexOutOfRange`] for an edge naming a node past `n_vertices`;
-    /// [`Error::OutOfRange`] when `cfg.levels` exceeds [`MAX_LEVELS`].
+    /// [`Error::OutOfRange`] when `cfg.levels` exceeds [`MAX_LEVELS`];
+    /// [`Error::CapacityExceeded`] for more nodes than [`crate::limits::MAX_VERTICES`].
     pub fn from_graph(n_vertices: usize, edges: &[[u32; 2]], cfg: &HierarchyConfig) -> Result<Hierarchy> {
         let edges = normalise_edges(n_vertices, edges)?;
         let (component, n_components) = components(n_vertices, &edges);

@@ -100,6 +100,38 @@ fn outfit_refused_step_leaves_every_garment_unchanged() {
     }
 }
 
+/// An automatic teleport moves a garment's pin targets with it; when a later garment of the same
+/// frame is refused, the first is put back, pin targets included.
+#[test]
+fn outfit_refused_step_puts_back_the_pin_targets_a_teleport_moved() {
+    let scenes = [Scene::new(8, 8), Scene::new(7, 9)];
+    let bytes = random_model(16, 5, false);
+    let model = bytes.model().unwrap();
+    let cfg = SimConfig::network(); // automatic teleport on
+    let (mut first, mut alone, mut second) =
+        (scenes[0].sim(&model, cfg).unwrap(), scenes[0].sim(&model, cfg).unwrap(), scenes[1].sim(&model, cfg).unwrap());
+    for t in 1..=2 {
+        let body = scenes[0].body_at(t);
+        for sim in [&mut first, &mut alone, &mut second] {
+            sim.step(&body).unwrap();
+        }
+    }
+    // The second garment far out (finite): the body's jump below carries it past f32's range,
+    // and its teleport is refused after the first garment's has run.
+    let mut far = second.state().clone();
+    far.pos.iter_mut().for_each(|p| p[0] = 3.0e38);
+    second.set_state(&far).unwrap();
+    let mut outfit = Outfit::new(vec![first, second]).unwrap();
+    let jumped: Vec<[f32; 3]> = scenes[0].body_at(3).iter().map(|p| [p[0] + 3.0e38, p[1], p[2]]).collect();
+    assert!(matches!(outfit.step(&jumped), Err(Error::NonFinite { .. })));
+    // The first garment goes on as the one that never saw the refused frame, pinned corners too.
+    let mut first = outfit.into_sims().unwrap().swap_remove(0);
+    for t in 3..=5 {
+        let body = scenes[0].body_at(t);
+        assert_eq!(first.step(&body).unwrap(), alone.step(&body).unwrap(), "frame {t}");
+    }
+}
+
 #[test]
 fn outfit_refuses_garments_on_another_body_or_frame() {
     let scene = Scene::new(8, 8);

@@ -370,6 +370,13 @@ fn runtime_speed_limit_follows_the_excess_motion() {
     // The carried garment came along; without the limit the network saw 9 m/s.
     let gap = |s: &Sim| (centroid(s.positions())[2] - centroid(&pins_a[frames])[2]).abs();
     println!("garment centroid behind the pins: {:.3} m with the limit, {:.3} m without", gap(&a), gap(&plain));
+    // A limit or teleport threshold that is not a positive distance is refused: a NaN limit
+    // used to carry every position to NaN on a still body.
+    for bad in [f32::NAN, -0.1, 0.0, f32::INFINITY] {
+        for cfg in [SimConfig::network().with_speed_limit(Some(bad)), SimConfig::network().with_teleport(Some(bad))] {
+            assert!(matches!(scene.sim(&model, cfg), Err(Error::OutOfRange { .. })), "{bad}");
+        }
+    }
 }
 
 /// Collision projection moves exactly the free vertices that end a step within the margin of the

@@ -155,8 +155,8 @@ fn gradient_check_network() {
     let body = BodyMesh::new(bv.len(), &bf).unwrap();
     let b_next: Vec<[f32; 3]> = bv.iter().map(|p| [p[0] + 0.004, p[1] + 0.002, p[2]]).collect();
     let graph = graph_of(&garment, 2);
-    println!("coarse edges per level: {:?}", graph.coarse.iter().map(|c| c.edges.target.len()).collect::<Vec<_>>());
-    assert!(graph.coarse.iter().all(|c| !c.edges.target.is_empty()), "every level needs edges");
+    println!("coarse edges per level: {:?}", graph.coarse().iter().map(|c| c.edges.target.len()).collect::<Vec<_>>());
+    assert!(graph.coarse().iter().all(|c| !c.edges.target.is_empty()), "every level needs edges");
     let mut rng = Rng::new(5);
     let (pos, vel) = jittered(&rest, &mut rng);
     let gs = GarmentState { pos: &pos, velocity: &vel, pinned: &pinned, pin_targets: &rest };

@@ -16,6 +16,10 @@ fn key_edge(k: u64) -> [u32; 2] {
 
 /// Edges checked, oriented `a < b`, without self-loops, sorted and unique.
 pub(super) fn normalise_edges(n_vertices: usize, edges: &[[u32; 2]]) -> Result<Vec<[u32; 2]>> {
+    // Every public entry point comes here first: an absurd count is refused before anything is
+    // sized by it (and before it is narrowed to the u32 of the node indices).
+    crate::limits::within("graph vertices", n_vertices, crate::limits::MAX_VERTICES)?;
+    crate::limits::within("graph edges", edges.len(), crate::limits::MAX_FACES * 3)?;
     let mut keys = Vec::with_capacity(edges.len());
     for (i, &[a, b]) in edges.iter().enumerate() {
         for v in [a, b] {

@@ -283,6 +283,17 @@ fn hierarchy_single_triangle_keeps_its_centre() {
     assert_eq!(h.vertex_level(), &[0, 0, 0]);
 }
 
+/// A node count no garment can have is refused before anything is sized by it (it used to be
+/// narrowed to u32 and allocated: a capacity-overflow panic, or an abort).
+#[test]
+fn hierarchy_refuses_absurd_node_counts() {
+    let cfg = HierarchyConfig::default();
+    for n in [crate::limits::MAX_VERTICES + 1, 1 << 40, usize::MAX] {
+        assert!(matches!(Hierarchy::from_graph(n, &[], &cfg), Err(Error::CapacityExceeded { .. })), "{n}");
+        assert!(matches!(Hierarchy::with_centres(n, &[], &[0], 1), Err(Error::CapacityExceeded { .. })), "{n}");
+    }
+}
+
 #[test]
 fn hierarchy_level_count_is_configurable() {
     let g = garment_of(&[Piece::Holed { nx: 12, nz: 12, holes: 0.0, seed: 0 }]);

@@ -410,7 +410,8 @@ impl Kernels {
             if op.w.n() != n || op.w.is_bf16() != first.w.is_bf16() {
                 return Err(Error::IncompatibleModel { reason: "linear operands differ in width or precision" });
             }
-            check_len("linear input", op.x.len(), rows * op.w.k())?;
+            let len = rows.checked_mul(op.w.k()).ok_or(Error::OutOfRange { what: "linear input size", index: rows })?;
+            check_len("linear input", op.x.len(), len)?;
         }
         if let Some(b) = bias {
             check_len("linear bias", b.len(), n)?;
@@ -478,7 +479,8 @@ impl Kernels {
         }
         let n_edges = edges.target.len();
         check_len("edge sources", edges.source.len(), n_edges)?;
-        check_len("edge latents", latent.len(), n_edges * k_e)?;
+        let size = |rows: usize, what| rows.checked_mul(k_e).ok_or(Error::OutOfRange { what, index: rows });
+        check_len("edge latents", latent.len(), size(n_edges, "edge latent size")?)?;
         for (what, len) in [
             ("target-node projections (a multiple of h)", edges.p_target.len()),
             ("source-node projections (a multiple of h)", edges.p_source.len()),
@@ -487,7 +489,7 @@ impl Kernels {
         }
         let n_t = edges.p_target.len() / h;
         let n_s = edges.p_source.len() / h;
-        check_len("edge aggregate", aggregate.len(), n_t * k_e)?;
+        check_len("edge aggregate", aggregate.len(), size(n_t, "edge aggregate size")?)?;
         for (what, idx, len) in [("edge target", edges.target, n_t), ("edge source", edges.source, n_s)] {
             if let Some((at, &i)) = idx.iter().enumerate().find(|(_, &i)| i as usize >= len) {
                 return Err(Error::IndexOutOfRange { what, at, index: i as usize, len });

@@ -39,6 +39,13 @@ pub const fn packed_len_bf16(k: usize, n: usize) -> usize {
     padded_cols(n) * k.next_multiple_of(2)
 }
 
+/// `padded_cols(n) · kp`, refused where it overflows `usize` (a length no slice can have).
+fn checked_packed_len(k: usize, n: usize, kp: usize) -> Result<usize> {
+    n.checked_next_multiple_of(PANEL)
+        .and_then(|cols| cols.checked_mul(kp))
+        .ok_or(Error::OutOfRange { what: "packed weight size (inputs times outputs overflows)", index: k })
+}
+
 fn check_source(w: &[f32], n_out: usize, n_in: usize, cols: &Range<usize>) -> Result<()> {
     if w.len() != n_out * n_in {
         return Err(Error::SizeMismatch { what: "weight matrix [out, in]", expected: n_out * n_in, got: w.len() });
@@ -122,7 +129,7 @@ impl<'a> PackedF32<'a> {
         if n == 0 {
             return Err(Error::Empty { what: "packed weight outputs" });
         }
-        let len = packed_len_f32(k, n);
+        let len = checked_packed_len(k, n, k)?;
         if data.len() != len {
             return Err(Error::SizeMismatch { what: "packed f32 weights", expected: len, got: data.len() });
         }
@@ -141,6 +148,10 @@ impl<'a> PackedF32<'a> {
         self.data
     }
     /// Weight for input `kk`, output `o` (slow; for reference code and tests).
+    ///
+    /// # Panics
+    /// For an index past the packed data; `kk < k()` and `o < n()` are not checked (past them it
+    /// reads padding or another weight).
     pub fn get(&self, kk: usize, o: usize) -> f32 {
         self.data[(o / PANEL) * PANEL * self.k + kk * PANEL + o % PANEL]
     }
@@ -164,7 +175,7 @@ impl<'a> PackedBf16<'a> {
         if n == 0 {
             return Err(Error::Empty { what: "packed weight outputs" });
         }
-        let len = packed_len_bf16(k, n);
+        let len = checked_packed_len(k, n, k.next_multiple_of(2))?;
         if data.len() != len {
             return Err(Error::SizeMismatch { what: "packed bf16 weights", expected: len, got: data.len() });
         }
@@ -201,6 +212,10 @@ impl<'a> PackedBf16<'a> {
         PackedF32::new(dst, self.k, self.n)
     }
     /// Weight for input `kk`, output `o` (slow; for reference code and tests).
+    ///
+    /// # Panics
+    /// For an index past the packed data; `kk < k()` and `o < n()` are not checked (past them it
+    /// reads padding or another weight).
     pub fn get(&self, kk: usize, o: usize) -> f32 {
         let kp = self.k.next_multiple_of(2);
         self.data[(o / PANEL) * PANEL * kp + (kk / 2) * 2 * PANEL + 2 * (o % PANEL) + kk % 2].to_f32()

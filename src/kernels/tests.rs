@@ -687,6 +687,10 @@ fn kernels_reject_bad_shapes() {
     assert!(k.linear(&op, Some(&[0.0; 31]), &Epilogue::default(), &mut [0.0; 3 * 32], &mut s).is_err());
     assert!(k.linear(&op, None, &Epilogue::default(), &mut [0.0; 3 * 32], &mut s[..10]).is_err());
     assert!(k.linear(&[], None, &Epilogue::default(), &mut [0.0; 3 * 32], &mut s).is_err());
+    // A shape whose packed length overflows (16 · 2^60 wraps to 0) is refused, not taken as an
+    // empty matrix that the kernels would then read 2^60 inputs of.
+    assert!(matches!(PackedF32::new(&[], 1 << 60, 16), Err(Error::OutOfRange { .. })));
+    assert!(matches!(PackedBf16::new(&[], 1 << 60, 16), Err(Error::OutOfRange { .. })));
 }
 
 #[cfg(feature = "tools")]

@@ -91,7 +91,9 @@ impl Garment {
     /// without vertices or faces; [`Error::NonFinite`] for a NaN/Inf rest coordinate; [`Error::IndexOutOfRange`] for a face naming a missing vertex;
     /// [`Error::RepeatedVertex`]; [`Error::DegenerateFace`] (see [`DEGENERATE_RATIO`]);
     /// [`Error::UnusedVertex`]; [`Error::SizeMismatch`] for materials or pinned flags of the
-    /// wrong length; [`Error::OutOfRange`] for a non-positive or non-finite material.
+    /// wrong length; [`Error::OutOfRange`] for a non-positive or non-finite material, or a vertex
+    /// mass out of `f32`'s range; [`Error::DegenerateFace`] also for a face whose rest frame or
+    /// area is out of `f32`'s range (edges of 1e-39 m).
     pub fn new(desc: GarmentDesc<'_>) -> Result<Garment> {
         let n = desc.rest.len();
         validate(desc.rest, desc.faces)?;
@@ -112,8 +114,12 @@ impl Garment {
         let topo = topology::build(n, desc.faces);
         let mut dm_inv = Vec::with_capacity(desc.faces.len());
         let mut face_area = Vec::with_capacity(desc.faces.len());
-        for f in desc.faces {
+        for (i, f) in desc.faces.iter().enumerate() {
             let (d, a) = rest_frame(desc.rest, f);
+            // Shape-valid but out of f32's range (edges of 1e-39 m): every step would refuse it.
+            if !(d.iter().flatten().all(|v| v.is_finite()) && (a as f32) > 0.0 && (a as f32).is_finite()) {
+                return Err(Error::DegenerateFace { face: i });
+            }
             dm_inv.push(d);
             face_area.push(a as f32);
         }
@@ -124,7 +130,12 @@ impl Garment {
                 area_sum[v as usize] += a as f64 / 3.0;
             }
         }
-        let vertex_mass = area_sum.iter().zip(&materials).map(|(a, m)| (a * m.density as f64) as f32).collect();
+        let vertex_mass: Vec<f32> =
+            area_sum.iter().zip(&materials).map(|(a, m)| (a * m.density as f64) as f32).collect();
+        // A huge garment of dense cloth (coordinates near 1e30, a density near f32::MAX).
+        if let Some(i) = vertex_mass.iter().position(|m| !(m.is_finite() && *m > 0.0)) {
+            return Err(Error::OutOfRange { what: "vertex mass (area times density out of f32's range)", index: i });
+        }
         Ok(Garment {
             rest: desc.rest.to_vec(),
             faces: desc.faces.to_vec(),

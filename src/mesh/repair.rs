@@ -41,6 +41,9 @@ pub struct VertexRemap {
 
 impl VertexRemap {
     /// Applies the remap to any per-vertex array of the old mesh (materials, pinned flags, ...).
+    ///
+    /// # Panics
+    /// When `per_old_vertex` is shorter than the old mesh's vertex count.
     pub fn apply<T: Clone>(&self, per_old_vertex: &[T]) -> Vec<T> {
         self.new_to_old.iter().map(|&o| per_old_vertex[o as usize].clone()).collect()
     }
@@ -57,7 +60,10 @@ pub struct CompactedMesh {
     pub remap: VertexRemap,
 }
 
-/// Removes vertices used by no face and renumbers the faces (indices must be in range).
+/// Removes vertices used by no face and renumbers the faces.
+///
+/// # Panics
+/// When a face names a vertex past `rest`.
 pub fn drop_unused_vertices(rest: &[[f32; 3]], faces: &[[u32; 3]]) -> CompactedMesh {
     let mut used = vec![false; rest.len()];
     for f in faces {

@@ -5,6 +5,9 @@ use alloc::vec::Vec;
 /// A flat rectangular cloth in the x-z plane at height `y`, `nx` x `nz` vertices spanning
 /// `width` x `depth` metres, centred on the origin. Each quad is split along alternating
 /// diagonals; faces are counter-clockwise seen from +y.
+///
+/// # Panics
+/// When `nx < 2` or `nz < 2`.
 pub fn grid(nx: usize, nz: usize, width: f32, depth: f32, y: f32) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
     assert!(nx >= 2 && nz >= 2, "a grid needs at least 2 x 2 vertices");
     let mut rest = Vec::with_capacity(nx * nz);
@@ -46,6 +49,10 @@ pub(crate) fn grid_triangles(nu: usize, nv: usize, closed: bool) -> Vec<[u32; 3]
 /// the original vertices, in the order of the garment's sorted unique edges), each triangle
 /// split into four with the same orientation. Apply the same call to any per-vertex positions
 /// of the mesh (rest, current, previous) to get consistent subdivided copies.
+///
+/// # Panics
+/// When a face names a vertex past `positions` (a validated [`crate::mesh::Garment`]'s faces
+/// never do).
 pub fn subdivide(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
     let mut edges: Vec<[u32; 2]> = faces.iter().flat_map(|f| [0, 1, 2].map(|k| sorted(f[k], f[(k + 1) % 3]))).collect();
     edges.sort_unstable();

@@ -128,6 +128,18 @@ fn garment_bad_input_names_the_index() {
         Garment::new(GarmentDesc::new(&rest, &faces).materials(&neg)).unwrap_err(),
         Error::OutOfRange { what: "material", .. }
     ));
+    // Well shaped, but out of f32's range: a rest frame (edges of 1e-39 m) or an area (1e30 m)
+    // that overflows, a mass that does (1e18 m of cloth at 1e10 kg/m²).
+    let scaled = |k: f32| rest.iter().map(|p| p.map(|c| c * k)).collect::<Vec<_>>();
+    for k in [1e-39, 1e30] {
+        let err = Garment::new(GarmentDesc::new(&scaled(k), &faces)).unwrap_err();
+        assert_eq!(err, Error::DegenerateFace { face: 0 }, "scale {k}");
+    }
+    let dense = [Material { density: 1e10, ..Material::default() }];
+    assert!(matches!(
+        Garment::new(GarmentDesc::new(&scaled(1e18), &faces).materials(&dense)).unwrap_err(),
+        Error::OutOfRange { what: "vertex mass (area times density out of f32's range)", .. }
+    ));
 }
 
 #[test]

@@ -302,12 +302,13 @@ pub struct MlpView<'a> {
 pub struct Model<'a> {
     spec: ModelSpec,
     has_bf16: bool,
-    /// Every MLP, in the skeleton's structure.
-    pub mlps: Mlps<MlpView<'a>>,
+    /// Every MLP, in the skeleton's structure (read-only outside the crate: checked against the
+    /// spec when the file is viewed, and the step relies on that).
+    pub(crate) mlps: Mlps<MlpView<'a>>,
     /// Node-type embedding, 9 x 9.
-    pub node_type_embedding: &'a [f32],
+    pub(crate) node_type_embedding: &'a [f32],
     /// Vertex-level embedding, 4 x 4.
-    pub level_embedding: &'a [f32],
+    pub(crate) level_embedding: &'a [f32],
     norm: [(&'a [f32], &'a [f32]); 4],
     rec: &'a ArchivedModelRec,
 }
@@ -453,6 +454,21 @@ impl<'a> Model<'a> {
     /// The model's shape.
     pub fn spec(&self) -> &ModelSpec {
         &self.spec
+    }
+
+    /// Every MLP, in the skeleton's structure.
+    pub fn mlps(&self) -> &Mlps<MlpView<'a>> {
+        &self.mlps
+    }
+
+    /// Node-type embedding, 9 x 9.
+    pub fn node_type_embedding(&self) -> &'a [f32] {
+        self.node_type_embedding
+    }
+
+    /// Vertex-level embedding, 4 x 4.
+    pub fn level_embedding(&self) -> &'a [f32] {
+        self.level_embedding
     }
 
     /// True when the file carries bf16 weights.

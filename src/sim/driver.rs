@@ -60,6 +60,8 @@ pub struct Interpolator {
     engine_body: Vec<[f32; 3]>,
     body_sample: Vec<[f32; 3]>,
     prev_out: Vec<[f32; 3]>,
+    /// The garment before the step in progress, which becomes `prev_out` when the step succeeds.
+    before_step: Vec<[f32; 3]>,
     out: Vec<[f32; 3]>,
     steps: u64,
 }
@@ -74,6 +76,7 @@ impl Interpolator {
             body_sample: body.clone(),
             engine_body: body,
             prev_out: pos.clone(),
+            before_step: pos.clone(),
             out: pos,
             steps: 0,
         }
@@ -127,8 +130,11 @@ impl Interpolator {
                     *s = [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])];
                 }
             }
-            self.prev_out.copy_from_slice(sim.positions());
+            // `prev_out` changes only with a step that succeeds, so that a refused one leaves
+            // the interpolation as it was.
+            self.before_step.copy_from_slice(sim.positions());
             sim.step(&self.body_sample)?;
+            core::mem::swap(&mut self.prev_out, &mut self.before_step);
             self.steps += 1;
             self.since_frame = 0.0;
         }

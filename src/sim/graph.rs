@@ -28,18 +28,19 @@ pub struct CoarseLevel {
     pub edges: EdgeList,
 }
 
-/// The garment graph as the step uses it.
+/// The garment graph as the step uses it. Read-only outside the crate: the kernels rely on its
+/// invariants (indices in range, targets sorted), which its constructors establish.
 #[derive(Clone, Debug)]
 pub struct Graph {
     /// Mesh edges (both directions), sorted by target; local = global indices.
-    pub mesh: EdgeList,
+    pub(crate) mesh: EdgeList,
     /// Coarse levels c0, c1, ...
-    pub coarse: Vec<CoarseLevel>,
+    pub(crate) coarse: Vec<CoarseLevel>,
     /// Vertex level 0..=3 of every garment vertex.
-    pub vertex_level: Vec<u8>,
+    pub(crate) vertex_level: Vec<u8>,
     /// Garment vertices ordered by descending level, then ascending index: body edges are listed
     /// in this order, so the edges of a coarse level's nodes form a prefix.
-    pub body_order: Vec<u32>,
+    pub(crate) body_order: Vec<u32>,
     iota: Vec<u32>,
 }
 
@@ -71,6 +72,9 @@ impl Graph {
         let n = garment.n_vertices();
         if vertex_level.len() != n {
             return Err(Error::SizeMismatch { what: "vertex levels", expected: n, got: vertex_level.len() });
+        }
+        if let Some(i) = vertex_level.iter().position(|&l| l as usize >= crate::features::LEVELS) {
+            return Err(Error::OutOfRange { what: "vertex level (0 to 3)", index: i });
         }
         let d = garment.directed_edges();
         let mesh = EdgeList {
@@ -110,6 +114,27 @@ impl Graph {
         let mut body_order: Vec<u32> = (0..n as u32).collect();
         body_order.sort_by_key(|&v| (core::cmp::Reverse(vertex_level[v as usize]), v));
         Ok(Graph { mesh, coarse, vertex_level: vertex_level.to_vec(), body_order, iota: (0..n as u32).collect() })
+    }
+
+    /// Mesh edges (both directions), sorted by target; local = global indices.
+    pub fn mesh(&self) -> &EdgeList {
+        &self.mesh
+    }
+
+    /// Coarse levels c0, c1, ...
+    pub fn coarse(&self) -> &[CoarseLevel] {
+        &self.coarse
+    }
+
+    /// Vertex level 0..=3 of every garment vertex.
+    pub fn vertex_level(&self) -> &[u8] {
+        &self.vertex_level
+    }
+
+    /// Garment vertices ordered by descending level, then ascending index (the order body edges
+    /// are listed in).
+    pub fn body_order(&self) -> &[u32] {
+        &self.body_order
     }
 
     /// `0, 1, 2, ...` (one per garment vertex): row indices for gathered rows.

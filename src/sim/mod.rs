@@ -200,7 +200,9 @@ impl<'m> Sim<'m> {
     ///
     /// # Errors
     /// [`Error::UnsupportedEffect`] for an effect the model was not trained with or a bf16 run
-    /// of an f32-only file; [`Error::IncompatibleModel`]; errors of the hierarchy.
+    /// of an f32-only file; [`Error::IncompatibleModel`]; [`Error::OutOfRange`] for a setting
+    /// outside its range (a speed limit or teleport threshold that is not finite and positive,
+    /// too many threads); errors of the hierarchy.
     pub fn new(model: &'m Model<'m>, garment: &Garment, body: Option<BodyDesc<'_>>, cfg: SimConfig) -> Result<Sim<'m>> {
         let graph = Graph::build(garment, model.spec().levels)?;
         Sim::with_graph(model, garment, graph, body, cfg)
@@ -238,6 +240,14 @@ impl<'m> Sim<'m> {
         }
         if cfg.threads > MAX_THREADS {
             return Err(Error::OutOfRange { what: "threads (at most MAX_THREADS)", index: 0 });
+        }
+        for (what, distance) in [
+            ("speed limit (finite, above 0 m/frame)", cfg.speed_limit),
+            ("teleport threshold (finite, above 0 m)", cfg.teleport),
+        ] {
+            if distance.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
+                return Err(Error::OutOfRange { what, index: 0 });
+            }
         }
         if cfg.projection.is_some() && !use_body {
             return Err(Error::UnsupportedEffect { effect: "collision projection (needs a body and body collision)" });
@@ -680,8 +690,10 @@ impl<'m> Sim<'m> {
             return Err(Error::NonFinite { what: "teleport motion", index: 0 });
         }
         // A finite motion can still overflow far from the origin: checked before anything moves.
+        // (Only pinned vertices' targets: the others are never read, and may be anything.)
         let n = self.state.pos.len();
-        let moved = self.state.pos.iter().chain(&self.pin_targets).map(|&p| motion.apply(p));
+        let targets = self.pin_targets.iter().zip(&self.pinned).map(|(&t, &p)| if p { t } else { [0.0; 3] });
+        let moved = self.state.pos.iter().copied().chain(targets).map(|p| motion.apply(p));
         let turned = self.state.velocity.iter().map(|&v| motion.rotate(v));
         if let Some(i) = moved.chain(turned).position(|p| !finite3(p)) {
             return Err(Error::NonFinite { what: "teleported garment vertex", index: i % n.max(1) });

@@ -48,6 +48,8 @@ struct Before {
     state: SimState,
     rest_frames: u32,
     last_carry: [f32; 3],
+    /// Moved by an automatic teleport.
+    pin_targets: Vec<[f32; 3]>,
 }
 
 /// Garments on one body, stepped together. Allocates nothing per step.
@@ -81,8 +83,15 @@ impl<'m> Outfit<'m> {
             Some(m) if !needs.none() => Some(BodyQuery::new(m, needs)?),
             _ => None,
         };
-        let before =
-            sims.iter().map(|s| Before { state: s.state.clone(), rest_frames: 0, last_carry: [0.0; 3] }).collect();
+        let before = sims
+            .iter()
+            .map(|s| Before {
+                state: s.state.clone(),
+                rest_frames: 0,
+                last_carry: [0.0; 3],
+                pin_targets: s.pin_targets.clone(),
+            })
+            .collect();
         // Each sim's own query is now the shared one.
         for sim in &mut sims {
             sim.query = None;
@@ -133,11 +142,13 @@ impl<'m> Outfit<'m> {
             copy_state(&mut before.state, &sim.state);
             before.rest_frames = sim.rest_frames;
             before.last_carry = sim.last_carry;
+            before.pin_targets.copy_from_slice(&sim.pin_targets);
             if let Err(e) = sim.step_with(self.query.as_mut(), body_next, &mut |_| {}) {
                 for (done, before) in self.sims[..k].iter_mut().zip(&self.before) {
                     copy_state(&mut done.state, &before.state);
                     done.rest_frames = before.rest_frames;
                     done.last_carry = before.last_carry;
+                    done.pin_targets.copy_from_slice(&before.pin_targets);
                     done.report_no_step(StepEffects::default());
                     done.update_output_normals();
                 }

@@ -8,8 +8,9 @@ use super::body_query::BodyQuery;
 use super::network::Probe;
 use super::refine::{RefineBody, RefineInput};
 use super::{body_query, BodyState, Sim, SimState, StepMode};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::features::DT_STARTUP;
+use crate::math::finite3;
 use alloc::vec::Vec;
 
 /// One pass of a step: where the body goes and in which frame of reference.
@@ -107,6 +108,12 @@ impl Sim<'_> {
                 let body = body_next.unwrap_or(&self.state.body_pos);
                 t.apply(body, &mut self.new_pos, &mut self.new_vel, projected);
             }
+        }
+        // The one check of the whole pass's result: every stage above can only have made it
+        // non-finite from finite inputs by overflow (a far carry, a runaway prediction).
+        let n = self.new_pos.len().max(1);
+        if let Some(i) = self.new_pos.iter().chain(&self.new_vel).position(|p| !finite3(*p)) {
+            return Err(Error::NonFinite { what: "stepped garment vertex", index: i % n });
         }
         // Commit: nothing was refused.
         if let Some(r) = refiner {

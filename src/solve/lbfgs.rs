@@ -162,14 +162,15 @@ impl<T: Real> Lbfgs<T> {
             g_new: vec![z; n],
             d: vec![z; n],
             x_new: vec![z; n],
-            precond: Vec::new(),
+            // Room for a preconditioner now, so that setting one in a step allocates nothing.
+            precond: Vec::with_capacity(n),
         }
     }
 
     /// Sets (or, with `None`, clears) a diagonal preconditioner: the inverse of an estimate of
     /// the Hessian's diagonal, one positive value per vertex (same for its three coordinates).
     /// The initial inverse Hessian becomes `γ P` instead of `γ I`, and the first step is `-P g`.
-    /// Allocates on the first call only.
+    /// Allocates nothing (the workspace has room for one).
     ///
     /// # Errors
     /// [`Error::SizeMismatch`] for a slice of the wrong length; [`Error::OutOfRange`] for a
