@@ -369,13 +369,14 @@ typedef struct hood_sim_config {
  * cannot serve (smaller than the struct of version 0.2.0, over 4096, or misaligned) gives
  * HOOD_ERR_STRUCT_SIZE and writes nothing. */
 HOOD_API hood_status HOOD_CALL hood_sim_config_init(hood_sim_config *out, size_t struct_size);
-/* hood_sim_config_init(out, sizeof *out), its status dropped: through this header the name is a
- * macro. The exported function of that name (what a program built against version 0.2.0 calls,
- * or a binding that loads symbols) cannot know its caller's size: it writes the defaults of the
- * fields of version 0.2.0 (through solver_iterations) and sets struct_size to that size, so the
- * fields added since read as unset. A NULL `out` is ignored (only hood_last_error records it). */
+/* hood_sim_config_init(out, sizeof *out): through this header the name is a macro, which also
+ * works after C++'s `::` and gives that call's status (a plain call may ignore it). The exported
+ * function of that name (what a program built against version 0.2.0 calls, or a binding that
+ * loads symbols) cannot know its caller's size: it writes the defaults of the fields of version
+ * 0.2.0 (through solver_iterations) and sets struct_size to that size, so the fields added since
+ * read as unset. A NULL `out` is ignored (only hood_last_error records it). */
 HOOD_API void HOOD_CALL hood_sim_config_default(hood_sim_config *out);
-#define hood_sim_config_default(out) ((void)hood_sim_config_init((out), sizeof *(out)))
+#define hood_sim_config_default(out) hood_sim_config_init((out), sizeof *(out))
 
 /* The body of a scene. `positions`: 3 * n_vertices floats, the body at the first frame (m).
  * `indices`: 3 * n_faces. `omitted` (optional, NULL for none): n_vertices flags, nonzero = the

@@ -436,7 +436,13 @@ fn compiler_checks_types_constants_and_layouts() {
     );
     layout!(cpp, hood_executor { struct_size, user, parallelism, run });
     layout!(cpp, hood_allocator { struct_size, user, alloc, free });
-    cpp.push_str("int main() { return 0; }\n");
+    // The config-defaults macro, called as C++ code may spell it (after `::`, and as a
+    // statement); it must fill the caller's whole struct.
+    cpp.push_str(
+        "static void defaults(hood_sim_config *c) { ::hood_sim_config_default(c); hood_sim_config_default(c); }\n\
+         static_assert(std::is_same<decltype(hood_sim_config_default((hood_sim_config *)0)), hood_status>::value, \"macro\");\n",
+    );
+    cpp.push_str("int main() { hood_sim_config c; (void)&defaults; (void)c; return 0; }\n");
 
     let dir = scratch("header");
     let src = dir.join("abi_check.cpp");
