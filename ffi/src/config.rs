@@ -16,7 +16,7 @@ use hood::Error;
 
 /// The sim's configuration (see the header).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct hood_sim_config {
     /// `sizeof(hood_sim_config)` in the caller's header (see its Conventions).
     pub struct_size: u32,
@@ -51,6 +51,12 @@ unsafe impl Extensible for hood_sim_config {
     const NAME: &'static str = "hood_sim_config";
     // Version 0.2.0 ended before `solver_budget_us`.
     const MIN_SIZE: usize = std::mem::offset_of!(hood_sim_config, solver_budget_us);
+
+    /// Zero is a slack (tight ties), not "unset": a struct that ends before `tether_slack`
+    /// gets the default.
+    fn absent_fields() -> Self {
+        hood_sim_config { tether_slack: hood::sim::DEFAULT_TETHER_SLACK, ..Default::default() }
+    }
 }
 
 /// The library's defaults, with `struct_size` this library's `sizeof(hood_sim_config)`.
@@ -132,10 +138,7 @@ pub unsafe extern "C" fn hood_sim_config_init(out: *mut hood_sim_config, struct_
 }
 
 /// The runtime's configuration from a caller's `hood_sim_config`, checked.
-///
-/// `size` is the caller's `struct_size`: a field past it (an older header's struct) keeps its
-/// default, which for every field but `tether_slack` is its zero.
-pub(crate) fn sim_config(c: &hood_sim_config, size: usize) -> Result<SimConfig> {
+pub(crate) fn sim_config(c: &hood_sim_config) -> Result<SimConfig> {
     if c.effects & !ALL_EFFECTS != 0 {
         return Err(Error::OutOfRange { what: "config effects (unknown flag)", index: c.effects as usize }.into());
     }
@@ -167,14 +170,7 @@ pub(crate) fn sim_config(c: &hood_sim_config, size: usize) -> Result<SimConfig> 
     // The margin's range is checked by the sim (0 <= margin < hood::sim::PROJECTION_REACH).
     let projection = (c.effects & HOOD_EFFECT_COLLISION_PROJECTION != 0).then_some(c.projection_margin);
     // The slack's range is checked by the sim (0 <= slack <= hood::sim::MAX_TETHER_SLACK).
-    // Zero is a slack (tight ties), so an older header's struct, which ends before the field,
-    // gets the default instead.
-    let slack = if size > std::mem::offset_of!(hood_sim_config, tether_slack) {
-        c.tether_slack
-    } else {
-        hood::sim::DEFAULT_TETHER_SLACK
-    };
-    let tether = (c.effects & HOOD_EFFECT_TETHER != 0).then_some(slack);
+    let tether = (c.effects & HOOD_EFFECT_TETHER != 0).then_some(c.tether_slack);
     // The count's range is checked by the sim (1 ..= hood::sim::MAX_REFINE_ITERATIONS).
     let refine = (c.effects & HOOD_EFFECT_REFINE != 0).then_some(c.refine_iterations);
     // Likewise (and the sim refuses it beside HOOD_EFFECT_REFINE).
@@ -219,4 +215,28 @@ fn threads(asked: u32) -> Result<usize> {
         );
     }
     Ok(threads)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::extensible::read_struct;
+
+    /// A config from the 0.2.0 header ends before `tether_slack`: with tethers on it gets the
+    /// default slack, not the 0 m (tight ties) a zeroed field would mean, whatever lies past it.
+    #[test]
+    fn an_older_config_gets_the_default_tether_slack() {
+        let mut c = default_config();
+        c.struct_size = hood_sim_config::MIN_SIZE as u32;
+        c.effects |= HOOD_EFFECT_TETHER;
+        c.tether_slack = 0.0; // past the caller's struct: never read
+                              // SAFETY: a whole struct, more than its `struct_size` bytes.
+        let read = unsafe { read_struct(&c, "config") }.map_err(|e| e.message()).unwrap();
+        assert_eq!(sim_config(&read).map_err(|e| e.message()).unwrap().tether, Some(hood::sim::DEFAULT_TETHER_SLACK));
+        // The current size reads the field as written.
+        c.struct_size = size_of::<hood_sim_config>() as u32;
+        // SAFETY: as above.
+        let read = unsafe { read_struct(&c, "config") }.map_err(|e| e.message()).unwrap();
+        assert_eq!(sim_config(&read).map_err(|e| e.message()).unwrap().tether, Some(0.0));
+    }
 }

@@ -19,8 +19,15 @@ pub(crate) unsafe trait Extensible: Copy {
     /// The C name, for messages.
     const NAME: &'static str;
     /// The smallest `struct_size` accepted: the struct's size in the first release that had
-    /// `struct_size` (fields added since read as zero from a caller built against it).
+    /// `struct_size` (fields added since read as [`Extensible::absent_fields`] gives them).
     const MIN_SIZE: usize = size_of::<Self>();
+
+    /// What a field takes when the caller's struct ends before it (an older header): zero,
+    /// "unset", unless an implementor overrides it for a field whose zero means something.
+    fn absent_fields() -> Self {
+        // SAFETY: all-zero bytes are a valid `Self` (the trait's contract).
+        unsafe { std::mem::MaybeUninit::<Self>::zeroed().assume_init() }
+    }
 }
 
 /// The `struct_size` of `T` in this library (what `hood_sim_config_default` writes).
@@ -94,17 +101,12 @@ pub(crate) unsafe fn read_extensible<T: Extensible>(
         return refuse(why);
     }
     if size < size_of::<T>() {
-        // An older header: its fields, and zeros for those added since ("unset").
-        let mut out = std::mem::MaybeUninit::<T>::zeroed();
-        // SAFETY: `size` bytes are readable (caller) and fit in `out`; all-zero bytes and any
-        // bytes are valid for `T` (`Extensible`).
-        unsafe {
-            std::ptr::copy_nonoverlapping(p.cast::<u8>(), out.as_mut_ptr().cast::<u8>(), size);
-            let mut t = out.assume_init();
-            // The caller's struct_size stays as it wrote it.
-            std::ptr::addr_of_mut!(t).cast::<u32>().write(size as u32);
-            return Ok((t, size));
-        }
+        // An older header: its fields, and `T::absent_fields()` for those added since.
+        let mut t = T::absent_fields();
+        // SAFETY: `size` bytes are readable (caller) and fit in `t`; any bytes are valid for `T`
+        // (`Extensible`). The caller's struct_size, its first bytes, stays as it wrote it.
+        unsafe { std::ptr::copy_nonoverlapping(p.cast::<u8>(), std::ptr::addr_of_mut!(t).cast::<u8>(), size) };
+        return Ok((t, size));
     }
     // SAFETY: `size` bytes are readable (caller) and `size_of::<T>() <= size`, so the tail
     // `size_of::<T>()..size` is inside them.

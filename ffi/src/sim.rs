@@ -8,7 +8,7 @@ use crate::consts::{
     HOOD_LOG_WARNING, HOOD_STEP_OVER_BUDGET, HOOD_STEP_PROJECTED, HOOD_STEP_REFINED, HOOD_STEP_SLEPT,
     HOOD_STEP_SPEED_LIMITED, HOOD_STEP_STARTUP, HOOD_STEP_TELEPORTED, HOOD_STEP_TETHERED,
 };
-use crate::extensible::{read_extensible, write_extensible, Extensible};
+use crate::extensible::{read_struct, write_extensible, Extensible};
 use crate::garment::hood_garment;
 use crate::guard::guard;
 use crate::log;
@@ -84,8 +84,7 @@ pub unsafe extern "C" fn hood_sim_new(
             SimConfig::default()
         } else {
             // SAFETY: non-null; `struct_size` readable bytes (caller).
-            let (c, size) = unsafe { read_extensible(config, None, None, "config")? };
-            sim_config(&c, size)?
+            sim_config(&unsafe { read_struct(config, "config")? })?
         };
         // SAFETY: a live garment handle, held by `_garment_in_use`.
         let garment = &unsafe { &*garment }.garment;

@@ -13,7 +13,6 @@ use super::clock::{BudgetUse, Clock, Deadline};
 use crate::body::BodyMesh;
 use crate::error::{Error, Result};
 use crate::exec::Executor;
-use crate::math::finite3;
 use crate::mesh::Garment;
 use crate::physics::{Cloth, Objective};
 use crate::solve::{ImplicitStep, LbfgsParams, LbfgsReport, Query, StepBody, StepState};
@@ -152,10 +151,10 @@ impl Refiner {
     /// threads); a time budget reads `clock`. Allocates nothing.
     ///
     /// # Errors
-    /// [`Error::NonFinite`] when the refined positions are not finite; errors of the objective
-    /// (none for the buffers of [`new`](Self::new)); [`Error::UnsupportedEffect`] for a time
-    /// budget without a clock. Nothing is written on error but `new_pos`, which the caller
-    /// discards.
+    /// Errors of the objective (none for the buffers of [`new`](Self::new));
+    /// [`Error::UnsupportedEffect`] for a time budget without a clock. Nothing is written on
+    /// error but `new_pos`, which the caller discards. (A non-finite result is refused by the
+    /// pass's one check before it commits.)
     pub(super) fn apply(
         &mut self,
         exec: &dyn Executor,
@@ -203,9 +202,6 @@ impl Refiner {
             new_pos,
             &mut stop,
         )?;
-        if let Some(i) = new_pos.iter().position(|p| !finite3(*p)) {
-            return Err(Error::NonFinite { what: "refined garment vertex", index: i });
-        }
         for ((v, x), p) in new_vel.iter_mut().zip(new_pos.iter()).zip(&self.predicted) {
             for k in 0..3 {
                 v[k] += x[k] - p[k];
