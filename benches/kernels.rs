@@ -11,7 +11,7 @@ use hood::bench::fastest;
 use hood::kernels::{
     edge_mlp_scratch_len, linear_scratch_len, pack_bf16, pack_f32, packed_len_bf16, packed_len_f32,
     peak::{self, Stopwatch},
-    EdgeInputs, EdgeMlp, Epilogue, Kernels, LayerNorm, Operand, PackedBf16, PackedF32, Weights,
+    EdgeInputs, EdgeMlp, Epilogue, Kernels, LayerNorm, Operand, PackedBf16, PackedF32, Tier, Weights,
 };
 use std::hint::black_box;
 
@@ -86,7 +86,11 @@ fn bench(c: &mut Criterion) {
         k.tier().name(),
         p.f32_gflops,
         p.bf16_gflops,
-        if p.bf16_native { "vdpbf16ps" } else { "bf16 runs on f32 FMAs" }
+        match (p.bf16_native, k.tier()) {
+            (true, Tier::Amx) => "the tile unit's tdpbf16ps",
+            (true, _) => "vdpbf16ps",
+            (false, _) => "bf16 runs on f32 FMAs",
+        }
     );
     let clock = if Stopwatch::start().is_cpu_time() { "thread CPU time" } else { "wall time" };
     println!("kernels: figures below are the best of 15 runs, timed on {clock}");
