@@ -164,6 +164,38 @@ fn runtime_refused_first_step_restores_the_state() {
     assert_eq!(sim.state(), &state);
 }
 
+/// A refused step leaves what the sim reports about the last step (FLOPs, body counts, projected
+/// and tethered vertices, the tethers' ties) as the last step that ran left it, like the state.
+#[test]
+fn runtime_refused_step_keeps_the_last_steps_figures() {
+    let scene = Scene::new(8, 8);
+    let bytes = random_model(16, 5, false);
+    let model = bytes.model().unwrap();
+    // As above: the start-up pass succeeds (it ties the tethers and runs the network), the regular
+    // pass's refinement is refused.
+    let cfg = SimConfig::network()
+        .with_teleport(None)
+        .with_refine(Some(3))
+        .with_projection(Some(0.002))
+        .with_tether(Some(0.05));
+    let far = |t: usize| -> Vec<[f32; 3]> { scene.body_at(t).iter().map(|p| [p[0] + 3.0e38, p[1], p[2]]).collect() };
+    let figures = |s: &Sim| {
+        (s.last_step_flops(), s.last_body_counts(), s.last_projected(), s.last_tethered(), s.tethered_vertices())
+    };
+    let mut sim = scene.sim(&model, cfg).unwrap();
+    let none = figures(&sim);
+    assert_eq!(none, (0, (0, 0), 0, 0, 0));
+    assert!(sim.step(&far(1)).is_err());
+    assert_eq!(figures(&sim), none);
+    for t in 1..=2 {
+        sim.step(&scene.body_at(t)).unwrap();
+    }
+    let last = figures(&sim);
+    assert!(last.0 > 0 && last.4 > 0, "{last:?}");
+    assert!(sim.step(&far(3)).is_err());
+    assert_eq!(figures(&sim), last);
+}
+
 /// Normals (when on) always belong to the current positions: at creation and after `set_state`
 /// as well as after steps.
 #[test]

@@ -177,6 +177,20 @@ pub struct Sim<'m> {
     last_effects: StepEffects,
 }
 
+/// What [`Sim`]'s accessors report about the last step that ran ([`Sim::last_step_flops`],
+/// [`Sim::last_body_counts`], [`Sim::last_projected`], [`Sim::last_tethered`],
+/// [`Sim::tethered_vertices`]): a refused step puts them back, so that they keep describing the
+/// last step that ran, as the state does.
+#[derive(Clone, Copy)]
+struct LastStepFigures {
+    flops: u64,
+    body: (usize, usize),
+    projected: usize,
+    tethered: usize,
+    /// Whether the tethers were tied (a refused first step ties them).
+    tied: bool,
+}
+
 /// The body of a scene: its mesh (optionally with omitted vertices) and its positions at the
 /// first frame.
 #[derive(Clone, Copy, Debug)]
@@ -554,7 +568,9 @@ impl<'m> Sim<'m> {
     ///
     /// # Errors
     /// [`Error::SizeMismatch`] or [`Error::NonFinite`] for bad body input, [`Error::NonFinite`]
-    /// when the network's output is not finite: in every error case the state is unchanged.
+    /// when the network's output is not finite: in every error case the state is unchanged, and
+    /// so is what the sim reports about the last step ([`Sim::last_step_flops`],
+    /// [`Sim::last_projected`], [`Sim::last_tethered`], [`Sim::tethered_vertices`], ...).
     pub fn step(&mut self, body_next: &[[f32; 3]]) -> Result<&[[f32; 3]]> {
         self.step_observed(body_next, &mut |_| {})
     }
@@ -577,8 +593,55 @@ impl<'m> Sim<'m> {
     }
 
     /// [`Sim::step_observed`] reading the body's grids and normals from `query`, one that an
-    /// [`Outfit`] shares between the sims on its body, or (`None`) the sim's own.
+    /// [`Outfit`] shares between the sims on its body, or (`None`) the sim's own. A refused step
+    /// also leaves the last step's figures as they were (see [`LastStepFigures`]).
     fn step_with(
+        &mut self,
+        query: Option<&mut BodyQuery>,
+        body_next: &[[f32; 3]],
+        observer: &mut dyn FnMut(Probe<'_>),
+    ) -> Result<()> {
+        let figures = self.last_step_figures();
+        let stepped = self.step_frame(query, body_next, observer);
+        if stepped.is_err() {
+            self.restore_last_step_figures(figures);
+        }
+        stepped
+    }
+
+    /// The figures [`LastStepFigures`] keeps.
+    fn last_step_figures(&self) -> LastStepFigures {
+        let tethers = self.body.as_ref().and_then(|b| b.tethers.as_ref());
+        LastStepFigures {
+            flops: self.ws.flops,
+            body: self.last_body,
+            projected: self.last_projected(),
+            tethered: self.last_tethered(),
+            tied: tethers.is_some_and(|t| t.tied()),
+        }
+    }
+
+    /// Puts back the figures of [`Sim::last_step_figures`] after a refused step.
+    fn restore_last_step_figures(&mut self, f: LastStepFigures) {
+        self.ws.flops = f.flops;
+        self.last_body = f.body;
+        if let Some(b) = self.body.as_mut() {
+            if let Some(p) = b.projection.as_mut() {
+                p.restore_last(f.projected);
+            }
+            if let Some(t) = b.tethers.as_mut() {
+                t.restore_last(f.tethered);
+                if !f.tied {
+                    // The refused step tied them; the next step ties them again.
+                    t.untie();
+                }
+            }
+        }
+    }
+
+    /// The step of [`Sim::step_with`]; on an error the state is unchanged but the last step's
+    /// figures may not be.
+    fn step_frame(
         &mut self,
         mut query: Option<&mut BodyQuery>,
         body_next: &[[f32; 3]],

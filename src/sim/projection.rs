@@ -54,6 +54,11 @@ impl Projection {
         self.moved
     }
 
+    /// Puts back the count `moved` of the last step that ran (a refused step changed it).
+    pub(super) fn restore_last(&mut self, moved: usize) {
+        self.moved = moved;
+    }
+
     /// Forgets the last count: the sim's last step projected nothing (it slept or teleported)
     /// or no step has run from its state.
     pub(super) fn forget_last(&mut self) {

@@ -174,6 +174,11 @@ impl Tethers {
         self.moved
     }
 
+    /// Puts back the count `moved` of the last step that ran (a refused step changed it).
+    pub(super) fn restore_last(&mut self, moved: usize) {
+        self.moved = moved;
+    }
+
     /// Forgets the last count (no step ran from the sim's state).
     pub(super) fn forget_last(&mut self) {
         self.moved = 0;
