@@ -178,8 +178,8 @@ pub struct Sim<'m> {
 }
 
 /// What [`Sim`]'s accessors report about the last step that ran ([`Sim::last_step_flops`],
-/// [`Sim::last_body_counts`], [`Sim::last_projected`], [`Sim::last_tethered`],
-/// [`Sim::tethered_vertices`]): a refused step puts them back, so that they keep describing the
+/// [`Sim::last_body_counts`], [`Sim::last_refinement`], [`Sim::last_budget`],
+/// [`Sim::last_projected`], [`Sim::last_tethered`], [`Sim::tethered_vertices`]): a refused step puts them back, so that they keep describing the
 /// last step that ran, as the state does.
 #[derive(Clone, Copy)]
 struct LastStepFigures {
@@ -189,6 +189,7 @@ struct LastStepFigures {
     tethered: usize,
     /// Whether the tethers were tied (a refused first step ties them).
     tied: bool,
+    refined: Option<refine::Solved>,
 }
 
 /// The body of a scene: its mesh (optionally with omitted vertices) and its positions at the
@@ -618,6 +619,7 @@ impl<'m> Sim<'m> {
             projected: self.last_projected(),
             tethered: self.last_tethered(),
             tied: tethers.is_some_and(|t| t.tied()),
+            refined: self.refiner.as_ref().and_then(|r| r.solved()),
         }
     }
 
@@ -625,6 +627,9 @@ impl<'m> Sim<'m> {
     fn restore_last_step_figures(&mut self, f: LastStepFigures) {
         self.ws.flops = f.flops;
         self.last_body = f.body;
+        if let Some(r) = self.refiner.as_mut() {
+            r.restore_last(f.refined);
+        }
         if let Some(b) = self.body.as_mut() {
             if let Some(p) = b.projection.as_mut() {
                 p.restore_last(f.projected);

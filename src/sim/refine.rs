@@ -62,7 +62,7 @@ pub(super) struct RefineBody<'a> {
 
 /// What one refinement reports: the solver's report and, with a time budget, how the step kept it.
 #[derive(Clone, Copy, Debug)]
-struct Solved {
+pub(super) struct Solved {
     report: LbfgsReport,
     budget: Option<BudgetUse>,
 }
@@ -78,9 +78,9 @@ pub(super) struct Refiner {
     coast: Vec<[f32; 3]>,
     /// The network's prediction (pinned vertices at their targets).
     predicted: Vec<[f32; 3]>,
+    /// The last refinement's report (a refused step puts back the one before, through
+    /// [`solved`](Self::solved) and [`restore_last`](Self::restore_last)).
     last: Option<Solved>,
-    /// The report of a refinement whose step has not been committed yet.
-    pending: Option<Solved>,
     /// Wall time of one step, ns (`None`: the iteration count alone ends its refinement).
     budget_ns: Option<u64>,
     /// Clock reading at the start of the current step, with a budget.
@@ -121,7 +121,6 @@ impl Refiner {
             coast: vec![[0.0; 3]; n],
             predicted: vec![[0.0; 3]; n],
             last: None,
-            pending: None,
             budget_ns,
             step_start_ns: None,
         })
@@ -163,7 +162,6 @@ impl Refiner {
         new_pos: &mut [[f32; 3]],
         new_vel: &mut [[f32; 3]],
     ) -> Result<()> {
-        self.pending = None;
         let mut deadline = match (self.budget_ns, clock) {
             (None, _) => None,
             (Some(b), Some(c)) => Some(Deadline::new(c, self.step_start_ns, b)),
@@ -213,7 +211,7 @@ impl Refiner {
             }
             _ => None,
         };
-        self.pending = Some(Solved { report, budget });
+        self.last = Some(Solved { report, budget });
         Ok(())
     }
 
@@ -223,11 +221,13 @@ impl Refiner {
         self.last = None;
     }
 
-    /// Makes the last [`apply`](Self::apply)'s report the one [`last`](Self::last) gives, once
-    /// its step is committed (a refused step leaves the previous report).
-    pub(super) fn commit(&mut self) {
-        if let Some(solved) = self.pending.take() {
-            self.last = Some(solved);
-        }
+    /// The last refinement, as [`restore_last`](Self::restore_last) takes it.
+    pub(super) fn solved(&self) -> Option<Solved> {
+        self.last
+    }
+
+    /// Puts back the refinement `solved` of the last step that ran (a refused step changed it).
+    pub(super) fn restore_last(&mut self, solved: Option<Solved>) {
+        self.last = solved;
     }
 }

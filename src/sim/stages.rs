@@ -73,8 +73,7 @@ impl Sim<'_> {
         // Not the start-up pass: its optimum at dt = 1/3 s is a relaxation (for cloth without a
         // body, a free fall of a metre), and the velocity it leaves would carry that into the
         // first frame. The network's own start-up prediction is HOOD's.
-        let mut refiner = self.refiner.as_mut().filter(|_| !pass.startup());
-        if let Some(r) = refiner.as_deref_mut() {
+        if let Some(r) = self.refiner.as_mut().filter(|_| !pass.startup()) {
             // Refinement: L-BFGS on the implicit step's objective, from the guess so far.
             let body = refine_body(
                 query.as_deref_mut(),
@@ -116,9 +115,6 @@ impl Sim<'_> {
             return Err(Error::NonFinite { what: "stepped garment vertex", index: i % n });
         }
         // Commit: nothing was refused.
-        if let Some(r) = refiner {
-            r.commit();
-        }
         commit(&mut self.state, &mut self.new_pos, &mut self.new_vel, body_next);
         self.update_output_normals();
         self.last_carry = carry;
