@@ -179,7 +179,8 @@ pub struct Sim<'m> {
 
 /// What [`Sim`]'s accessors report about the last step that ran ([`Sim::last_step_flops`],
 /// [`Sim::last_body_counts`], [`Sim::last_refinement`], [`Sim::last_budget`],
-/// [`Sim::last_projected`], [`Sim::last_tethered`], [`Sim::tethered_vertices`]): a refused step puts them back, so that they keep describing the
+/// [`Sim::last_projected`], [`Sim::last_tethered`], [`Sim::tethered_vertices`]): a refused step
+/// (of the sim or of an [`Outfit`] it is in) puts them back, so that they keep describing the
 /// last step that ran, as the state does.
 #[derive(Clone, Copy)]
 struct LastStepFigures {

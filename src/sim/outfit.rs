@@ -38,7 +38,7 @@
 //! ```
 
 use super::body_query::{BodyNeeds, BodyQuery};
-use super::{copy_state, Sim, SimState, StepEffects};
+use super::{copy_state, LastStepFigures, Sim, SimState, StepEffects};
 use crate::error::{Error, Result};
 use alloc::vec::Vec;
 
@@ -50,6 +50,9 @@ struct Before {
     last_carry: [f32; 3],
     /// Moved by an automatic teleport.
     pin_targets: Vec<[f32; 3]>,
+    /// What the garment's accessors reported about its last step.
+    figures: LastStepFigures,
+    effects: StepEffects,
 }
 
 /// Garments on one body, stepped together. Allocates nothing per step.
@@ -90,6 +93,8 @@ impl<'m> Outfit<'m> {
                 rest_frames: 0,
                 last_carry: [0.0; 3],
                 pin_targets: s.pin_targets.clone(),
+                figures: s.last_step_figures(),
+                effects: s.last_effects,
             })
             .collect();
         // Each sim's own query is now the shared one.
@@ -132,8 +137,9 @@ impl<'m> Outfit<'m> {
     /// # Errors
     /// [`Error::SizeMismatch`] or [`Error::NonFinite`] for bad body input, before any garment
     /// steps; any garment's step error (the garment is named nowhere: step that sim alone to
-    /// find it). On error every garment is as before the call: those that had stepped are put
-    /// back, with [`Sim::last_effects`] reading all false, as after [`Sim::set_state`].
+    /// find it). On error every garment is as before the call, as after a refused step of a sim
+    /// alone: those that had stepped are put back, and so is what they report about their last
+    /// step ([`Sim::last_effects`], [`Sim::last_step_flops`] and the like).
     pub fn step(&mut self, body_next: &[[f32; 3]]) -> Result<()> {
         // Once for all garments (they share the body), before any steps.
         self.sims[0].check_body_frame(body_next)?;
@@ -143,13 +149,16 @@ impl<'m> Outfit<'m> {
             before.rest_frames = sim.rest_frames;
             before.last_carry = sim.last_carry;
             before.pin_targets.copy_from_slice(&sim.pin_targets);
+            before.figures = sim.last_step_figures();
+            before.effects = sim.last_effects;
             if let Err(e) = sim.step_with(self.query.as_mut(), body_next, &mut |_| {}) {
                 for (done, before) in self.sims[..k].iter_mut().zip(&self.before) {
                     copy_state(&mut done.state, &before.state);
                     done.rest_frames = before.rest_frames;
                     done.last_carry = before.last_carry;
                     done.pin_targets.copy_from_slice(&before.pin_targets);
-                    done.report_no_step(StepEffects::default());
+                    done.last_effects = before.effects;
+                    done.restore_last_step_figures(before.figures);
                     done.update_output_normals();
                 }
                 return Err(e);
