@@ -191,6 +191,8 @@ struct LastStepFigures {
     /// Whether the tethers were tied (a refused first step ties them).
     tied: bool,
     refined: Option<refine::Solved>,
+    /// [`Sim::last_effects`] (a sim's own refused step leaves it; an [`Outfit`] puts it back).
+    effects: StepEffects,
 }
 
 /// The body of a scene: its mesh (optionally with omitted vertices) and its positions at the
@@ -621,6 +623,7 @@ impl<'m> Sim<'m> {
             tethered: self.last_tethered(),
             tied: tethers.is_some_and(|t| t.tied()),
             refined: self.refiner.as_ref().and_then(|r| r.solved()),
+            effects: self.last_effects,
         }
     }
 
@@ -628,6 +631,7 @@ impl<'m> Sim<'m> {
     fn restore_last_step_figures(&mut self, f: LastStepFigures) {
         self.ws.flops = f.flops;
         self.last_body = f.body;
+        self.last_effects = f.effects;
         if let Some(r) = self.refiner.as_mut() {
             r.restore_last(f.refined);
         }

@@ -38,7 +38,7 @@
 //! ```
 
 use super::body_query::{BodyNeeds, BodyQuery};
-use super::{copy_state, LastStepFigures, Sim, SimState, StepEffects};
+use super::{copy_state, LastStepFigures, Sim, SimState};
 use crate::error::{Error, Result};
 use alloc::vec::Vec;
 
@@ -52,7 +52,6 @@ struct Before {
     pin_targets: Vec<[f32; 3]>,
     /// What the garment's accessors reported about its last step.
     figures: LastStepFigures,
-    effects: StepEffects,
 }
 
 /// Garments on one body, stepped together. Allocates nothing per step.
@@ -94,7 +93,6 @@ impl<'m> Outfit<'m> {
                 last_carry: [0.0; 3],
                 pin_targets: s.pin_targets.clone(),
                 figures: s.last_step_figures(),
-                effects: s.last_effects,
             })
             .collect();
         // Each sim's own query is now the shared one.
@@ -150,14 +148,12 @@ impl<'m> Outfit<'m> {
             before.last_carry = sim.last_carry;
             before.pin_targets.copy_from_slice(&sim.pin_targets);
             before.figures = sim.last_step_figures();
-            before.effects = sim.last_effects;
             if let Err(e) = sim.step_with(self.query.as_mut(), body_next, &mut |_| {}) {
                 for (done, before) in self.sims[..k].iter_mut().zip(&self.before) {
                     copy_state(&mut done.state, &before.state);
                     done.rest_frames = before.rest_frames;
                     done.last_carry = before.last_carry;
                     done.pin_targets.copy_from_slice(&before.pin_targets);
-                    done.last_effects = before.effects;
                     done.restore_last_step_figures(before.figures);
                     done.update_output_normals();
                 }
