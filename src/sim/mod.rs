@@ -5,7 +5,7 @@
 //! of ARCHITECTURE.md (pinned targets, body edges, features, normalise, encode, blocks, decode,
 //! integrate) without allocating. Non-finite input is refused and leaves the state unchanged.
 //!
-//! Where a step goes: `Sim::step_with` (here) reads the body's motion (`motion.rs`: the speed
+//! Where a step goes: `Sim::step_frame` (here) reads the body's motion (`motion.rs`: the speed
 //! limit's carry, a teleport, sleep) and runs one or two passes (the start-up pass first);
 //! `Sim::advance` (`stages.rs`) runs a pass as a pipeline of stages, the network's prediction
 //! among them in `predict.rs`. The configuration is in `config.rs`.
@@ -179,9 +179,9 @@ pub struct Sim<'m> {
 
 /// What [`Sim`]'s accessors report about the last step that ran ([`Sim::last_step_flops`],
 /// [`Sim::last_body_counts`], [`Sim::last_refinement`], [`Sim::last_budget`],
-/// [`Sim::last_projected`], [`Sim::last_tethered`], [`Sim::tethered_vertices`]): a refused step
-/// (of the sim or of an [`Outfit`] it is in) puts them back, so that they keep describing the
-/// last step that ran, as the state does.
+/// [`Sim::last_projected`], [`Sim::last_tethered`], [`Sim::tethered_vertices`],
+/// [`Sim::last_effects`]): a refused step (of the sim or of an [`Outfit`] it is in) puts them
+/// back, so that they keep describing the last step that ran, as the state does.
 #[derive(Clone, Copy)]
 struct LastStepFigures {
     flops: u64,
@@ -591,26 +591,15 @@ impl<'m> Sim<'m> {
         body_next: &[[f32; 3]],
         observer: &mut dyn FnMut(Probe<'_>),
     ) -> Result<&[[f32; 3]]> {
+        // A refused step also leaves the last step's figures as they were.
+        let figures = self.last_step_figures();
         // The sim's own query stays in place (not taken out for the step): a panic unwinding
         // through the step (an engine's executor, caught at the C ABI) leaves the sim usable.
-        self.step_with(None, body_next, observer).map(|()| &self.state.pos[..])
-    }
-
-    /// [`Sim::step_observed`] reading the body's grids and normals from `query`, one that an
-    /// [`Outfit`] shares between the sims on its body, or (`None`) the sim's own. A refused step
-    /// also leaves the last step's figures as they were (see [`LastStepFigures`]).
-    fn step_with(
-        &mut self,
-        query: Option<&mut BodyQuery>,
-        body_next: &[[f32; 3]],
-        observer: &mut dyn FnMut(Probe<'_>),
-    ) -> Result<()> {
-        let figures = self.last_step_figures();
-        let stepped = self.step_frame(query, body_next, observer);
-        if stepped.is_err() {
+        if let Err(e) = self.step_frame(None, body_next, observer) {
             self.restore_last_step_figures(figures);
+            return Err(e);
         }
-        stepped
+        Ok(&self.state.pos[..])
     }
 
     /// The figures [`LastStepFigures`] keeps.
@@ -649,8 +638,10 @@ impl<'m> Sim<'m> {
         }
     }
 
-    /// The step of [`Sim::step_with`]; on an error the state is unchanged but the last step's
-    /// figures may not be.
+    /// One step, reading the body's grids and normals from `query` (one that an [`Outfit`] shares
+    /// between the sims on its body) or (`None`) the sim's own. On an error the state is
+    /// unchanged but the last step's figures may not be: callers put them back
+    /// ([`Sim::last_step_figures`], [`Sim::restore_last_step_figures`]).
     fn step_frame(
         &mut self,
         mut query: Option<&mut BodyQuery>,

@@ -148,7 +148,10 @@ impl<'m> Outfit<'m> {
             before.last_carry = sim.last_carry;
             before.pin_targets.copy_from_slice(&sim.pin_targets);
             before.figures = sim.last_step_figures();
-            if let Err(e) = sim.step_with(self.query.as_mut(), body_next, &mut |_| {}) {
+            // `step_frame`, not `step_with`: the figures just kept serve this garment's refusal
+            // as well as the put-back of those that stepped before it.
+            if let Err(e) = sim.step_frame(self.query.as_mut(), body_next, &mut |_| {}) {
+                sim.restore_last_step_figures(before.figures);
                 for (done, before) in self.sims[..k].iter_mut().zip(&self.before) {
                     copy_state(&mut done.state, &before.state);
                     done.rest_frames = before.rest_frames;
