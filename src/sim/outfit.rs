@@ -148,8 +148,8 @@ impl<'m> Outfit<'m> {
             before.last_carry = sim.last_carry;
             before.pin_targets.copy_from_slice(&sim.pin_targets);
             before.figures = sim.last_step_figures();
-            // `step_frame`, not `step_with`: the figures just kept serve this garment's refusal
-            // as well as the put-back of those that stepped before it.
+            // The figures just kept serve this garment's own refusal as well as the put-back of
+            // those that stepped before it: one snapshot per garment and frame.
             if let Err(e) = sim.step_frame(self.query.as_mut(), body_next, &mut |_| {}) {
                 sim.restore_last_step_figures(before.figures);
                 for (done, before) in self.sims[..k].iter_mut().zip(&self.before) {
