@@ -172,6 +172,18 @@ macro_rules! dot {
     };
 }
 
+/// `tdpbf16ps` for the tile numbers `(C, A, B)`, one of the listed triples (each a literal
+/// instruction: the tile registers are named in the text).
+macro_rules! tile_dots {
+    ($c:expr, $a:expr, $b:expr; $(($tc:literal, $ta:literal, $tb:literal)),* $(,)?) => {
+        match ($c, $a, $b) {
+            $(($tc, $ta, $tb) => dot!($tc, $ta, $tb),)*
+            // Ruled out at compile time by the caller's assertion on the triple.
+            _ => unreachable!(),
+        }
+    };
+}
+
 macro_rules! zero {
     ($t:literal) => {
         asm!(concat!("tilezero tmm", $t), options(nomem, nostack, preserves_flags))
@@ -262,10 +274,12 @@ unsafe impl TileUnit for Hardware {
     }
     #[inline(always)]
     unsafe fn load<const T: usize>(&mut self, p: *const f32, stride: usize) {
-        const { assert!(T >= 4 && T < 8) };
+        const { assert!(T >= 2 && T < 8) };
         // SAFETY: configured (as above); the caller guarantees the rows are readable.
         unsafe {
             match T {
+                2 => load!("2", p, stride),
+                3 => load!("3", p, stride),
                 4 => load!("4", p, stride),
                 5 => load!("5", p, stride),
                 6 => load!("6", p, stride),
@@ -288,17 +302,17 @@ unsafe impl TileUnit for Hardware {
     }
     #[inline(always)]
     fn dot<const C: usize, const A: usize, const B: usize>(&mut self) {
-        // The four products `gemm` uses: output tile (row tile, panel) from A tile 4 + row tile
-        // and B tile 6 + panel.
-        const { assert!(C < 4 && A == 4 + C / 2 && B == 6 + C % 2) };
+        // The products `gemm` uses (output tile (row tile, panel) from A tile 4 + row tile and
+        // B tile 6 + panel), and the trainer's split products (`train::gemm`: output tiles 0
+        // and 1 from A tiles 2-4 and B tiles 5-7).
+        const { assert!((C < 4 && A == 4 + C / 2 && B == 6 + C % 2) || (C < 2 && A >= 2 && A <= 4 && B >= 5 && B <= 7)) };
         // SAFETY: configured (as above); the instruction touches no memory.
         unsafe {
-            match C {
-                0 => dot!("0", "4", "6"),
-                1 => dot!("1", "4", "7"),
-                2 => dot!("2", "5", "6"),
-                _ => dot!("3", "5", "7"),
-            }
+            tile_dots!(C, A, B;
+                (0, 4, 6), (1, 4, 7), (2, 5, 6), (3, 5, 7),
+                (0, 2, 5), (0, 2, 6), (0, 2, 7), (0, 3, 5), (0, 3, 6), (0, 3, 7), (0, 4, 5), (0, 4, 7),
+                (1, 2, 5), (1, 2, 6), (1, 2, 7), (1, 3, 5), (1, 3, 6), (1, 3, 7), (1, 4, 5), (1, 4, 6)
+            )
         }
     }
 }
@@ -307,12 +321,12 @@ unsafe impl TileUnit for Hardware {
 /// 16 words, and `tdpbf16ps` as Intel's pseudocode defines it (per pair the even then the odd
 /// product accumulated in f32, rounded to nearest even, subnormal inputs read as zero and
 /// subnormal sums flushed to zero).
-#[cfg(test)]
+#[cfg(any(test, feature = "train"))]
 pub(crate) struct Emulator {
     tiles: [[u32; TILE_ROWS * 16]; 8],
 }
 
-#[cfg(test)]
+#[cfg(any(test, feature = "train"))]
 impl Emulator {
     /// A bf16 (the high half of an f32) as f32, subnormals read as zero.
     fn widen(bits: u32) -> f32 {
@@ -326,7 +340,7 @@ impl Emulator {
 }
 
 // SAFETY: each method does what its instruction does, on the memory the instruction would touch.
-#[cfg(test)]
+#[cfg(any(test, feature = "train"))]
 unsafe impl TileUnit for Emulator {
     fn available() -> bool {
         true

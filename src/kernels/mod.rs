@@ -36,6 +36,13 @@ pub(crate) use frame::Simd;
 pub(crate) use frame::{lane_dot, lane_sum, layer_norm_stats};
 #[cfg(all(feature = "train", target_arch = "x86_64"))]
 pub(crate) use x86::{Avx2Fma, Avx512};
+/// The tile unit and bf16 rounding, for the trainer's split-bf16 products on AMX.
+#[cfg(all(feature = "train", target_arch = "x86_64"))]
+pub(crate) use {
+    amx::{Emulator as TileModel, Hardware as TileHardware, TileUnit},
+    frame::round_bf16,
+    x86::AmxBf16,
+};
 #[cfg(target_arch = "x86_64")]
 mod amx;
 mod pack;

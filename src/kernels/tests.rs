@@ -199,8 +199,19 @@ fn kernels_force_tier_caps_best() {
         force_tier(Some(Tier::Avx2Fma));
         assert_eq!(crate::train::gemm::Gemm::best().tier(), Tier::Avx2Fma, "the trainer's GEMM above the AVX2 cap");
         force_tier(None);
-        // AVX-512 unless AVX2 measured faster.
-        assert_eq!(crate::train::gemm::Gemm::best().tier(), f32_choice().tier.min(Tier::Avx512));
+        // AVX-512 unless AVX2 measured faster, or the AMX tiles where they are usable and
+        // measured faster still.
+        let tiles = crate::train::gemm::Gemm::tile_choice();
+        assert_eq!(tiles.is_some(), detected_tier() == Tier::Amx);
+        let expected = if tiles.is_some_and(|c| c.chosen) { Tier::Amx } else { f32_choice().tier.min(Tier::Avx512) };
+        assert_eq!(crate::train::gemm::Gemm::best().tier(), expected);
+        if detected_tier() == Tier::Amx {
+            force_tier(Some(Tier::Amx));
+            assert_eq!(crate::train::gemm::Gemm::best().tier(), Tier::Amx, "the trainer's GEMM under the AMX cap");
+            force_tier(Some(Tier::Avx512Bf16));
+            assert_eq!(crate::train::gemm::Gemm::best().tier(), Tier::Avx512, "the trainer's GEMM below the AMX cap");
+            force_tier(None);
+        }
     }
     force_tier(None);
     assert_eq!(Kernels::best().tier(), detected_tier());

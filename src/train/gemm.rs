@@ -10,8 +10,15 @@
 //! and the two SIMD paths agree bitwise. Column remainders run masked vectors (the same fused
 //! multiply-adds as the full vectors), not scalar loops: the narrow inputs of the encoders (3 to
 //! 14 features) made those loops a visible share of a training step.
+//!
+//! Where the CPU has AMX, a third path runs the products on the tiles in split bf16 (`amx`:
+//! about 16 bits of each product, within the gradients' bound), chosen only where it is
+//! measured faster than the f32 path ([`Gemm::best`]).
 
 use crate::kernels::{Kernels, Tier};
+
+#[cfg(target_arch = "x86_64")]
+mod amx;
 
 /// A chosen product path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -26,6 +33,12 @@ enum Path {
     Avx2(crate::kernels::Avx2Fma),
     #[cfg(target_arch = "x86_64")]
     Avx512(crate::kernels::Avx512),
+    /// Split bf16 on the tile unit (made only where AMX is usable).
+    #[cfg(target_arch = "x86_64")]
+    Amx,
+    /// Split bf16 on the software model of the tiles (any x86-64 CPU; slow).
+    #[cfg(target_arch = "x86_64")]
+    AmxModel,
 }
 
 /// What a product [`Gemm::nn_out`] does with `C` (the epilogue of each output tile: fusing it
@@ -75,8 +88,44 @@ fn needed(rows: usize, cols: usize, ld: usize) -> usize {
 impl Gemm {
     /// The best path for this CPU within the tier f32 runs on ([`Kernels::best_f32`]: AVX-512
     /// unless AVX2 measured faster, under any tier cap).
+    ///
+    /// Where AMX is usable, the split-bf16 tile path instead if a tier cap asks for it
+    /// (`HOOD_KERNEL_TIER=amx`) or, without a cap, if it is measured faster than that f32 path
+    /// by [`SWITCH_MARGIN`](crate::kernels::SWITCH_MARGIN) ([`Gemm::tile_choice`]).
     pub fn best() -> Gemm {
-        Gemm::at_most(Kernels::best_f32().tier())
+        let f32_path = Gemm::at_most(Kernels::best_f32().tier());
+        #[cfg(target_arch = "x86_64")]
+        if let Some(choice) = Gemm::tile_choice() {
+            if choice.chosen {
+                return Gemm { path: Path::Amx };
+            }
+        }
+        f32_path
+    }
+
+    /// Whether the split-bf16 tile path runs the trainer's products, and why: `None` where AMX
+    /// is not usable in this process. Measured once per process (about 10 ms).
+    #[cfg(target_arch = "x86_64")]
+    pub fn tile_choice() -> Option<TileChoice> {
+        use crate::kernels::{AmxBf16, TileHardware};
+        AmxBf16::<TileHardware>::new()?;
+        if let Some(cap) = crate::kernels::tier_cap() {
+            return Some(TileChoice { chosen: cap >= Tier::Amx, timing: None });
+        }
+        static MEASURED: std::sync::OnceLock<TileChoice> = std::sync::OnceLock::new();
+        Some(*MEASURED.get_or_init(|| {
+            let f32_path = Gemm::at_most(Kernels::best_f32().tier());
+            let (tiles_us, f32_us) = (calibration_us(Gemm { path: Path::Amx }), calibration_us(f32_path));
+            let chosen = tiles_us * crate::kernels::SWITCH_MARGIN < f32_us;
+            TileChoice { chosen, timing: Some((tiles_us, f32_us)) }
+        }))
+    }
+
+    /// The split-bf16 tile path with the tiles modelled in software: the AMX path's packing,
+    /// tiling and precision on any x86-64 CPU, for tests (far slower than any other path).
+    #[cfg(target_arch = "x86_64")]
+    pub fn tile_model() -> Gemm {
+        Gemm { path: Path::AmxModel }
     }
 
     /// The best path on this CPU at or below `tier` (AVX-512 for the AVX-512 tiers and above,
@@ -118,6 +167,8 @@ impl Gemm {
             Path::Avx2(_) => Tier::Avx2Fma,
             #[cfg(target_arch = "x86_64")]
             Path::Avx512(_) => Tier::Avx512,
+            #[cfg(target_arch = "x86_64")]
+            Path::Amx | Path::AmxModel => Tier::Amx,
         }
     }
 
@@ -165,6 +216,13 @@ impl Gemm {
             Path::Avx2(t) => return unsafe { entry::nn_avx2(t, m, n, k, a, b, out, c, ldc) },
             #[cfg(target_arch = "x86_64")]
             Path::Avx512(t) => return unsafe { entry::nn_avx512(t, m, n, k, a, b, out, c, ldc) },
+            // SAFETY (both): `Path::Amx` is made only where the tiles are usable; the model
+            // needs nothing of the CPU; the asserts above bound the operands, and `k` may be 0
+            // (the tiles then add zeros).
+            #[cfg(target_arch = "x86_64")]
+            Path::Amx => return unsafe { amx::nn::<crate::kernels::TileHardware>(m, n, k, a, b, out, c, ldc) },
+            #[cfg(target_arch = "x86_64")]
+            Path::AmxModel => return unsafe { amx::nn::<crate::kernels::TileModel>(m, n, k, a, b, out, c, ldc) },
             Path::Scalar => {}
         }
         for r in 0..m {
@@ -198,6 +256,11 @@ impl Gemm {
             Path::Avx2(t) => return unsafe { entry::tn_avx2(t, m, ka, n, a, b, c, ldc) },
             #[cfg(target_arch = "x86_64")]
             Path::Avx512(t) => return unsafe { entry::tn_avx512(t, m, ka, n, a, b, c, ldc) },
+            // SAFETY (both): as in `nn_out`.
+            #[cfg(target_arch = "x86_64")]
+            Path::Amx => return unsafe { amx::tn::<crate::kernels::TileHardware>(m, ka, n, a, b, c, ldc) },
+            #[cfg(target_arch = "x86_64")]
+            Path::AmxModel => return unsafe { amx::tn::<crate::kernels::TileModel>(m, ka, n, a, b, c, ldc) },
             Path::Scalar => {}
         }
         for o in 0..ka {
@@ -210,6 +273,53 @@ impl Gemm {
             }
         }
     }
+}
+
+/// Whether the trainer's products run on the AMX tiles in split bf16 ([`Gemm::tile_choice`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TileChoice {
+    /// The tile path runs them.
+    pub chosen: bool,
+    /// Best-of-runs microseconds of the calibration products on the tiles and on the f32 path;
+    /// `None` where a tier cap decided.
+    pub timing: Option<(f64, f64)>,
+}
+
+impl TileChoice {
+    /// One line for people: what runs and why.
+    pub fn describe(&self) -> std::string::String {
+        let what = if self.chosen { "on the AMX tiles in split bf16" } else { "in f32, not on the AMX tiles" };
+        match self.timing {
+            None => std::format!("products {what}: the tier cap (HOOD_KERNEL_TIER)"),
+            Some((tiles, f32_us)) => std::format!(
+                "products {what}: measured tiles {tiles:.0} us, f32 {f32_us:.0} us (the tiles must win by {}x)",
+                crate::kernels::SWITCH_MARGIN
+            ),
+        }
+    }
+}
+
+/// Best of five runs of a weight-gradient and a forward product of a training step's shape
+/// (2,048 rows, h = 64) on `g`, microseconds.
+#[cfg(target_arch = "x86_64")]
+fn calibration_us(g: Gemm) -> f64 {
+    const ROWS: usize = 2048;
+    const H: usize = 64;
+    let x: alloc::vec::Vec<f32> = (0..ROWS * H).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3).collect();
+    let w: alloc::vec::Vec<f32> = (0..H * H).map(|i| ((i * 104_729 % 1000) as f32 - 500.0) * 1e-4).collect();
+    let mut y = alloc::vec![0.0f32; ROWS * H];
+    let mut dw = alloc::vec![0.0f32; H * H];
+    let mut best = f64::INFINITY;
+    for run in 0..6 {
+        let t = std::time::Instant::now();
+        g.nn_out(ROWS, H, H, Mat { data: &x, ld: H }, Mat { data: &w, ld: H }, Out::Set, &mut y, H);
+        g.tn(ROWS, H, H, Mat { data: &x, ld: H }, Mat { data: &y, ld: H }, &mut dw, H);
+        let us = t.elapsed().as_secs_f64() * 1e6;
+        if run > 0 {
+            best = best.min(us);
+        }
+    }
+    best
 }
 
 /// The register tiles, generic over the vector width.
@@ -747,12 +857,90 @@ mod tests {
         }
     }
 
-    /// A row computed in a tile of six equals the same row computed alone (thread splits).
+    /// Checks `got` against `start + Σ terms` summed in f64: within a few f32 roundings of the
+    /// terms' magnitude. Returns the error over that magnitude.
+    #[cfg(target_arch = "x86_64")]
+    fn check_sum(
+        got: f32,
+        start: f32,
+        terms: impl Iterator<Item = f64>,
+        what: impl Fn() -> std::string::String,
+    ) -> f64 {
+        let (mut sum, mut size) = (start as f64, 0.0f64);
+        for p in terms {
+            sum += p;
+            size += p.abs();
+        }
+        let err = (got as f64 - sum).abs();
+        assert!(err <= 1e-6 * size + 1e-6 * (1.0 + sum.abs()), "{}: {err:e} of {size}", what());
+        err / size.max(1e-30)
+    }
+
+    /// The split-bf16 tile path (on the software model of the tiles) against sums in f64 on
+    /// fresh random data: every sum within a few f32 roundings of its terms' magnitude, where
+    /// products on bf16 operands would be off by up to 2^-8 and a split in two by 2^-16; sizes
+    /// across tile, panel and block boundaries; and every epilogue and padding rule of the f32
+    /// paths.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn train_gemm_tile_model_matches_f64() {
+        let g = Gemm::tile_model();
+        assert_eq!(g.tier(), Tier::Amx);
+        simd_matches_scalar(g);
+        let mut seed = 41u64;
+        let mut worst = 0.0f64;
+        for &(m, n, k) in &[(1, 1, 1), (16, 16, 32), (17, 33, 33), (40, 64, 64), (3, 100, 70), (33, 5, 192), (9, 48, 0)]
+        {
+            let (lda, ldb, ldc) = (k + 2, n + 1, n + 3);
+            let a = rand(m * lda, &mut seed);
+            let b = rand(k * ldb, &mut seed);
+            let c0 = rand(m * ldc, &mut seed);
+            let mut c = c0.clone();
+            g.nn(m, n, k, Mat { data: &a, ld: lda }, Mat { data: &b, ld: ldb }, &mut c, ldc);
+            for r in 0..m {
+                for j in 0..n {
+                    let terms = (0..k).map(|kk| a[r * lda + kk] as f64 * b[kk * ldb + j] as f64);
+                    let rel =
+                        check_sum(c[r * ldc + j], c0[r * ldc + j], terms, || std::format!("nn {m}x{n}x{k} ({r}, {j})"));
+                    worst = worst.max(rel);
+                }
+            }
+        }
+        // tn over several blocks of rows, with a ragged last one.
+        for &(m, ka, n) in &[(1, 1, 1), (2 * amx::TN_ROWS + 77, 20, 40), (amx::TN_ROWS, 64, 64), (31, 17, 3)] {
+            let (lda, ldb, ldc) = (ka + 1, n + 2, n + 1);
+            let a = rand(m * lda, &mut seed);
+            let b = rand(m * ldb, &mut seed);
+            let c0 = rand(ka * ldc, &mut seed);
+            let mut c = c0.clone();
+            g.tn(m, ka, n, Mat { data: &a, ld: lda }, Mat { data: &b, ld: ldb }, &mut c, ldc);
+            for o in 0..ka {
+                for j in 0..n {
+                    let terms = (0..m).map(|r| a[r * lda + o] as f64 * b[r * ldb + j] as f64);
+                    check_sum(c[o * ldc + j], c0[o * ldc + j], terms, || std::format!("tn {m}x{ka}x{n} ({o}, {j})"));
+                }
+                // Padding between rows is never written.
+                assert_eq!(
+                    c[o * ldc + n..(o * ldc + ldc).min(c.len())],
+                    c0[o * ldc + n..(o * ldc + ldc).min(c0.len())]
+                );
+            }
+        }
+        std::println!("train_gemm_tile_model_matches_f64: worst nn error {worst:e} of the products' magnitude");
+    }
+
+    /// A row computed in a tile of six equals the same row computed alone (thread splits); on
+    /// the tile path, a row of a tile of 16 the same.
     #[test]
     fn train_gemm_rows_independent_of_split() {
-        let g = Gemm::best();
+        rows_independent_of_split(Gemm::best());
+        #[cfg(target_arch = "x86_64")]
+        rows_independent_of_split(Gemm::tile_model());
+    }
+
+    fn rows_independent_of_split(g: Gemm) {
         let mut seed = 5u64;
-        let (m, n, k) = (11, 37, 29);
+        let (m, n, k) = (37, 37, 29);
         let a = rand(m * k, &mut seed);
         let b = rand(k * n, &mut seed);
         let mut all = alloc::vec![0.0; m * n];

@@ -388,6 +388,10 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
         dir.display(),
         hood::train::Gemm::best().tier().name()
     );
+    #[cfg(target_arch = "x86_64")]
+    if let Some(choice) = hood::train::Gemm::tile_choice() {
+        eprintln!("{}", choice.describe());
+    }
     let started = Instant::now();
     let deadline = a.hours.map(|h| h * 3600.0);
     let mut last_print = Instant::now();
