@@ -186,5 +186,43 @@ fn bench_train(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_train);
+/// The trainer's matrix products alone, a forward product (`C = A·B`) and a weight gradient
+/// (`C += Aᵀ·B`) of a training step's shapes, on the f32 path `Gemm::best` would take without
+/// AMX and, where the CPU has AMX, on the split-bf16 tiles (throughput in FLOP/s: the f32
+/// product's work, whatever the path does to get it).
+fn bench_products(c: &mut Criterion) {
+    use hood::train::{Gemm, Mat, Out};
+    let f32_path = Gemm::at_most(hood::kernels::Kernels::best_f32().tier());
+    let mut paths = vec![(f32_path.tier().name(), f32_path)];
+    #[cfg(target_arch = "x86_64")]
+    match Gemm::tiles() {
+        Some(tiles) => paths.push(("tiles", tiles)),
+        None => eprintln!("train_products: no AMX in this process, the f32 path only"),
+    }
+    #[cfg(target_arch = "x86_64")]
+    if let Some(choice) = Gemm::tile_choice() {
+        eprintln!("train_products: {}", choice.describe());
+    }
+    let mut g = c.benchmark_group("train_products");
+    g.sample_size(20).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(2));
+    for (rows, h) in [(2048, 64), (8192, 128)] {
+        let x: Vec<f32> = (0..rows * h).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3).collect();
+        let w: Vec<f32> = (0..h * h).map(|i| ((i * 104_729 % 1000) as f32 - 500.0) * 1e-4).collect();
+        let mut y = vec![0.0f32; rows * h];
+        let mut dw = vec![0.0f32; h * h];
+        g.throughput(criterion::Throughput::Elements((2 * rows * h * h) as u64));
+        for (name, p) in &paths {
+            let id = |what: &str| BenchmarkId::new(what, format!("{name}/{rows}x{h}"));
+            g.bench_function(id("nn"), |b| {
+                b.iter(|| p.nn_out(rows, h, h, Mat { data: &x, ld: h }, Mat { data: &w, ld: h }, Out::Set, &mut y, h))
+            });
+            g.bench_function(id("tn"), |b| {
+                b.iter(|| p.tn(rows, h, h, Mat { data: &x, ld: h }, Mat { data: &y, ld: h }, &mut dw, h))
+            });
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_train, bench_products);
 criterion_main!(benches);

@@ -107,18 +107,25 @@ impl Gemm {
     /// is not usable in this process. Measured once per process (about 10 ms).
     #[cfg(target_arch = "x86_64")]
     pub fn tile_choice() -> Option<TileChoice> {
-        use crate::kernels::{AmxBf16, TileHardware};
-        AmxBf16::<TileHardware>::new()?;
+        let tiles = Gemm::tiles()?;
         if let Some(cap) = crate::kernels::tier_cap() {
             return Some(TileChoice { chosen: cap >= Tier::Amx, timing: None });
         }
         static MEASURED: std::sync::OnceLock<TileChoice> = std::sync::OnceLock::new();
         Some(*MEASURED.get_or_init(|| {
             let f32_path = Gemm::at_most(Kernels::best_f32().tier());
-            let (tiles_us, f32_us) = (calibration_us(Gemm { path: Path::Amx }), calibration_us(f32_path));
+            let (tiles_us, f32_us) = (calibration_us(tiles), calibration_us(f32_path));
             let chosen = tiles_us * crate::kernels::SWITCH_MARGIN < f32_us;
             TileChoice { chosen, timing: Some((tiles_us, f32_us)) }
         }))
+    }
+
+    /// The split-bf16 tile path, where AMX is usable in this process (whether or not
+    /// [`Gemm::best`] chooses it).
+    #[cfg(target_arch = "x86_64")]
+    pub fn tiles() -> Option<Gemm> {
+        use crate::kernels::{AmxBf16, TileHardware};
+        AmxBf16::<TileHardware>::new().map(|_| Gemm { path: Path::Amx })
     }
 
     /// The split-bf16 tile path with the tiles modelled in software: the AMX path's packing,

@@ -25,7 +25,7 @@ pub mod session;
 pub use config::{SceneSource, TrainConfig};
 pub use data::{Dataset, Sample};
 pub use fast::FastWorkspace;
-pub use gemm::{Gemm, Out, TileChoice};
+pub use gemm::{Gemm, Mat, Out, TileChoice};
 pub use inputs::{BodyFrames, GarmentState, InputBuilder, StepData};
 pub use layout::Layout;
 pub use loss::{LossBody, StepLoss};
