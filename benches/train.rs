@@ -193,6 +193,7 @@ fn bench_train(c: &mut Criterion) {
 fn bench_products(c: &mut Criterion) {
     use hood::train::{Gemm, Mat, Out};
     let f32_path = Gemm::at_most(hood::kernels::Kernels::best_f32().tier());
+    #[allow(unused_mut)] // off x86-64 there is no tile path
     let mut paths = vec![(f32_path.tier().name(), f32_path)];
     #[cfg(target_arch = "x86_64")]
     match Gemm::tiles() {

@@ -442,13 +442,14 @@ fn train_fast_matches_generic() {
     let (p3, g3) = run(&mut FastWorkspace::new(Gemm::best()), &pool);
     assert!(p3 == p1 && g3 == g1, "a fresh workspace differs from a reused one");
     let (ps, gs_) = run(&mut FastWorkspace::new(Gemm::scalar()), &Serial);
-    // The split-bf16 AMX path, its tiles modelled in software where the CPU has none (the same
-    // path where it has them and `Gemm::best` chose them): thread counts agree bitwise, and the
-    // gradients are within the same bound.
-    let mut tiles = vec![];
+    // The split-bf16 AMX path, on its software model of the tiles and, where this process may
+    // use them, on the tiles themselves: thread counts agree bitwise, and the gradients are
+    // within the same bound.
+    #[allow(unused_mut)] // off x86-64 there is no tile path
+    let mut tiles: Vec<(Vec<[f32; 3]>, Vec<f32>)> = Vec::new();
     #[cfg(target_arch = "x86_64")]
-    {
-        let mut ws = FastWorkspace::new(Gemm::tile_model());
+    for g in [Some(Gemm::tile_model()), Gemm::tiles()].into_iter().flatten() {
+        let mut ws = FastWorkspace::new(g);
         let (pt, gt) = run(&mut ws, &Serial);
         assert!(run(&mut ws, &pool) == (pt.clone(), gt.clone()), "one and two threads differ on the tiles");
         tiles.push((pt, gt));
@@ -462,7 +463,7 @@ fn train_fast_matches_generic() {
         assert!(pos_err(pt) < 1e-6, "positions differ on the tiles: {}", pos_err(pt));
     }
     let mut paths = vec![("best", &g1, (0.0f64, String::new())), ("scalar", &gs_, (0.0, String::new()))];
-    paths.extend(tiles.iter().map(|(_, g)| ("tile model", g, (0.0, String::new()))));
+    paths.extend(tiles.iter().zip(["tile model", "tiles"]).map(|((_, g), path)| (path, g, (0.0, String::new()))));
     for (name, r) in net.layout.tensors(&spec) {
         let gmax = g_ref[r.clone()].iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
         assert!(gmax > 0.0, "{name}: zero reference gradient");

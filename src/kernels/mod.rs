@@ -41,7 +41,7 @@ pub(crate) use x86::{Avx2Fma, Avx512};
 pub(crate) use {
     amx::{Emulator as TileModel, Hardware as TileHardware, TileUnit},
     frame::round_bf16,
-    x86::AmxBf16,
+    x86::{AmxBf16, Avx512Bf16},
 };
 #[cfg(target_arch = "x86_64")]
 mod amx;
@@ -101,7 +101,8 @@ pub enum Tier {
     Avx512 = 3,
     /// AVX-512F + AVX-512-BF16: bf16 products with `vdpbf16ps`.
     Avx512Bf16 = 4,
-    /// AVX-512-BF16 + AMX-BF16 (Linux): bf16 products on the tile unit; f32 as [`Tier::Avx512Bf16`].
+    /// AVX-512-BF16 + AMX-BF16 (Linux): bf16 products on the tile unit; f32 as [`Tier::Avx512Bf16`]
+    /// (the trainer's f32 products may run on the tiles too, split: `train::Gemm::tile_choice`).
     Amx = 5,
 }
 

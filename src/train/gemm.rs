@@ -11,9 +11,10 @@
 //! multiply-adds as the full vectors), not scalar loops: the narrow inputs of the encoders (3 to
 //! 14 features) made those loops a visible share of a training step.
 //!
-//! Where the CPU has AMX, a third path runs the products on the tiles in split bf16 (`amx`:
-//! about 16 bits of each product, within the gradients' bound), chosen only where it is
-//! measured faster than the f32 path ([`Gemm::best`]).
+//! Where the CPU has AMX, a third path runs the forward and input-gradient products on the
+//! tiles in split bf16 (`amx`: about f32's precision), chosen only where it is measured faster
+//! than the f32 path ([`Gemm::best`]); its weight gradients, and products too small for whole
+//! tiles, stay on the f32 path.
 
 use crate::kernels::{Kernels, Tier};
 
@@ -104,7 +105,9 @@ impl Gemm {
     }
 
     /// Whether the split-bf16 tile path runs the trainer's products, and why: `None` where AMX
-    /// is not usable in this process. Measured once per process (about 10 ms).
+    /// is not usable in this process. Measured once per process (six runs of one forward
+    /// product on each path). The tiles, though the more capable path, must win by the margin:
+    /// their sums round differently from the f32 paths', so a close call keeps f32.
     #[cfg(target_arch = "x86_64")]
     pub fn tile_choice() -> Option<TileChoice> {
         let tiles = Gemm::tiles()?;
@@ -161,12 +164,13 @@ impl Gemm {
         Gemm { path: Path::Scalar }
     }
 
-    /// True for a SIMD path.
+    /// True for any path but the scalar reference (the SIMD paths, the tiles and their model).
     pub fn is_simd(&self) -> bool {
         self.path != Path::Scalar
     }
 
-    /// The tier of the path: [`Tier::Scalar`], [`Tier::Avx2Fma`] or [`Tier::Avx512`].
+    /// The tier of the path: [`Tier::Scalar`], [`Tier::Avx2Fma`], [`Tier::Avx512`], or
+    /// [`Tier::Amx`] for the tiles (and their model).
     pub fn tier(&self) -> Tier {
         match self.path {
             Path::Scalar => Tier::Scalar,
@@ -223,9 +227,14 @@ impl Gemm {
             Path::Avx2(t) => return unsafe { entry::nn_avx2(t, m, n, k, a, b, out, c, ldc) },
             #[cfg(target_arch = "x86_64")]
             Path::Avx512(t) => return unsafe { entry::nn_avx512(t, m, n, k, a, b, out, c, ldc) },
+            // Products smaller than a whole tile (the encoders' 3 to 14 inputs, the decoder's 3
+            // outputs) would be mostly padding there: they stay on the f32 path.
+            #[cfg(target_arch = "x86_64")]
+            Path::Amx | Path::AmxModel if k < amx::MIN_INPUTS || n < amx::MIN_COLUMNS => {
+                return Gemm::at_most(Tier::Avx512).nn_out(m, n, k, a, b, out, c, ldc)
+            }
             // SAFETY (both): `Path::Amx` is made only where the tiles are usable; the model
-            // needs nothing of the CPU; the asserts above bound the operands, and `k` may be 0
-            // (the tiles then add zeros).
+            // needs nothing of the CPU; the asserts above bound the operands.
             #[cfg(target_arch = "x86_64")]
             Path::Amx => return unsafe { amx::nn::<crate::kernels::TileHardware>(m, n, k, a, b, out, c, ldc) },
             #[cfg(target_arch = "x86_64")]
@@ -263,11 +272,9 @@ impl Gemm {
             Path::Avx2(t) => return unsafe { entry::tn_avx2(t, m, ka, n, a, b, c, ldc) },
             #[cfg(target_arch = "x86_64")]
             Path::Avx512(t) => return unsafe { entry::tn_avx512(t, m, ka, n, a, b, c, ldc) },
-            // SAFETY (both): as in `nn_out`.
+            // The weight gradients stay on the f32 FMAs (see `amx`).
             #[cfg(target_arch = "x86_64")]
-            Path::Amx => return unsafe { amx::tn::<crate::kernels::TileHardware>(m, ka, n, a, b, c, ldc) },
-            #[cfg(target_arch = "x86_64")]
-            Path::AmxModel => return unsafe { amx::tn::<crate::kernels::TileModel>(m, ka, n, a, b, c, ldc) },
+            Path::Amx | Path::AmxModel => return Gemm::at_most(Tier::Avx512).tn(m, ka, n, a, b, c, ldc),
             Path::Scalar => {}
         }
         for o in 0..ka {
@@ -306,8 +313,8 @@ impl TileChoice {
     }
 }
 
-/// Best of five runs of a weight-gradient and a forward product of a training step's shape
-/// (2,048 rows, h = 64) on `g`, microseconds.
+/// Best of five runs of a forward product of a training step's shape (2,048 rows, h = 64) on
+/// `g`, microseconds (the products the tiles run: [`Gemm::nn_out`]).
 #[cfg(target_arch = "x86_64")]
 fn calibration_us(g: Gemm) -> f64 {
     const ROWS: usize = 2048;
@@ -315,12 +322,10 @@ fn calibration_us(g: Gemm) -> f64 {
     let x: alloc::vec::Vec<f32> = (0..ROWS * H).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3).collect();
     let w: alloc::vec::Vec<f32> = (0..H * H).map(|i| ((i * 104_729 % 1000) as f32 - 500.0) * 1e-4).collect();
     let mut y = alloc::vec![0.0f32; ROWS * H];
-    let mut dw = alloc::vec![0.0f32; H * H];
     let mut best = f64::INFINITY;
     for run in 0..6 {
         let t = std::time::Instant::now();
         g.nn_out(ROWS, H, H, Mat { data: &x, ld: H }, Mat { data: &w, ld: H }, Out::Set, &mut y, H);
-        g.tn(ROWS, H, H, Mat { data: &x, ld: H }, Mat { data: &y, ld: H }, &mut dw, H);
         let us = t.elapsed().as_secs_f64() * 1e6;
         if run > 0 {
             best = best.min(us);
@@ -886,12 +891,37 @@ mod tests {
     /// The split-bf16 tile path (on the software model of the tiles) against sums in f64 on
     /// fresh random data: every sum within a few f32 roundings of its terms' magnitude, where
     /// products on bf16 operands would be off by up to 2^-8 and a split in two by 2^-16; sizes
-    /// across tile, panel and block boundaries; and every epilogue and padding rule of the f32
-    /// paths.
+    /// across tile and panel boundaries; and every epilogue and padding rule of the f32 paths.
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn train_gemm_tile_model_matches_f64() {
-        let g = Gemm::tile_model();
+        tiles_match_f64(Gemm::tile_model());
+    }
+
+    /// The same on the tile unit itself, where this process may use it; and bitwise the model's
+    /// results (the model is `tdpbf16ps` as Intel defines it).
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn train_gemm_tiles_match_f64_and_the_model() {
+        let Some(tiles) = Gemm::tiles() else {
+            std::println!("train_gemm_tiles_match_f64_and_the_model: no AMX in this process, SKIPPED");
+            return;
+        };
+        tiles_match_f64(tiles);
+        let mut seed = 3u64;
+        for &(m, n, k) in &[(40, 64, 64), (17, 33, 100), (5, 16, 16)] {
+            let a = rand(m * k, &mut seed);
+            let b = rand(k * n, &mut seed);
+            let (mut c1, mut c2) = (rand(m * n, &mut seed), std::vec::Vec::new());
+            c2.clone_from(&c1);
+            tiles.nn(m, n, k, Mat { data: &a, ld: k }, Mat { data: &b, ld: n }, &mut c1, n);
+            Gemm::tile_model().nn(m, n, k, Mat { data: &a, ld: k }, Mat { data: &b, ld: n }, &mut c2, n);
+            assert!(c1.iter().zip(&c2).all(|(x, y)| x.to_bits() == y.to_bits()), "{m}x{n}x{k}");
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    fn tiles_match_f64(g: Gemm) {
         assert_eq!(g.tier(), Tier::Amx);
         simd_matches_scalar(g);
         let mut seed = 41u64;
@@ -913,27 +943,7 @@ mod tests {
                 }
             }
         }
-        // tn over several blocks of rows, with a ragged last one.
-        for &(m, ka, n) in &[(1, 1, 1), (2 * amx::TN_ROWS + 77, 20, 40), (amx::TN_ROWS, 64, 64), (31, 17, 3)] {
-            let (lda, ldb, ldc) = (ka + 1, n + 2, n + 1);
-            let a = rand(m * lda, &mut seed);
-            let b = rand(m * ldb, &mut seed);
-            let c0 = rand(ka * ldc, &mut seed);
-            let mut c = c0.clone();
-            g.tn(m, ka, n, Mat { data: &a, ld: lda }, Mat { data: &b, ld: ldb }, &mut c, ldc);
-            for o in 0..ka {
-                for j in 0..n {
-                    let terms = (0..m).map(|r| a[r * lda + o] as f64 * b[r * ldb + j] as f64);
-                    check_sum(c[o * ldc + j], c0[o * ldc + j], terms, || std::format!("tn {m}x{ka}x{n} ({o}, {j})"));
-                }
-                // Padding between rows is never written.
-                assert_eq!(
-                    c[o * ldc + n..(o * ldc + ldc).min(c.len())],
-                    c0[o * ldc + n..(o * ldc + ldc).min(c0.len())]
-                );
-            }
-        }
-        std::println!("train_gemm_tile_model_matches_f64: worst nn error {worst:e} of the products' magnitude");
+        std::println!("tiles_match_f64: worst error {worst:e} of the products' magnitude");
     }
 
     /// A row computed in a tile of six equals the same row computed alone (thread splits); on

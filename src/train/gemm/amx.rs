@@ -6,18 +6,23 @@
 //! many layers, and on the software model of the tiles that split missed the bound by more than
 //! a hundred times (`train_fast_matches_generic`). So each f32 operand is split in three bf16,
 //! `x = h + m + l` (`h` the nearest bf16 to `x`, `m` the nearest to `x - h`, `l` to
-//! `x - h - m`; what is left is below about `2^-26 |x|`), and each product is taken as the six
-//! terms above about `2^-24` of it: `h·h + h·m + m·h + m·m + h·l + l·h`, each accumulated in f32
-//! on the tiles. That is about f32's precision for six times the bf16 work, which pays only
-//! where the tile unit's rate (about 16 times the f32 vector rate on Intel's AMX cores) covers it
-//! and the splitting; [`super::Gemm::best`] measures it before choosing it.
+//! `x - h - m`, which for a normal f32 is exact: `|m| <= 2^-8 |x|`, `|l| <= 2^-16 |x|`), and each
+//! product is taken as the six terms it cannot do without, `h·h + h·m + m·h + m·m + h·l + l·h`,
+//! each accumulated in f32 on the tiles; the dropped `m·l + l·m + l·l` is below about `2^-23` of
+//! the product. That is about f32's precision for six times the bf16 work, which pays only where
+//! the tile unit's rate (about 16 times the f32 vector rate on Intel's AMX cores) covers it and
+//! the splitting; [`super::Gemm::best`] measures it before choosing it.
+//!
+//! **What runs here.** The products with a short sum and many rows, `C (op)= A·B` (the
+//! forward products, and the input gradients `dX = dY·W`): `B` (the weights, `k × n`) is split
+//! once per call into panels of 16 columns, and `A` 16 rows at a time, each row's inputs in
+//! order, so the split is a few vector instructions per 16 inputs ([`split_rows`]). The weight
+//! gradients (`C += Aᵀ·B`, a sum over rows) stay on the f32 FMAs ([`super::Gemm::tn`]): their
+//! tiles would need both operands split and one transposed on every call.
 //!
 //! **Layouts** (as [`crate::kernels`]' AMX path): an A tile is 16 rows of 16 bf16 pairs along the
-//! sum (64 bytes a row); a B tile is 16 pair rows of 16 columns × (even, odd) input. Operands are
-//! split and packed into thread-local scratch on each call: for `C += A·B`, `B` (the weights,
-//! `k × n`) once per call into panels of 16 columns and `A` 16 rows at a time; for `C += Aᵀ·B`
-//! (weight gradients, a sum over rows), both operands a block of [`TN_ROWS`] rows at a time, `A`
-//! transposed. Sizes are padded with zeros to whole tiles.
+//! sum (64 bytes a row); a B tile is 16 pair rows of 16 columns × (even, odd) input. Sizes are
+//! padded with zeros to whole tiles.
 //!
 //! **Order of the sums.** Each output element sums, per 32 inputs in order, the six terms in the
 //! order above (each pair the even then the odd input, as `tdpbf16ps` does), whatever its row or
@@ -37,8 +42,10 @@ const ROWS: usize = 16;
 const COLS: usize = 16;
 /// Input pairs of one A tile row.
 const PAIRS: usize = 16;
-/// Rows of `A` and `B` split and packed per block of [`tn`] (a multiple of `2 · PAIRS`).
-pub(super) const TN_ROWS: usize = 512;
+/// The fewest inputs and output columns a product needs to run here: half an A tile row and one
+/// whole panel (smaller ones stay on the f32 path, [`super::Gemm::nn_out`]).
+pub(super) const MIN_INPUTS: usize = PAIRS;
+pub(super) const MIN_COLUMNS: usize = COLS;
 
 /// The split of `x` in three bf16 (`h`, `m`, `l`; see the module docs), as `f32` bit patterns
 /// with zero low halves.
@@ -61,7 +68,6 @@ fn pair(even: u32, odd: u32) -> u32 {
 struct Scratch {
     a: [Vec<u32>; 3],
     b: [Vec<u32>; 3],
-    acc: Vec<f32>,
 }
 
 std::thread_local! {
@@ -81,7 +87,8 @@ struct CTile([f32; ROWS * COLS]);
 /// panels of `pairs` pair rows: panel `p`, pair row `q` (inputs `2q` and `2q + 1`), column `j`
 /// at `(p · pairs + q) · 16 + j`, one buffer per part.
 fn pack_b(panels: usize, pairs: usize, b: &mut [Vec<u32>; 3], value: impl Fn(usize, usize) -> f32) {
-    b.iter_mut().for_each(|v| zeros(v, panels * pairs * COLS));
+    // Every slot is written below.
+    b.iter_mut().for_each(|v| v.resize(panels * pairs * COLS, 0));
     for p in 0..panels {
         for q in 0..pairs {
             for j in 0..COLS {
@@ -89,6 +96,96 @@ fn pack_b(panels: usize, pairs: usize, b: &mut [Vec<u32>; 3], value: impl Fn(usi
                 for part in 0..3 {
                     b[part][(p * pairs + q) * COLS + j] = pair(even[part], odd[part]);
                 }
+            }
+        }
+    }
+}
+
+/// Splits rows `rows` (at most 16) of `A` (`k` inputs each) into A-tile rows of `pairs` slots in
+/// each part: row `r` of the tile, pair `q` at `r · pairs + q`; rows past the last and inputs
+/// past `k` zero. With AVX-512-BF16 (every CPU with AMX has it) 16 inputs at a time
+/// (`vcvtneps2bf16`), which rounds as [`split`] does but reads subnormal parts as zero, as the
+/// tiles do anyway.
+fn split_rows(a: Mat<'_>, rows: core::ops::Range<usize>, k: usize, pairs: usize, parts: &mut [Vec<u32>; 3]) {
+    assert!(
+        rows.len() <= ROWS
+            && pairs.is_multiple_of(PAIRS)
+            && 2 * pairs >= k
+            && parts.iter().all(|p| p.len() >= ROWS * pairs)
+    );
+    assert!(rows.is_empty() || k == 0 || a.data.len() >= (rows.end - 1) * a.ld + k, "split_rows: A too short");
+    if let Some(t) = crate::kernels::Avx512Bf16::new() {
+        // SAFETY: the token proves the features; the asserts above bound every read and write.
+        return unsafe { split_rows_avx512(t, a, rows, k, pairs, parts) };
+    }
+    split_rows_scalar(a, rows, k, pairs, parts);
+}
+
+/// The scalar twin of [`split_rows_avx512`].
+fn split_rows_scalar(a: Mat<'_>, rows: core::ops::Range<usize>, k: usize, pairs: usize, parts: &mut [Vec<u32>; 3]) {
+    for r in 0..ROWS {
+        for q in 0..pairs {
+            let at = |kk: usize| if r < rows.len() && kk < k { a.data[(rows.start + r) * a.ld + kk] } else { 0.0 };
+            let (even, odd) = (split(at(2 * q)), split(at(2 * q + 1)));
+            for part in 0..3 {
+                parts[part][r * pairs + q] = pair(even[part], odd[part]);
+            }
+        }
+    }
+}
+
+/// [`split_rows`] 16 inputs at a time: per part one `vcvtneps2bf16` gives the 8 pair slots.
+///
+/// # Safety
+/// The asserts of [`split_rows`] hold.
+#[target_feature(enable = "avx2,fma,avx512f,avx512bf16")]
+unsafe fn split_rows_avx512(
+    _t: crate::kernels::Avx512Bf16,
+    a: Mat<'_>,
+    rows: core::ops::Range<usize>,
+    k: usize,
+    pairs: usize,
+    parts: &mut [Vec<u32>; 3],
+) {
+    use core::arch::x86_64::*;
+    // The bf16 `b` as f32 (exact).
+    let widen = |b: __m256bh| {
+        // SAFETY: a lane rename of 16 bf16, then register-only integer operations.
+        unsafe {
+            _mm512_castsi512_ps(_mm512_slli_epi32::<16>(_mm512_cvtepu16_epi32(
+                core::mem::transmute::<__m256bh, __m256i>(b),
+            )))
+        }
+    };
+    for r in 0..ROWS {
+        for c in 0..pairs / 8 {
+            let first = 16 * c;
+            let x = if r < rows.len() && first < k {
+                let cols = (k - first).min(16);
+                // SAFETY: the masked load reads inputs `first..first + cols` of the row, below
+                // `k`, inside `a` (the caller's asserts).
+                unsafe {
+                    _mm512_maskz_loadu_ps(
+                        ((1u32 << cols) - 1) as __mmask16,
+                        a.data.as_ptr().add((rows.start + r) * a.ld + first),
+                    )
+                }
+            } else {
+                _mm512_setzero_ps()
+            };
+            let h = _mm512_cvtneps_pbh(x);
+            let rest = _mm512_sub_ps(x, widen(h));
+            let m = _mm512_cvtneps_pbh(rest);
+            let l = _mm512_cvtneps_pbh(_mm512_sub_ps(rest, widen(m)));
+            for (part, v) in [h, m, l].into_iter().enumerate() {
+                // SAFETY: slots `r · pairs + 8c .. + 8` lie inside the part (`8c + 8 <= pairs`,
+                // `r < 16`, each part at least 16 · pairs long).
+                unsafe {
+                    _mm256_storeu_si256(
+                        parts[part].as_mut_ptr().add(r * pairs + 8 * c) as *mut __m256i,
+                        core::mem::transmute::<__m256bh, __m256i>(v),
+                    )
+                };
             }
         }
     }
@@ -154,7 +251,7 @@ unsafe fn row_tile<U: TileUnit>(
 ///
 /// # Safety
 /// `U` is available ([`TileUnit::available`]); the operands hold their shapes and strides
-/// (checked by the caller); `m`, `n` and `k` are not zero.
+/// (checked by the caller); `m` and `n` are not zero (`k` may be: the tiles then add zeros).
 #[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn nn<U: TileUnit>(
     m: usize,
@@ -179,15 +276,7 @@ pub(super) unsafe fn nn<U: TileUnit>(
         let u = &mut unsafe { U::on_this_thread() };
         for r0 in (0..m).step_by(ROWS) {
             let nr = (m - r0).min(ROWS);
-            for r in 0..ROWS {
-                for q in 0..pairs {
-                    let at = |kk: usize| if r < nr && kk < k { a.data[(r0 + r) * a.ld + kk] } else { 0.0 };
-                    let (even, odd) = (split(at(2 * q)), split(at(2 * q + 1)));
-                    for part in 0..3 {
-                        s.a[part][r * pairs + q] = pair(even[part], odd[part]);
-                    }
-                }
-            }
+            split_rows(a, r0..r0 + nr, k, pairs, &mut s.a);
             let a_parts = [s.a[0].as_ptr(), s.a[1].as_ptr(), s.a[2].as_ptr()];
             for p0 in (0..panels).step_by(2) {
                 let two = p0 + 1 < panels;
@@ -208,62 +297,67 @@ pub(super) unsafe fn nn<U: TileUnit>(
     });
 }
 
-/// `C[ka×n] += Aᵀ · B` with `A` `m × ka` and `B` `m × n`, on the tile unit `U` (see
-/// [`super::Gemm::tn`]).
-///
-/// # Safety
-/// As [`nn`]; `m`, `ka` and `n` are not zero.
-#[allow(clippy::too_many_arguments)]
-pub(super) unsafe fn tn<U: TileUnit>(m: usize, ka: usize, n: usize, a: Mat<'_>, b: Mat<'_>, c: &mut [f32], ldc: usize) {
-    let row_tiles = ka.div_ceil(ROWS);
-    let panels = n.div_ceil(COLS);
-    SCRATCH.with_borrow_mut(|s| {
-        let width = panels * COLS;
-        zeros(&mut s.acc, row_tiles * ROWS * width);
-        let mut tiles = [CTile([0.0; ROWS * COLS]), CTile([0.0; ROWS * COLS])];
-        // SAFETY: the caller's contract makes the unit available; it is released below.
-        unsafe { U::configure() };
-        // SAFETY: as above, configured.
-        let u = &mut unsafe { U::on_this_thread() };
-        for r0 in (0..m).step_by(TN_ROWS) {
-            let rows = (m - r0).min(TN_ROWS);
-            let pairs = rows.div_ceil(2 * PAIRS) * PAIRS;
-            let in_b = |r: usize, j: usize| if r < rows && j < n { b.data[(r0 + r) * b.ld + j] } else { 0.0 };
-            pack_b(panels, pairs, &mut s.b, in_b);
-            // Aᵀ: row `o`, pair `q` holds inputs (rows) `2q` and `2q + 1` of column `o`.
-            s.a.iter_mut().for_each(|v| zeros(v, row_tiles * ROWS * pairs));
-            for q in 0..pairs.min(rows.div_ceil(2)) {
-                for o in 0..ka {
-                    let at = |r: usize| if r < rows { a.data[(r0 + r) * a.ld + o] } else { 0.0 };
-                    let (even, odd) = (split(at(2 * q)), split(at(2 * q + 1)));
-                    for part in 0..3 {
-                        s.a[part][o * pairs + q] = pair(even[part], odd[part]);
-                    }
-                }
-            }
-            for t in 0..row_tiles {
-                let a_parts = [0, 1, 2].map(|part| s.a[part][t * ROWS * pairs..].as_ptr());
-                for p0 in (0..panels).step_by(2) {
-                    let two = p0 + 1 < panels;
-                    // SAFETY: configured; row tile `t` of each part has 16 rows of `pairs` slots.
-                    unsafe { row_tile(u, (a_parts, pairs), &s.b, (p0, two), pairs, &mut tiles) };
-                    for (pj, tile) in tiles.iter().enumerate().take(1 + usize::from(two)) {
-                        for r in 0..ROWS {
-                            let row = &mut s.acc[(t * ROWS + r) * width + (p0 + pj) * COLS..][..COLS];
-                            for (acc, v) in row.iter_mut().zip(&tile.0[r * COLS..(r + 1) * COLS]) {
-                                *acc += v;
-                            }
-                        }
-                    }
-                }
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use alloc::vec;
+
+    /// Each of the six products counts: operands whose three parts are all far from zero
+    /// (`x = 1 + 1.5·2^-9 + 1.25·2^-18`, so `m·m` and `h·l` are about 2^-17 of the product),
+    /// squared, within 1e-6 of the exact square (dropping any term misses by 4e-6 or more).
+    #[test]
+    fn train_tiles_take_all_six_products() {
+        let x = 1.0f32 + 1.5 * (-9f32).exp2() + 1.25 * (-18f32).exp2();
+        assert_eq!(split(x).map(f32::from_bits), [1.0, 1.5 * (-9f32).exp2(), 1.25 * (-18f32).exp2()]);
+        let (m, n) = (20, 16);
+        let a: Vec<f32> = (0..m).map(|r| if r % 2 == 0 { x } else { -x }).collect();
+        let b = vec![x; n];
+        let mut c = vec![0.0f32; m * n];
+        // SAFETY: the model needs nothing of the CPU; the operands hold their shapes.
+        unsafe {
+            nn::<crate::kernels::TileModel>(
+                m,
+                n,
+                1,
+                Mat { data: &a, ld: 1 },
+                Mat { data: &b, ld: n },
+                Out::Set,
+                &mut c,
+                n,
+            )
+        };
+        let exact = x as f64 * x as f64;
+        for (i, &v) in c.iter().enumerate() {
+            let sign = if (i / n) % 2 == 0 { 1.0 } else { -1.0 };
+            assert!((v as f64 - sign * exact).abs() <= 1e-6 * exact, "{i}: {v} against {}", sign * exact);
+        }
+    }
+
+    /// The vector split against its scalar twin, bitwise, on fresh random rows of mixed
+    /// magnitudes, ragged inputs and a partial row tile.
+    #[test]
+    fn train_split_rows_avx512_equals_scalar() {
+        let Some(t) = crate::kernels::Avx512Bf16::new() else {
+            std::println!("train_split_rows_avx512_equals_scalar: no AVX-512-BF16 on this CPU, SKIPPED");
+            return;
+        };
+        let mut rng = crate::rng::Rng::new(17);
+        for &(rows, k, ld) in
+            &[(16usize, 64usize, 64usize), (5, 33, 40), (16, 1, 3), (11, 100, 101), (0, 8, 8), (16, 0, 4)]
+        {
+            let pairs = k.div_ceil(2 * PAIRS) * PAIRS;
+            let data: Vec<f32> =
+                (0..(rows + 2) * ld).map(|_| (rng.normal() * 10f64.powf(rng.uniform(-6.0, 4.0))) as f32).collect();
+            let a = Mat { data: &data, ld };
+            let mut simd: [Vec<u32>; 3] = core::array::from_fn(|_| vec![7; ROWS * pairs]);
+            let mut scalar = simd.clone();
+            // SAFETY: the token proves the features; the shapes are those `split_rows` asserts.
+            unsafe { split_rows_avx512(t, a, 1..1 + rows, k, pairs, &mut simd) };
+            split_rows_scalar(a, 1..1 + rows, k, pairs, &mut scalar);
+            assert_eq!(simd, scalar, "{rows} rows of {k}");
+            if rows > 0 && k > 0 {
+                assert!(simd[1].iter().any(|&v| v != 0) && simd[2].iter().any(|&v| v != 0), "empty parts");
             }
         }
-        // SAFETY: configured above on this thread.
-        unsafe { U::release() };
-        for o in 0..ka {
-            for (cv, v) in c[o * ldc..o * ldc + n].iter_mut().zip(&s.acc[o * width..]) {
-                *cv += v;
-            }
-        }
-    });
+    }
 }
