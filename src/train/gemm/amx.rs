@@ -74,11 +74,6 @@ std::thread_local! {
     static SCRATCH: RefCell<Scratch> = RefCell::new(Scratch::default());
 }
 
-fn zeros<T: Copy + Default>(v: &mut Vec<T>, n: usize) {
-    v.clear();
-    v.resize(n, T::default());
-}
-
 /// 16 × 16 f32 of one output tile, as `tilestored` writes it.
 #[repr(C, align(64))]
 struct CTile([f32; ROWS * COLS]);
@@ -268,7 +263,8 @@ pub(super) unsafe fn nn<U: TileUnit>(
     SCRATCH.with_borrow_mut(|s| {
         let in_b = |kk: usize, j: usize| if kk < k && j < n { b.data[kk * b.ld + j] } else { 0.0 };
         pack_b(panels, pairs, &mut s.b, in_b);
-        s.a.iter_mut().for_each(|v| zeros(v, ROWS * pairs));
+        // `split_rows` writes every slot, padding included.
+        s.a.iter_mut().for_each(|v| v.resize(ROWS * pairs, 0));
         let mut tiles = [CTile([0.0; ROWS * COLS]), CTile([0.0; ROWS * COLS])];
         // SAFETY: the caller's contract makes the unit available; it is released below.
         unsafe { U::configure() };
