@@ -44,8 +44,9 @@ fn runtime_threads_give_bitwise_identical_results() {
 }
 
 /// On a kernel path without bf16 products, bf16 runs its weights widened to f32 once: the
-/// same bits as an f32 run of a model whose f32 weights are the bf16 ones. Where the path has
-/// bf16 products nothing is widened.
+/// same bits as an f32 run of a model whose f32 weights past the encoders are the bf16 ones
+/// (the encoders run in f32 at every precision). Where the path has bf16 products nothing is
+/// widened.
 #[test]
 fn runtime_bf16_without_bf16_products_is_f32_on_the_bf16_weights() {
     use hood::kernels::{Kernels, Tier};
@@ -54,11 +55,13 @@ fn runtime_bf16_without_bf16_products_is_f32_on_the_bf16_weights() {
     let mut p = Params::init(&spec, 9).unwrap();
     p.normalisers = hood::model::Normalisers::unit_scale(9);
     let bytes = ModelBytes::new(&write_model(&p, true, &[]).unwrap());
+    let encoders = (p.mlps.node_encoder.clone(), p.mlps.edge_encoders.clone(), p.mlps.body_encoder.clone());
     for m in p.mlps.iter_mut() {
         for l in &mut m.layers {
             l.weight.iter_mut().for_each(|w| *w = half::bf16::from_f32(*w).to_f32());
         }
     }
+    (p.mlps.node_encoder, p.mlps.edge_encoders, p.mlps.body_encoder) = encoders;
     let rounded = ModelBytes::new(&write_model(&p, false, &[]).unwrap());
     let scene = Scene::new(12, 12);
     let run = |bytes: &ModelBytes, precision: Precision, tier: Tier| {
@@ -83,6 +86,40 @@ fn runtime_bf16_without_bf16_products_is_f32_on_the_bf16_weights() {
         assert_eq!(none, 0, "f32 widens nothing");
         assert_eq!(bf16, f32_on_bf16_weights, "{}", tier.name());
         println!("{}: bf16 = f32 on the bf16 weights, {widened} bytes widened", tier.name());
+    }
+}
+
+/// The encoders run in f32 at every precision: a bf16 step encodes the same latents as an f32
+/// step, bit for bit, on every tier, and only the blocks and the decoder differ.
+#[test]
+fn runtime_bf16_encodes_in_f32() {
+    use hood::kernels::{Kernels, Tier};
+    use hood::sim::{Probe, Stage};
+    let scene = Scene::new(12, 12);
+    let bytes = random_model(32, 5, true);
+    let model = bytes.model().unwrap();
+    let step = |precision: Precision, tier: Tier| {
+        let cfg = SimConfig::network().with_precision(precision).with_tier(Some(tier));
+        let mut sim = scene.sim(&model, cfg).unwrap();
+        let (mut encoded, mut decoded) = (Vec::new(), Vec::new());
+        let mut observe = |p: Probe<'_>| match p.stage {
+            // The first pass only: later ones start from the first's bf16 output.
+            Stage::Encoded if encoded.is_empty() => encoded = [p.garment, p.body].concat(),
+            Stage::Decoded if decoded.is_empty() => decoded = p.garment.to_vec(),
+            _ => {}
+        };
+        sim.step_observed(&scene.body_at(1), &mut observe).unwrap();
+        (encoded, decoded)
+    };
+    let best = Kernels::best().tier();
+    for tier in Tier::ALL.into_iter().filter(|t| *t <= best) {
+        let (enc_f32, dec_f32) = step(Precision::F32, tier);
+        let (enc_bf16, dec_bf16) = step(Precision::Bf16, tier);
+        assert!(!enc_f32.is_empty() && !dec_f32.is_empty(), "{}", tier.name());
+        let differ = |a: &[f32], b: &[f32]| a.iter().zip(b).filter(|(x, y)| x.to_bits() != y.to_bits()).count();
+        assert_eq!(enc_bf16.len(), enc_f32.len(), "{}", tier.name());
+        assert_eq!(differ(&enc_bf16, &enc_f32), 0, "{}: encoded latents differ", tier.name());
+        assert!(differ(&dec_bf16, &dec_f32) > 0, "{}: the bf16 blocks ran in f32", tier.name());
     }
 }
 

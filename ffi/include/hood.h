@@ -299,7 +299,7 @@ HOOD_API hood_status HOOD_CALL hood_garment_face_count(const hood_garment *garme
 #define HOOD_EFFECT_TETHER 512u /* keep worn cloth near where it was put on the body (tether_slack) */
 
 #define HOOD_PRECISION_F32 0u  /* f32 weights and activations */
-#define HOOD_PRECISION_BF16 1u /* bf16 weights, f32 accumulation (model with bf16 weights) */
+#define HOOD_PRECISION_BF16 1u /* bf16 weights past the encoders, f32 accumulation (model with bf16 weights) */
 
 typedef struct hood_sim_config {
     uint32_t struct_size;    /* sizeof(hood_sim_config) (see Conventions); hood_sim_config_default sets it */

@@ -61,7 +61,7 @@ pub const HOOD_LOG_WARNING: u32 = 2;
 
 /// f32 arithmetic.
 pub const HOOD_PRECISION_F32: u32 = 0;
-/// bf16 weights and activations.
+/// bf16 weights and activations past the encoders (which run in f32).
 pub const HOOD_PRECISION_BF16: u32 = 1;
 
 const fn parse_u32(s: &str) -> u32 {

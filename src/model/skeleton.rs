@@ -146,11 +146,12 @@ impl<M> Mlps<M> {
     /// Every MLP in the skeleton's order.
     pub fn iter(&self) -> impl Iterator<Item = &M> + '_ {
         let blocks = self.blocks.iter().flat_map(|b| b.edges.iter().chain(b.body.iter()).chain(once(&b.node)));
-        once(&self.node_encoder)
-            .chain(self.edge_encoders.iter())
-            .chain(self.body_encoder.iter())
-            .chain(blocks)
-            .chain(once(&self.decoder))
+        self.encoders().chain(blocks).chain(once(&self.decoder))
+    }
+
+    /// The encoders (node, edges, body edges): the first MLPs of [`iter`](Self::iter).
+    pub fn encoders(&self) -> impl Iterator<Item = &M> + '_ {
+        once(&self.node_encoder).chain(self.edge_encoders.iter()).chain(self.body_encoder.iter())
     }
 
     /// Every MLP in the skeleton's order, mutable.

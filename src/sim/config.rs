@@ -70,10 +70,12 @@ pub enum Precision {
     /// f32 weights and activations.
     #[default]
     F32,
-    /// bf16 weights (needs a model file with bf16 weights). Where the kernel path has bf16
-    /// products (AVX-512-BF16, AMX) the activations are bf16 too, accumulated in f32; elsewhere
-    /// the weights are widened to f32 once, when the simulation is made, and run at the f32
-    /// cost with f32 activations ([`Sim::widened_weight_bytes`](crate::sim::Sim::widened_weight_bytes)).
+    /// bf16 weights in the blocks and the decoder (needs a model file with bf16 weights); the
+    /// encoders run in f32, as their outputs start the latents' residual streams (about a
+    /// twentieth of the products). Where the kernel path has bf16 products (AVX-512-BF16, AMX)
+    /// the activations are bf16 too, accumulated in f32; elsewhere the weights are widened to
+    /// f32 once, when the simulation is made, and run at the f32 cost with f32 activations
+    /// ([`Sim::widened_weight_bytes`](crate::sim::Sim::widened_weight_bytes)).
     Bf16,
 }
 

@@ -286,6 +286,17 @@ pub struct Net<'m> {
 }
 
 impl<'m> Net<'m> {
+    /// This net as the encoders run it: f32 weights and arithmetic at every precision.
+    ///
+    /// The encoders' outputs start the residual streams of the node and edge latents, which
+    /// carry them through every block, so their rounding would reach every later layer; they
+    /// hold about a twentieth of a step's products. On the stability suite's looped turn, bf16
+    /// blocks with f32 encoders stay about half as far from the f32 rollout (RMS over the
+    /// vertices) as a net wholly in bf16.
+    pub fn encoders(&self) -> Net<'m> {
+        Net { bf16: false, widened: None, ..*self }
+    }
+
     /// The weight parts of `layer` this net runs: the widened bf16 ones, else the model's in
     /// the requested precision.
     ///

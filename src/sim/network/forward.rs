@@ -27,7 +27,14 @@ impl Workspace {
             None => &mut self.mesh_latents[..n * self.h],
         };
         let mut p = Par { exec, tasks: &mut self.tasks, errors: &mut self.errors, flops: &mut self.flops };
-        p.mlp(net, &net.model.mlps.edge_encoders[enc_i], &[Some(&self.edge_features[..n * EDGE_WIDTH])], n, out, None)
+        p.mlp(
+            &net.encoders(),
+            &net.model.mlps.edge_encoders[enc_i],
+            &[Some(&self.edge_features[..n * EDGE_WIDTH])],
+            n,
+            out,
+            None,
+        )
     }
 
     /// The forward pass after the edge latents are encoded: nodes (features already in
@@ -54,8 +61,9 @@ impl Workspace {
         let (mean, std) = model.node_stats();
         let feats = &mut self.node_features[..rows * NODE_WIDTH];
         normalise_rows(feats, NODE_WIDTH, &mean[..NODE_NORMALISED], &std[..NODE_NORMALISED]);
+        let encoders = net.encoders();
         par.mlp(
-            net,
+            &encoders,
             &model.mlps.node_encoder,
             &[Some(&self.node_features[..rows * NODE_WIDTH])],
             rows,
@@ -70,7 +78,7 @@ impl Workspace {
                 [(&mut self.g2b_features, &mut self.g2b_latents), (&mut self.b2g_features, &mut self.b2g_latents)]
             {
                 normalise_rows(&mut f[..nb * BODY_EDGE_WIDTH], BODY_EDGE_WIDTH, mean, std);
-                par.mlp(net, enc, &[Some(&f[..nb * BODY_EDGE_WIDTH])], nb, &mut lat[..nb * h], None)?;
+                par.mlp(&encoders, enc, &[Some(&f[..nb * BODY_EDGE_WIDTH])], nb, &mut lat[..nb * h], None)?;
             }
         }
         observer(Probe {

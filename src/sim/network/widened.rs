@@ -4,7 +4,8 @@
 //! to compute the same products as `vdpbf16ps`), which makes bf16 slower than f32. Widened once,
 //! when a [`Sim`](crate::sim::Sim) is made, the bf16 weights run on the f32 kernels at the f32 cost:
 //! bf16-exact weights, f32 activations and arithmetic. The copy is owned by the simulation and
-//! costs the f32 size of the weights; a simulation that does not need it has none.
+//! costs the f32 size of the weights past the encoders (which run in f32 at every precision); a
+//! simulation that does not need it has none.
 
 use super::LayerParts;
 use crate::error::{Error, Result};
@@ -33,7 +34,8 @@ pub struct WidenedBf16 {
 }
 
 impl WidenedBf16 {
-    /// Widens every bf16 part of `model` (allocates the f32 size of its weights).
+    /// Widens every bf16 part of `model` past its encoders (allocates the f32 size of those
+    /// weights).
     ///
     /// # Errors
     /// [`Error::UnsupportedEffect`] for a model file without bf16 weights;
@@ -43,12 +45,19 @@ impl WidenedBf16 {
             return Err(Error::UnsupportedEffect { effect: "bf16 precision (the model file has no bf16 weights)" });
         }
         let layers_of = || model.mlps.iter().flat_map(|m| &m.layers);
-        let len: usize = layers_of().flat_map(|l| &l.bf16).map(|w| packed_len_f32(w.k(), w.n())).sum();
+        // The encoders, the first layers, run in f32 at every precision (`Net::encoders`).
+        let encoder_layers: usize = model.mlps.encoders().map(|m| m.layers.len()).sum();
+        let widened = || layers_of().skip(encoder_layers);
+        let len: usize = widened().flat_map(|l| &l.bf16).map(|w| packed_len_f32(w.k(), w.n())).sum();
         let mut w = WidenedBf16 { data: vec![0.0; len], parts: Vec::new(), layers: Vec::new() };
         let mut start = 0;
         for (index, layer) in layers_of().enumerate() {
             if layer.index != index {
                 return Err(Error::IncompatibleModel { reason: "model layers out of order" });
+            }
+            if index < encoder_layers {
+                w.layers.push(0..0);
+                continue;
             }
             if layer.bf16.len() > MAX_OPERANDS {
                 return Err(Error::IncompatibleModel { reason: "a layer has more parts than a kernel call sums" });
@@ -103,7 +112,16 @@ mod tests {
         let model = bytes.model().unwrap();
         let wide = WidenedBf16::new(&model).unwrap();
         let mut n_layers = 0;
+        let encoder_layers: usize = model.mlps.encoders().map(|m| m.layers.len()).sum();
+        assert!(encoder_layers >= 3 * 3, "node, mesh and body encoders at least");
+        let mut widened_len = 0;
         for layer in model.mlps.iter().flat_map(|m| &m.layers) {
+            n_layers += 1;
+            if layer.index < encoder_layers {
+                assert!(wide.parts(layer.index).is_err(), "the encoders run in f32: nothing widened");
+                continue;
+            }
+            widened_len += layer.bf16.iter().map(|b| packed_len_f32(b.k(), b.n())).sum::<usize>();
             let parts = wide.parts(layer.index).unwrap();
             assert_eq!(parts.len(), layer.bf16.len());
             for (w, b) in parts.iter().zip(&layer.bf16) {
@@ -115,10 +133,9 @@ mod tests {
                     }
                 }
             }
-            n_layers += 1;
         }
         assert!(wide.parts(n_layers).is_err());
-        assert!(wide.bytes() > 0);
+        assert_eq!(wide.bytes(), widened_len * 4);
         // A file without bf16 weights has nothing to widen.
         let f32_only = ModelBytes::new(&write_model(&params, false, &[]).unwrap());
         assert!(WidenedBf16::new(&f32_only.model().unwrap()).is_err());
