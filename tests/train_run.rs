@@ -204,6 +204,60 @@ fn train_weight_average_follows_the_weights() {
     assert!(model.provenance().any(|(k, v)| k == "weights" && v == "moving average"));
 }
 
+/// `bf16_weights`: exports hold the weights outside the encoders rounded to bf16 (the encoders
+/// and biases as they are), and the passes use the rounded weights: a run with the option
+/// computes the losses of a run without it from the rounded model, not those of the unrounded
+/// one.
+#[test]
+fn train_bf16_weights_are_trained_and_exported_rounded() {
+    let cfg = tiny_config();
+    let mut t = Trainer::new(cfg.clone(), data(&cfg)).unwrap();
+    for _ in 0..4 {
+        t.iteration().unwrap();
+    }
+    let plain = t.export(&[]).unwrap();
+    let plain = hood::model::ModelBytes::new(&plain);
+    let plain = plain.model().unwrap();
+    let on = cfg.clone().with_bf16_weights(true);
+    assert_eq!(TrainConfig::from_json(&on.to_json()).unwrap(), on);
+    assert!(!cfg.to_json().contains("bf16_weights"), "written only when on");
+
+    let mut rounding = Trainer::from_model(on.clone(), data(&on), &plain).unwrap();
+    let rounded = rounding.export(&[]).unwrap();
+    let rounded = hood::model::ModelBytes::new(&rounded);
+    let rounded = rounded.model().unwrap();
+    let (p, r) = (plain.to_params(), rounded.to_params());
+    let encoders = p.mlps.encoders().count();
+    for (i, (a, b)) in p.mlps.iter().zip(r.mlps.iter()).enumerate() {
+        for (la, lb) in a.layers.iter().zip(&b.layers) {
+            assert_eq!(la.bias, lb.bias);
+            if i < encoders {
+                assert_eq!(la.weight, lb.weight, "MLP {i}: encoders stay f32");
+            } else {
+                assert_ne!(la.weight, lb.weight, "MLP {i}: rounded");
+                for (&x, &y) in la.weight.iter().zip(&lb.weight) {
+                    assert_eq!(y, half::bf16::from_f32(x).to_f32(), "MLP {i}");
+                }
+            }
+        }
+    }
+
+    // The first step's loss: the rounded model's, not the plain one's.
+    let mut from_rounded = Trainer::from_model(cfg.clone(), data(&cfg), &rounded).unwrap();
+    let mut from_plain = Trainer::from_model(cfg.clone(), data(&cfg), &plain).unwrap();
+    let (a, b, c) = (rounding.iteration().unwrap(), from_rounded.iteration().unwrap(), from_plain.iteration().unwrap());
+    assert!(!a.steps.is_empty() && !a.steps[0].skipped);
+    assert_eq!(a.steps[0].total, b.steps[0].total);
+    assert_eq!(a.steps[0].grad_norm, b.steps[0].grad_norm, "the gradient at the rounded weights");
+    assert_ne!(a.steps[0].total, c.steps[0].total);
+    // The optimiser's own weights are not rounded (its steps accumulate below bf16's spacing);
+    // the export is.
+    let own = rounding.params();
+    assert!(own.mlps.decoder.layers[0].weight.iter().any(|&x| half::bf16::from_f32(x).to_f32() != x));
+    let exported = rounding.model_params();
+    assert!(exported.mlps.decoder.layers[0].weight.iter().all(|&x| half::bf16::from_f32(x).to_f32() == x));
+}
+
 /// Frame the rollout of `r` ended at.
 fn end_frame(r: &hood::train::IterationReport) -> usize {
     let startup = r.carried_from.is_none();

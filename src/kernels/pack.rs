@@ -83,6 +83,14 @@ pub fn pack_f32(w: &[f32], n_out: usize, n_in: usize, cols: Range<usize>, dst: &
     Ok(())
 }
 
+/// Rounds every value to the nearest bf16 (ties to even), kept in f32: the values the bf16
+/// weights of [`pack_bf16`] hold.
+pub fn round_to_bf16(values: &mut [f32]) {
+    for v in values {
+        *v = bf16::from_f32(*v).to_f32();
+    }
+}
+
 /// Packs columns `cols` of `w` (`[n_out, n_in]` row-major) into the bf16 pair-panel layout
 /// described in the module docs, rounding each weight to nearest-even bf16.
 ///

@@ -139,6 +139,13 @@ pub struct TrainConfig {
     /// the periodic validation use the averaged weights: they vary less from snapshot to
     /// snapshot than the weights the optimiser holds, which move with every noisy step.
     pub ema: f64,
+    /// Train the weights that bf16 precision runs in bf16 (every Linear weight outside the
+    /// encoders) as bf16 values: the passes use them rounded to bf16, the optimiser updates
+    /// the f32 weights with the gradient at the rounded ones (a straight-through estimate), and
+    /// exports and validation round them. The exported model's f32 and bf16 weights are then
+    /// the same values, so its two precisions differ only where bf16 products round the
+    /// activations. Off by default.
+    pub bf16_weights: bool,
     /// Worker threads for the network passes.
     pub threads: usize,
     /// Seed of the model initialisation and of the sample stream.
@@ -188,6 +195,7 @@ impl Default for TrainConfig {
             carry: (0, 0.0),
             reference_states: 0.0,
             ema: 0.0,
+            bf16_weights: false,
             threads: 2,
             seed: 1,
         }
@@ -251,6 +259,8 @@ impl TrainConfig {
         with_reference_states => reference_states: f64;
         /// Sets [`ema`](Self::ema): the decay of the weights' moving average (0: off).
         with_ema => ema: f64;
+        /// Sets [`bf16_weights`](Self::bf16_weights): train and export bf16-exact weights.
+        with_bf16_weights => bf16_weights: bool;
         /// Sets [`threads`](Self::threads): worker threads for the network passes.
         with_threads => threads: usize;
         /// Sets [`seed`](Self::seed): the seed of the initialisation and the sample stream.
@@ -461,6 +471,7 @@ impl TrainConfig {
                 "carry" => c.carry = carry(v)?,
                 "reference_states" => c.reference_states = probability(float(v, key)?, key)?,
                 "ema" => c.ema = ema(float(v, key)?)?,
+                "bf16_weights" => c.bf16_weights = boolean(v, key)?,
                 "threads" => c.threads = uint(v, key)?.max(1) as usize,
                 "seed" => c.seed = uint(v, key)?,
                 _ => return Err(bad(key, "unknown key")),
@@ -533,6 +544,7 @@ impl TrainConfig {
             carry: self.carry,
             reference_states: self.reference_states,
             ema: self.ema,
+            bf16_weights: self.bf16_weights,
             threads: self.threads,
             seed: self.seed,
             scenes,
@@ -601,6 +613,9 @@ struct ConfigFile<'a> {
     carry: (usize, f64),
     reference_states: f64,
     ema: f64,
+    // Written only when on, so that other configs keep their keys.
+    #[serde(skip_serializing_if = "core::ops::Not::not")]
+    bf16_weights: bool,
     threads: usize,
     seed: u64,
     scenes: Vec<SceneFile>,

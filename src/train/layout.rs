@@ -157,6 +157,22 @@ impl Layout {
         get(self.level_embedding, &mut p.level_embedding);
     }
 
+    /// The weight matrices that bf16 precision runs in bf16: every Linear weight outside the
+    /// encoders (the runtime encodes in f32 under bf16 too, [`crate::sim::Precision::Bf16`]).
+    /// Biases, LayerNorms and embeddings are f32 in both precisions.
+    pub fn bf16_weights(&self) -> impl Iterator<Item = Range<usize>> + '_ {
+        let encoders = self.mlps.encoders().count();
+        self.mlps.iter().skip(encoders).flat_map(|m| m.layers.iter().map(|l| l.w..l.w + l.inp * l.out))
+    }
+
+    /// Rounds the [`bf16_weights`](Self::bf16_weights) of a flat vector to bf16 values (in f32),
+    /// as a model file's bf16 copies round them.
+    pub fn round_bf16_weights(&self, flat: &mut [f32]) {
+        for r in self.bf16_weights() {
+            crate::kernels::round_to_bf16(&mut flat[r]);
+        }
+    }
+
     /// Every tensor as `(name, range in the flat vector)`, e.g. `block3.mesh_edge.layer0.weight`,
     /// `block3.body_edge.norm.gamma`, `node_encoder.layer2.bias`, `node_type_embedding` (MLP
     /// names: [`Role::name`](crate::model::Role::name)).
@@ -214,5 +230,21 @@ mod tests {
         lay.unflatten(&f2, &mut q);
         assert_eq!(q.mlps.blocks[1].edges[1].layers[0].weight[3 * b.inp + 5], 42.0);
         assert_eq!(lay.flatten::<f32>(&q), f2);
+        // The bf16 weights: every weight matrix but the encoders', and nothing else.
+        let names = lay.tensors(&spec);
+        let bf16: Vec<Range<usize>> = lay.bf16_weights().collect();
+        let expected: Vec<Range<usize>> = names
+            .iter()
+            .filter(|(n, _)| n.ends_with(".weight") && !n.contains("encoder"))
+            .map(|(_, r)| r.clone())
+            .collect();
+        assert_eq!(bf16, expected);
+        assert!(names.iter().any(|(n, _)| n.starts_with("node_encoder")));
+        let mut rounded = flat.clone();
+        lay.round_bf16_weights(&mut rounded);
+        for (name, r) in &names {
+            let changed = rounded[r.clone()] != flat[r.clone()];
+            assert_eq!(changed, bf16.contains(r), "{name}");
+        }
     }
 }

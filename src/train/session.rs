@@ -21,6 +21,7 @@ use crate::physics::{Objective, RolloutScore, Terms};
 use crate::rng::Rng;
 use crate::sim::Graph;
 use crate::solve::{ImplicitStep, LbfgsParams, StepState};
+use std::borrow::Cow;
 use std::format;
 use std::string::{String, ToString};
 use std::vec;
@@ -113,6 +114,9 @@ pub struct Trainer {
     theta: Vec<f32>,
     /// Moving average of `theta` (config `ema`; empty while off or before the first step).
     ema: Vec<f32>,
+    /// The weights the passes use under config `bf16_weights`: `theta` with its bf16 weights
+    /// rounded, refreshed before every step (empty while off).
+    rounded: Vec<f32>,
     adam: Adam,
     rng: Rng,
     /// Iterations done.
@@ -211,6 +215,7 @@ impl Trainer {
             params,
             theta,
             ema: Vec::new(),
+            rounded: Vec::new(),
             adam,
             rng,
             iteration: 0,
@@ -271,12 +276,24 @@ impl Trainer {
     }
 
     /// The parameters exports and validation use: the moving average of the weights when
-    /// config `ema` is on (and a step has been taken), else the current ones, with the current
-    /// normaliser statistics.
+    /// config `ema` is on (and a step has been taken), else the current ones, their bf16
+    /// weights rounded when config `bf16_weights` is on, with the current normaliser
+    /// statistics.
     pub fn model_params(&self) -> Params {
         let mut p = self.params.clone();
-        self.net.layout.unflatten(model_weights(self.cfg.ema, &self.ema, &self.theta), &mut p);
+        self.net.layout.unflatten(&self.export_weights(), &mut p);
         p
+    }
+
+    /// The flat weights of [`model_params`](Self::model_params).
+    fn export_weights(&self) -> Cow<'_, [f32]> {
+        let w = model_weights(self.cfg.ema, &self.ema, &self.theta);
+        if !self.cfg.bf16_weights {
+            return Cow::Borrowed(w);
+        }
+        let mut rounded = w.to_vec();
+        self.net.layout.round_bf16_weights(&mut rounded);
+        Cow::Owned(rounded)
     }
 
     /// Changes the weight average's decay (config `ema`) from now on; turning it on starts the
@@ -394,7 +411,8 @@ impl Trainer {
             }
             let stats = Stats::<f32>::of(&self.params);
             let exec: &dyn Executor = &self.pool;
-            self.net.forward_fast(&mut self.ws, exec, &self.theta, &stats, &graph, step)?;
+            let weights = pass_weights(&self.cfg, &self.net.layout, &self.theta, &mut self.rounded);
+            self.net.forward_fast(&mut self.ws, exec, weights, &stats, &graph, step)?;
             let lb = LossBody { mesh: &scene.body, current: scene.body_frame(fc), next: scene.body_frame(fnx) };
             let mut sr = StepReport { startup: startup && k == 0, ..StepReport::default() };
             let ok = finite(&self.ws.new_pos);
@@ -425,7 +443,7 @@ impl Trainer {
                 let dx = loss.grad();
                 if sr.total.is_finite() && finite(dx) {
                     grad.iter_mut().for_each(|g| *g = 0.0);
-                    self.net.backward_fast(&mut self.ws, exec, &self.theta, &stats, &graph, step, dx, &mut grad)?;
+                    self.net.backward_fast(&mut self.ws, exec, weights, &stats, &graph, step, dx, &mut grad)?;
                     sr.grad_norm = clip_global_norm(&mut grad, self.cfg.clip);
                 }
             }
@@ -508,6 +526,18 @@ impl Trainer {
         t.rng = Rng::new(t.cfg.seed ^ 0x7a1e_5eed ^ t.iteration.wrapping_mul(0x9e37_79b9_7f4a_7c15));
         Ok(t)
     }
+}
+
+/// The weights a step's passes use: `theta`, or under config `bf16_weights` its copy in
+/// `rounded` with the bf16 weights rounded (the gradient at those then updates `theta`).
+fn pass_weights<'a>(cfg: &TrainConfig, layout: &Layout, theta: &'a [f32], rounded: &'a mut Vec<f32>) -> &'a [f32] {
+    if !cfg.bf16_weights {
+        return theta;
+    }
+    rounded.clear();
+    rounded.extend_from_slice(theta);
+    layout.round_bf16_weights(rounded);
+    rounded
 }
 
 /// `ema ← d·ema + (1 − d)·theta` after an optimiser step, with `d = decay` (nothing when 0;

@@ -60,6 +60,11 @@ pub struct TrainArgs {
     /// average then starts at the current weights unless the checkpoint holds one).
     #[arg(long)]
     ema: Option<f64>,
+    /// Train bf16-exact weights from now on (config key `bf16_weights`), also when resuming:
+    /// the passes use the weights that bf16 precision runs in bf16 rounded to bf16, and exports
+    /// hold them rounded, so that the exported model runs the same weights in f32 and bf16.
+    #[arg(long)]
+    bf16_weights: bool,
     /// Start from an exported model's weights and statistics when the folder has no
     /// checkpoint (for example a committed `models/*.hood`).
     #[arg(long)]
@@ -337,6 +342,12 @@ pub fn train(a: TrainArgs) -> hood::Result<()> {
     }
     if let Some(d) = a.ema {
         t.set_ema(d)?;
+    }
+    if a.bf16_weights {
+        t.cfg.bf16_weights = true;
+    }
+    if t.cfg.bf16_weights {
+        eprintln!("bf16 weights: the passes and exports round every weight outside the encoders to bf16");
     }
     if let Some(p) = a.reference_states {
         t.cfg.reference_states = p;

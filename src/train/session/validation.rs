@@ -1,7 +1,7 @@
 //! Validation of a training run: rollouts of fixed samples with the current weights, scored with
 //! the evaluation-form objective ([`Trainer::validate`]).
 
-use super::{finite, frames_of, graph_of, model_weights, Trainer, ValidationReport};
+use super::{finite, frames_of, graph_of, Trainer, ValidationReport};
 use crate::error::Result;
 use crate::features::DT;
 use crate::physics::{score_rollout, Objective};
@@ -43,6 +43,7 @@ impl Trainer {
         let frames = self.cfg.validation.1.max(2);
         let stats = Stats::<f32>::of(&self.params);
         let mut report = ValidationReport { iteration: self.iteration, rollouts: Vec::new() };
+        let weights = self.export_weights().into_owned();
         for sample in self.validation_samples()? {
             let scene = &self.data.scenes[sample.scene];
             let graph = graph_of(&sample, self.cfg.levels)?;
@@ -67,8 +68,7 @@ impl Trainer {
                 };
                 self.builder.build(&self.net.spec, garment, &graph, &gs, Some(&body), dt, &mut self.step)?;
                 let step = &self.step;
-                let weights = model_weights(self.cfg.ema, &self.ema, &self.theta);
-                self.net.forward_fast(&mut self.ws, &self.pool, weights, &stats, &graph, step)?;
+                self.net.forward_fast(&mut self.ws, &self.pool, &weights, &stats, &graph, step)?;
                 let new_pos = &self.ws.new_pos;
                 if !finite(new_pos) {
                     ok = false;
