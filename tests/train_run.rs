@@ -226,6 +226,7 @@ fn train_bf16_weights_are_trained_and_exported_rounded() {
     let rounded = rounding.export(&[]).unwrap();
     let rounded = hood::model::ModelBytes::new(&rounded);
     let rounded = rounded.model().unwrap();
+    assert!(rounded.bf16_exact() && !plain.bf16_exact());
     let (p, r) = (plain.to_params(), rounded.to_params());
     let encoders = p.mlps.encoders().count();
     for (i, (a, b)) in p.mlps.iter().zip(r.mlps.iter()).enumerate() {

@@ -93,13 +93,14 @@ fn info(a: InfoArgs) -> hood::Result<()> {
     let m = bytes.model()?;
     let spec = m.spec();
     say!(
-        "{}: h = {}, {} blocks, {} levels, {} parameters, bf16 weights: {}",
+        "{}: h = {}, {} blocks, {} levels, {} parameters, bf16 weights: {}{}",
         a.model.display(),
         spec.latent,
         spec.blocks.len(),
         spec.levels,
         spec.parameter_count(),
-        m.has_bf16()
+        m.has_bf16(),
+        if m.bf16_exact() { " (bf16-exact: f32 runs the same weights)" } else { "" }
     );
     let show = |name: &str, (mean, std): (&[f32], &[f32])| {
         let f = |v: &[f32]| v.iter().map(|x| format!("{x:.3e}")).collect::<Vec<_>>().join(" ");

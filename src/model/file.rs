@@ -476,6 +476,19 @@ impl<'a> Model<'a> {
         self.has_bf16
     }
 
+    /// True when the file carries bf16 weights whose f32 copies are the same values (every layer
+    /// after the encoders, as a model trained with bf16-exact weights has them): f32 and bf16
+    /// precision then run the same weights and differ only where bf16 products round the
+    /// activations. Reads every weight once.
+    pub fn bf16_exact(&self) -> bool {
+        self.has_bf16
+            && self
+                .to_params()
+                .mlps
+                .after_encoders()
+                .all(|m| m.layers.iter().all(|l| l.weight.iter().all(|&w| bf16::from_f32(w).to_f32() == w)))
+    }
+
     /// Frozen `(mean, std)` of the node normaliser (21 columns).
     pub fn node_stats(&self) -> (&'a [f32], &'a [f32]) {
         self.norm[0]

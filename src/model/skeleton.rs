@@ -154,6 +154,12 @@ impl<M> Mlps<M> {
         once(&self.node_encoder).chain(self.edge_encoders.iter()).chain(self.body_encoder.iter())
     }
 
+    /// The MLPs after the encoders (the blocks' and the decoder), in the skeleton's order: those
+    /// bf16 precision runs on bf16 weights.
+    pub fn after_encoders(&self) -> impl Iterator<Item = &M> + '_ {
+        self.iter().skip(self.encoders().count())
+    }
+
     /// Every MLP in the skeleton's order, mutable.
     pub fn iter_mut(&mut self) -> impl Iterator<Item = &mut M> + '_ {
         let blocks =

@@ -161,8 +161,7 @@ impl Layout {
     /// encoders (the runtime encodes in f32 under bf16 too, [`crate::sim::Precision::Bf16`]).
     /// Biases, LayerNorms and embeddings are f32 in both precisions.
     pub fn bf16_weights(&self) -> impl Iterator<Item = Range<usize>> + '_ {
-        let encoders = self.mlps.encoders().count();
-        self.mlps.iter().skip(encoders).flat_map(|m| m.layers.iter().map(|l| l.w..l.w + l.inp * l.out))
+        self.mlps.after_encoders().flat_map(|m| m.layers.iter().map(|l| l.w..l.w + l.inp * l.out))
     }
 
     /// Rounds the [`bf16_weights`](Self::bf16_weights) of a flat vector to bf16 values (in f32),
