@@ -61,7 +61,9 @@ use core::sync::atomic::{AtomicU8, Ordering};
 
 pub use choose::{bf16_choice, f32_choice, ChoiceReason, TierChoice, SWITCH_MARGIN};
 
-pub use pack::{pack_bf16, pack_f32, packed_len_bf16, packed_len_f32, round_to_bf16, PackedBf16, PackedF32, Weights};
+pub use pack::{
+    bf16_value, pack_bf16, pack_f32, packed_len_bf16, packed_len_f32, round_to_bf16, PackedBf16, PackedF32, Weights,
+};
 pub(crate) use pack::{padded_cols, PANEL};
 
 use crate::error::{check_at_least, check_len};

@@ -83,11 +83,16 @@ pub fn pack_f32(w: &[f32], n_out: usize, n_in: usize, cols: Range<usize>, dst: &
     Ok(())
 }
 
-/// Rounds every value to the nearest bf16 (ties to even), kept in f32: the values the bf16
-/// weights of [`pack_bf16`] hold.
+/// `x` rounded to the nearest bf16 (ties to even), kept in f32: the value the bf16 weights of
+/// [`pack_bf16`] hold for it.
+pub fn bf16_value(x: f32) -> f32 {
+    bf16::from_f32(x).to_f32()
+}
+
+/// Rounds every value as [`bf16_value`] does.
 pub fn round_to_bf16(values: &mut [f32]) {
     for v in values {
-        *v = bf16::from_f32(*v).to_f32();
+        *v = bf16_value(*v);
     }
 }
 

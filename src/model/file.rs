@@ -486,7 +486,7 @@ impl<'a> Model<'a> {
                 .to_params()
                 .mlps
                 .after_encoders()
-                .all(|m| m.layers.iter().all(|l| l.weight.iter().all(|&w| bf16::from_f32(w).to_f32() == w)))
+                .all(|m| m.layers.iter().all(|l| l.weight.iter().all(|&w| kernels::bf16_value(w) == w)))
     }
 
     /// Frozen `(mean, std)` of the node normaliser (21 columns).
