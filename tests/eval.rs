@@ -309,10 +309,30 @@ fn eval_cli_validate_matches_simulate_and_is_deterministic_in_parallel() {
     // Every figure but the name and the wall time (the last column) agrees.
     let n = rows[0].len();
     assert_eq!(rows[0][2..n - 2], rows[1][2..n - 2], "{table}");
-    assert_eq!(std::fs::read_to_string(tables.join("validation.md")).unwrap().lines().count(), 10);
+    assert_eq!(std::fs::read_to_string(tables.join("validation.md")).unwrap().lines().count(), 12);
     // The off-body verdict leads: the skirt stays on, and the closing line counts it.
     assert_eq!(rows[0][4], "yes", "{table}");
     assert!(table.contains("models-compact 1 of 1, a-compact 1 of 1."), "{table}");
+    // The split's means over all scenes and over the kept ones: the same for the two copies; with
+    // the one scene kept, the kept means are the means, and they are the row's figures.
+    let split = |name: &str| {
+        let from = table.find(&format!("{name}: absolute gap ")).expect("the split line names every model");
+        table[from + name.len()..].split(['\n', ';']).next().unwrap().trim_end_matches('.').to_owned()
+    };
+    let one = split("models-compact");
+    assert_eq!(one, split("a-compact"), "{table}");
+    let numbers: Vec<f64> =
+        one.split(|c: char| !(c.is_ascii_digit() || c == '.')).filter_map(|t| t.parse().ok()).collect();
+    // absolute gap (kept), penetrating (kept), the strain goal, strained (kept), largest kept.
+    assert_eq!(numbers.len(), 8, "{one}");
+    assert_eq!((numbers[0], numbers[2]), (numbers[1], numbers[3]), "{one}");
+    assert_eq!(numbers[2], rows[0][15].parse::<f64>().unwrap(), "{table}");
+    let strain: f64 = rows[0][17].parse().unwrap();
+    assert_eq!(numbers[7], strain, "{table}");
+    let strained = f64::from(u8::from(strain > 1.5));
+    assert_eq!((numbers[5], numbers[6]), (strained, strained), "{one}");
+    let met = strain <= 1.5 && numbers[2] < 2.0;
+    assert!(one.ends_with(if met { "goals met" } else { "goals not met" }), "{one}");
     for f in ["models-compact-skirt.png", "a-compact-skirt.png"] {
         assert!(tables.join(f).exists(), "{f} missing");
     }

@@ -10,6 +10,8 @@
 //!   step time, optionally the [`Gap`] and the % of vertices inside the body); the [`Rollout`]
 //!   keeps chosen frames' positions and a [`Summary`].
 //! * [`strip_images`]: preview images of kept frames (write them with `io::png::write_strip`).
+//! * [`SplitSummary`]: many rollouts' figures reduced to a model card's lines, over every rollout
+//!   and over those that kept the garment on.
 //!
 //! Scoring (one place for each piece of math): the terms are those of
 //! [`ImplicitStep::evaluate`], the same function the optimum is measured with, so that model,
@@ -40,6 +42,7 @@ mod common;
 mod off_body;
 mod rollout;
 mod scoring;
+mod split;
 mod summary;
 pub use animation::{Animation, Playback};
 pub use common::{common_state_gaps, Method, Reference};
@@ -48,6 +51,7 @@ pub use off_body::{
     RIDE_UP_WINDOW, WORN_DISTANCE,
 };
 pub use rollout::{implicit_rollout, rollout, rollout_observed};
+pub use split::{AllAndKept, SplitSummary, PENETRATING_GOAL_PERCENT, STRAIN_GOAL};
 pub use summary::{percentile, Summary};
 
 /// What a rollout measures besides the per-frame figures.

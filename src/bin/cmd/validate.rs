@@ -11,7 +11,10 @@ use crate::objective::ObjectiveArg;
 use crate::progress::Progress;
 use crate::simulate::{material, named_scene, parse_precision, step_mode};
 use clap::Args;
-use hood::eval::{common_state_gaps, rollout, strip_images, Method, Reference, RolloutOptions, Summary};
+use hood::eval::{
+    common_state_gaps, rollout, strip_images, Method, Reference, RolloutOptions, SplitSummary, Summary,
+    PENETRATING_GOAL_PERCENT, STRAIN_GOAL,
+};
 use hood::model::{Model, ModelBytes};
 use hood::sim::SimConfig;
 use hood::{Error, Result};
@@ -169,6 +172,53 @@ fn gap_cell(s: &Summary) -> String {
     }
 }
 
+/// The lines under the table: per model, the mean own-rollout relative gap (one figure to rank
+/// snapshots; only for models scored on every scene), the garments kept on the body, and the
+/// split's figures over every scene and over the kept ones against the motion corpus's goals.
+fn closing_lines<'a>(summaries: &[Vec<Summary>], scenes: usize, stem: impl Fn(usize) -> &'a str) -> String {
+    let splits: Vec<(usize, SplitSummary)> =
+        summaries.iter().enumerate().filter(|(_, s)| !s.is_empty()).map(|(m, s)| (m, SplitSummary::of(s))).collect();
+    let mut out = String::new();
+    let means: Vec<String> = splits
+        .iter()
+        .filter(|(m, s)| s.rollouts == scenes && summaries[*m].iter().all(|r| r.gap_mean.is_some()))
+        .filter_map(|(m, s)| s.gap.all.map(|g| format!("{} {g:.3}", stem(*m))))
+        .collect();
+    if !means.is_empty() {
+        out += &format!("\nMean own-rollout relative gap over the {scenes} scene(s): {}.\n", means.join(", "));
+    }
+    if splits.is_empty() {
+        return out;
+    }
+    let verdicts: Vec<String> =
+        splits.iter().map(|(m, s)| format!("{} {} of {}", stem(*m), s.kept, s.rollouts)).collect();
+    out += &format!("\nGarment on the body ({}): {}.\n", hood::eval::kept_rule(), verdicts.join(", "));
+    let either = |x: Option<f64>, f: &dyn Fn(f64) -> String| x.map_or_else(|| "-".into(), f);
+    let per_model: Vec<String> = splits
+        .iter()
+        .map(|(m, s)| {
+            format!(
+                "{}: absolute gap {} (kept {}), penetrating {} (kept {}), largest strain above {STRAIN_GOAL} on {} (kept {}, largest {}), goals {}",
+                stem(*m),
+                either(s.gap_abs.all, &joules),
+                either(s.gap_abs.kept, &joules),
+                either(s.penetrating_percent.all, &|p| format!("{p:.2} %")),
+                either(s.penetrating_percent.kept, &|p| format!("{p:.2} %")),
+                s.strained,
+                s.strained_kept,
+                either(s.max_kept_strain, &|x| format!("{x:.3}")),
+                if s.meets_goals() { "met" } else { "not met" },
+            )
+        })
+        .collect();
+    out += &format!(
+        "\nMeans over the scenes, and over those that kept the garment on (a lost garment flatters the penetration and the gap); \
+         goals of a model alone: every scene kept, largest strain at most {STRAIN_GOAL}, under {PENETRATING_GOAL_PERCENT} % penetrating on average: {}.\n",
+        per_model.join("; ")
+    );
+    out
+}
+
 /// An energy in the unit that keeps it readable.
 fn joules(e: f64) -> String {
     if e.abs() >= 1.0 {
@@ -309,10 +359,8 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
             + &if a.solver > 0 { format!(", the solver step mode ({} iterations per step, no network)", a.solver) } else { String::new() }
     );
     let mut failed = None;
-    // Each model's own-rollout relative gaps, for the closing line (one figure to rank snapshots).
-    let mut gaps: Vec<Vec<f64>> = vec![Vec::new(); a.models.len()];
-    // Each model's verdicts: garment kept on the body (and finite) per scene.
-    let mut kept: Vec<Vec<bool>> = vec![Vec::new(); a.models.len()];
+    // Each model's own-rollout summaries, for the closing lines.
+    let mut summaries: Vec<Vec<Summary>> = vec![Vec::new(); a.models.len()];
     for (&(m, s), r) in jobs.iter().zip(results) {
         let row = match r {
             Some(Ok(row)) => row,
@@ -324,8 +372,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
             None => continue,
         };
         let o = &row.own;
-        gaps[m].extend(o.gap_mean);
-        kept[m].push(o.garment_kept());
+        summaries[m].push(*o);
         let f2 = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.2}"));
         let f3 = |x: Option<f64>| x.map_or_else(|| "-".into(), |v| format!("{v:.3}"));
         table += &format!(
@@ -354,25 +401,7 @@ pub fn validate(a: ValidateArgs) -> Result<()> {
             row.seconds
         );
     }
-    let means: Vec<String> = gaps
-        .iter()
-        .enumerate()
-        .filter(|(_, g)| g.len() == scenes.len())
-        .map(|(m, g)| format!("{} {:.3}", stem(m), g.iter().sum::<f64>() / g.len() as f64))
-        .collect();
-    if !means.is_empty() {
-        table +=
-            &format!("\nMean own-rollout relative gap over the {} scene(s): {}.\n", scenes.len(), means.join(", "));
-    }
-    let verdicts: Vec<String> = kept
-        .iter()
-        .enumerate()
-        .filter(|(_, k)| !k.is_empty())
-        .map(|(m, k)| format!("{} {} of {}", stem(m), k.iter().filter(|&&x| x).count(), k.len()))
-        .collect();
-    if !verdicts.is_empty() {
-        table += &format!("\nGarment on the body ({}): {}.\n", hood::eval::kept_rule(), verdicts.join(", "));
-    }
+    table += &closing_lines(&summaries, scenes.len(), stem);
     let path = a.out.join("validation.md");
     std::fs::write(&path, &table).map_err(|e| hood::Error::io(&path, e))?;
     say!("{table}\nwrote {} and the strips beside it", path.display());
