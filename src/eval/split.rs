@@ -48,28 +48,24 @@ impl SplitSummary {
     /// Reduces the rollouts' summaries.
     pub fn of<'a>(rollouts: impl IntoIterator<Item = &'a Summary>) -> Self {
         let mut s = Self::default();
-        let mut sums = [Mean::default(); 6];
+        let (mut gap, mut gap_abs, mut penetrating) = (MeanPair::default(), MeanPair::default(), MeanPair::default());
         for r in rollouts {
             let kept = r.garment_kept();
             s.rollouts += 1;
             s.kept += usize::from(kept);
             let strained = r.max_edge_strain > STRAIN_GOAL;
             s.strained += usize::from(strained);
-            for (i, x) in [r.gap_mean, r.gap_abs_mean, Some(r.mean_penetrating_percent)].into_iter().enumerate() {
-                sums[2 * i].add(x);
-                if kept {
-                    sums[2 * i + 1].add(x);
-                }
-            }
+            gap.add(r.gap_mean, kept);
+            gap_abs.add(r.gap_abs_mean, kept);
+            penetrating.add(Some(r.mean_penetrating_percent), kept);
             if kept {
                 s.strained_kept += usize::from(strained);
                 s.max_kept_strain = Some(s.max_kept_strain.map_or(r.max_edge_strain, |m| m.max(r.max_edge_strain)));
             }
         }
-        let pair = |i: usize| AllAndKept { all: sums[i].mean(), kept: sums[i + 1].mean() };
-        s.gap = pair(0);
-        s.gap_abs = pair(2);
-        s.penetrating_percent = pair(4);
+        s.gap = gap.means();
+        s.gap_abs = gap_abs.means();
+        s.penetrating_percent = penetrating.means();
         s
     }
 
@@ -84,23 +80,26 @@ impl SplitSummary {
     }
 }
 
-/// A running mean of the figures that are present.
+/// Running means of the figures that are present, over every rollout and over the kept ones.
 #[derive(Clone, Copy, Debug, Default)]
-struct Mean {
-    sum: f64,
-    count: usize,
+struct MeanPair {
+    all: (f64, usize),
+    kept: (f64, usize),
 }
 
-impl Mean {
-    fn add(&mut self, x: Option<f64>) {
+impl MeanPair {
+    fn add(&mut self, x: Option<f64>, kept: bool) {
         if let Some(x) = x {
-            self.sum += x;
-            self.count += 1;
+            self.all = (self.all.0 + x, self.all.1 + 1);
+            if kept {
+                self.kept = (self.kept.0 + x, self.kept.1 + 1);
+            }
         }
     }
 
-    fn mean(&self) -> Option<f64> {
-        (self.count > 0).then(|| self.sum / self.count as f64)
+    fn means(&self) -> AllAndKept {
+        let mean = |(sum, n): (f64, usize)| (n > 0).then(|| sum / n as f64);
+        AllAndKept { all: mean(self.all), kept: mean(self.kept) }
     }
 }
 
