@@ -912,8 +912,8 @@ fn runtime_network_step_hands_off_few_jobs() {
         let handoffs = count.load(Ordering::Relaxed) - before;
         let spec = model.spec();
         // Body edges split between tasks only past 64 of them: both directions' projections in
-        // one job, each direction's edge kernel, and the sum.
-        let body_jobs = if sim.last_body_counts().0 > 64 { 1 + 2 + 1 } else { 0 };
+        // one job, both directions' edge kernels in another, and the sum.
+        let body_jobs = if sim.last_body_counts().0 > 64 { 1 + 1 + 1 } else { 0 };
         let per_block: usize = spec.blocks.iter().map(|b| 2 * b.keys.len() + body_jobs + 1 + 1).sum();
         let encoders =
             1 + spec.blocks.iter().flat_map(|b| &b.keys).collect::<std::collections::BTreeSet<_>>().len() + 1;

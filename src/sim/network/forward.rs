@@ -1,7 +1,7 @@
 //! The forward pass over the workspace's buffers: edge encoders ([`Workspace::encode_edges`]),
 //! then nodes, body edges, message-passing blocks and decoder ([`Workspace::forward`]).
 
-use super::tasks::{gather, scatter, Edges, Par};
+use super::tasks::{Agg, BodyLinks, Gather, Input, Par, Projections};
 use super::{BodyEdges, Net, Probe, Stage, Workspace};
 use crate::error::{Error, Result};
 use crate::exec::Executor;
@@ -92,37 +92,40 @@ impl Workspace {
             par.fill_each(&mut self.slots[..n_slots], rows * h);
             for (ki, (&key, mlp)) in bspec.keys.iter().zip(&bview.edges).enumerate() {
                 let slot = &mut self.slots[ki][..rows * h];
+                let proj = (&mut self.proj_t[..], &mut self.proj_s[..]);
                 match key.coarse_level() {
                     None => {
                         let e = &graph.mesh;
-                        let x = &self.latents[..v * h];
                         par.edge_mlp(
                             net,
                             mlp,
-                            (x, x),
-                            Edges::Split { list: e, split: &self.mesh_split },
+                            (Input::Rows(&self.latents[..v * h]), None),
+                            (e, &self.mesh_split),
                             &mut self.mesh_latents[..e.target.len() * h],
-                            &mut slot[..v * h],
-                            (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
+                            Agg::Rows(&mut slot[..v * h]),
+                            proj,
                         )?;
                     }
                     Some(l) => {
+                        // The level's nodes are gathered by the projections' tasks, and their
+                        // sums scattered into the slot by the edge kernel's.
                         let level = &graph.coarse[l];
                         let nl = level.nodes.len();
-                        gather(&self.latents, &level.nodes, h, &mut self.gathered[..nl * h]);
-                        let local = &mut self.local_agg[..nl * h];
-                        local.fill(0.0);
-                        let x = &self.gathered[..nl * h];
+                        let gather = Gather {
+                            src: &self.latents,
+                            idx: &level.nodes,
+                            width: h,
+                            into: &mut self.gathered[..nl * h],
+                        };
                         par.edge_mlp(
                             net,
                             mlp,
-                            (x, x),
-                            Edges::Split { list: &level.edges, split: &self.coarse_split[l] },
+                            (Input::Gathered, Some(gather)),
+                            (&level.edges, &self.coarse_split[l]),
                             &mut self.coarse_latents[l][..level.edges.target.len() * h],
-                            local,
-                            (&mut self.proj_t, &mut self.proj_s, &mut self.proj_edge),
+                            Agg::Scattered { local: &mut self.local_agg[..nl * h], nodes: &level.nodes, slot },
+                            proj,
                         )?;
-                        scatter(&self.local_agg[..nl * h], &level.nodes, h, slot);
                     }
                 }
             }
@@ -132,52 +135,39 @@ impl Workspace {
                 let n = body.prefix[depth];
                 let slot = &mut self.slots[bspec.keys.len()][..rows * h];
                 if n > 0 {
-                    gather(&self.latents, &body.garment[..n], h, &mut self.gathered[..n * h]);
-                    let xg = &self.gathered[..n * h];
                     let xb = &self.latents[v * h..rows * h];
                     // Both directions' node projections (the same weights on swapped ends) in
-                    // one job.
+                    // one job, whose tasks gather the garment ends' rows first.
+                    let gather = Gather {
+                        src: &self.latents,
+                        idx: &body.garment[..n],
+                        width: h,
+                        into: &mut self.gathered[..n * h],
+                    };
                     let [b2g_t, b2g_s, g2b_t, g2b_s] = par.node_projections(
                         net,
                         mlp,
+                        Some(gather),
                         [
-                            (xg, 0, &mut self.proj_t[..]),
-                            (xb, 1, &mut self.proj_s[..]),
-                            (xb, 0, &mut self.g2b_proj_t[..]),
-                            (xg, 1, &mut self.g2b_proj_s[..]),
+                            (Input::Gathered, 0, &mut self.proj_t[..]),
+                            (Input::Rows(xb), 1, &mut self.proj_s[..]),
+                            (Input::Rows(xb), 0, &mut self.g2b_proj_t[..]),
+                            (Input::Gathered, 1, &mut self.g2b_proj_s[..]),
                         ],
                     )?;
-                    // body -> garment: each garment end has one body edge, so the per-edge
-                    // messages are its aggregate: compute them in edge order, then scatter.
-                    let msgs = &mut self.local_agg[..n * h];
-                    msgs.fill(0.0);
-                    par.edge_kernel(
+                    let links = BodyLinks { garment: &body.garment[..n], body: &body.body[..n], iota: graph.iota() };
+                    par.body_messages(
                         net,
                         mlp,
-                        (b2g_t, b2g_s),
-                        Edges::PerEdge { source: &body.body[..n], iota: graph.iota(), target_rows: None },
-                        &mut self.b2g_latents[..n * h],
-                        msgs,
+                        &links,
+                        (Projections { target: b2g_t, source: b2g_s }, Projections { target: g2b_t, source: g2b_s }),
+                        (&mut self.b2g_latents[..n * h], &mut self.g2b_latents[..n * h]),
+                        &mut self.local_agg[..n * h],
                         &mut self.proj_edge,
+                        &mut slot[..v * h],
                     )?;
-                    scatter(&self.local_agg[..n * h], &body.garment[..n], h, slot);
-                    // garment -> body: per-edge messages, then a sum per active body node in
-                    // edge order (independent of the task split).
-                    let msgs = &mut self.local_agg[..n * h];
-                    msgs.fill(0.0);
-                    par.edge_kernel(
-                        net,
-                        mlp,
-                        (g2b_t, g2b_s),
-                        Edges::PerEdge {
-                            source: &graph.iota()[..n],
-                            iota: graph.iota(),
-                            target_rows: Some(&body.body[..n]),
-                        },
-                        &mut self.g2b_latents[..n * h],
-                        msgs,
-                        &mut self.proj_edge,
-                    )?;
+                    // garment -> body: a sum per active body node in edge order (independent of
+                    // the task split).
                     let offsets = &mut self.g2b_offsets[..a + 1];
                     let perm = &mut self.g2b_perm[..n];
                     counting_sort(&body.body[..n], offsets, perm);

@@ -1,6 +1,9 @@
 //! The network's row passes split between tasks ([`Par`]): MLPs by row ranges, edge MLPs by
-//! target ranges, linear layers, fills, copies and row reductions, each task with its own
-//! scratch; and the chunked MLP one task runs over its rows.
+//! target ranges (body edges by edge ranges, both directions in one job), node projections
+//! (each task gathering the rows it projects, where they are gathered), fills and row
+//! reductions, each task with its own scratch; and the chunked MLP one task runs over its rows.
+//! Copies between the passes (gathers, scatters, zeroing) run inside the jobs that use them,
+//! each task on its own rows, rather than on the calling thread between jobs.
 
 use super::{EdgeSplit, Net, TaskBufs, CHUNK};
 use crate::error::{Error, Result};
@@ -16,30 +19,57 @@ use core::ops::Range;
 const PAR_FLOATS: usize = 1 << 15;
 
 /// Copies rows `idx` of `src` (`h` wide) into consecutive rows of `dst`.
-pub(super) fn gather(src: &[f32], idx: &[u32], h: usize, dst: &mut [f32]) {
+fn gather(src: &[f32], idx: &[u32], h: usize, dst: &mut [f32]) {
     for (d, &g) in dst.chunks_exact_mut(h).zip(idx) {
         let g = g as usize;
         d.copy_from_slice(&src[g * h..(g + 1) * h]);
     }
 }
 
-/// Copies consecutive rows of `src` into rows `idx` of `dst`.
-pub(super) fn scatter(src: &[f32], idx: &[u32], h: usize, dst: &mut [f32]) {
-    for (s, &g) in src.chunks_exact(h).zip(idx) {
-        let g = g as usize;
-        dst[g * h..(g + 1) * h].copy_from_slice(s);
-    }
+/// Rows `idx` of `src` (`width` wide), gathered into `into` by the tasks of the job that reads
+/// them, each task its own rows (split as that job splits `idx.len()` rows), so that the copy
+/// runs on both threads and each thread then reads rows it has just written.
+pub(super) struct Gather<'a> {
+    pub(super) src: &'a [f32],
+    pub(super) idx: &'a [u32],
+    pub(super) width: usize,
+    pub(super) into: &'a mut [f32],
 }
 
-/// The edges of one edge-MLP call.
+/// The rows a product of [`Par::node_projections`] reads.
 #[derive(Clone, Copy)]
-pub(super) enum Edges<'a> {
-    /// A static list sorted by target, split at target changes.
-    Split { list: &'a EdgeList, split: &'a EdgeSplit },
-    /// One message row per edge (target `e` is edge `e`), any split; `iota` is `0, 1, 2, ...`.
-    /// With `target_rows`, the target-side rows `x.0` are per node and edge `e` reads row
-    /// `target_rows[e]` (its projection is gathered per edge first).
-    PerEdge { source: &'a [u32], iota: &'a [u32], target_rows: Option<&'a [u32]> },
+pub(super) enum Input<'a> {
+    /// These rows.
+    Rows(&'a [f32]),
+    /// The job's [`Gather`]ed rows.
+    Gathered,
+}
+
+/// An edge MLP's node projections: rows for its edges' target ends and for their source ends.
+#[derive(Clone, Copy)]
+pub(super) struct Projections<'a> {
+    pub(super) target: &'a [f32],
+    pub(super) source: &'a [f32],
+}
+
+/// Where an edge MLP's messages are summed.
+pub(super) enum Agg<'a> {
+    /// Into these rows (target node `i` of the edge list is row `i`), which hold zeros or sums
+    /// to add to.
+    Rows(&'a mut [f32]),
+    /// Into `local` (row `i` for target `i`), then copied to row `nodes[i]` of `slot`: each task
+    /// zeroes, sums and copies the rows of its own targets. Rows of targets without edges are
+    /// neither read nor copied: `slot` keeps whatever those rows held (zeros, in a block's
+    /// message slots).
+    Scattered { local: &'a mut [f32], nodes: &'a [u32], slot: &'a mut [f32] },
+}
+
+/// The body edges of a block as [`Par::body_messages`] reads them: garment vertex and active
+/// body row of each edge, and `0, 1, 2, ...` (at least as many as edges).
+pub(super) struct BodyLinks<'a> {
+    pub(super) garment: &'a [u32],
+    pub(super) body: &'a [u32],
+    pub(super) iota: &'a [u32],
 }
 
 /// The executor with per-task scratch.
@@ -135,67 +165,53 @@ impl Par<'_> {
         })
     }
 
-    /// One edge set through an edge MLP: both node projections (row-split, one job), then the
-    /// fused kernel ([`Par::edge_kernel`]).
+    /// One static edge set through an edge MLP: both node projections of `x` (row-split, one
+    /// job, gathering `x` first when it is [`Input::Gathered`]), then the fused kernel
+    /// ([`Par::edge_kernel`]).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn edge_mlp(
         &mut self,
         net: &Net<'_>,
         mlp: &MlpView<'_>,
-        x: (&[f32], &[f32]),
-        edges: Edges<'_>,
+        (x, gather): (Input<'_>, Option<Gather<'_>>),
+        (list, split): (&EdgeList, &EdgeSplit),
         latent: &mut [f32],
-        aggregate: &mut [f32],
-        proj: (&mut [f32], &mut [f32], &mut [f32]),
+        aggregate: Agg<'_>,
+        proj: (&mut [f32], &mut [f32]),
     ) -> Result<()> {
-        let [pt, ps] = self.node_projections(net, mlp, [(x.0, 0, proj.0), (x.1, 1, proj.1)])?;
-        self.edge_kernel(net, mlp, (pt, ps), edges, latent, aggregate, proj.2)
+        let [pt, ps] = self.node_projections(net, mlp, gather, [(x, 0, proj.0), (x, 1, proj.1)])?;
+        self.edge_kernel(net, mlp, Projections { target: pt, source: ps }, (list, split), latent, aggregate)
     }
 
     /// The first layer's node projections of an edge MLP, in one job: product `i` is
     /// `x_i · W_{part_i}ᵀ` (part 0 the target's weights, 1 the source's), written to the start
-    /// of `out_i`, which is returned cut to its rows.
+    /// of `out_i`, which is returned cut to its rows. Products of [`Input::Gathered`] rows read
+    /// `gather`'s rows, which each task copies first (see [`Par::linear_each`]).
     pub(super) fn node_projections<'o, const N: usize>(
         &mut self,
         net: &Net<'_>,
         mlp: &MlpView<'_>,
-        products: [(&[f32], usize, &'o mut [f32]); N],
+        gather: Option<Gather<'_>>,
+        products: [(Input<'_>, usize, &'o mut [f32]); N],
     ) -> Result<[&'o [f32]; N]> {
         let l0 = &mlp.layers[0];
         let (parts, h) = (net.parts(l0)?, l0.out);
+        let gathered_rows = gather.as_ref().map_or(0, |g| g.idx.len());
         let outs = products.map(|(x, part, out)| {
-            let n = x.len() / h;
+            let n = match x {
+                Input::Rows(x) => x.len() / h,
+                Input::Gathered => gathered_rows,
+            };
             (x, parts[part], &mut out[..n * h])
         });
-        self.linear_each(net, outs)
+        self.linear_each(net, gather, outs)
     }
 
-    /// The fused edge kernel of `mlp` on node projections `pt` (target rows; per node when
-    /// `edges` has `target_rows`, gathered per edge into `per_edge` first) and `ps` (source
-    /// rows): split by target ranges (a static list) or edge ranges (per-edge messages), so that
-    /// no target's sum spans two tasks.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn edge_kernel(
-        &mut self,
-        net: &Net<'_>,
-        mlp: &MlpView<'_>,
-        (pt, ps): (&[f32], &[f32]),
-        edges: Edges<'_>,
-        latent: &mut [f32],
-        aggregate: &mut [f32],
-        per_edge: &mut [f32],
-    ) -> Result<()> {
+    /// The edge MLP parts of `mlp` as the fused kernel takes them, and its useful FLOPs per edge.
+    fn edge_parts<'m>(net: &Net<'m>, mlp: &MlpView<'m>) -> Result<(EdgeMlp<'m>, usize)> {
         let l = &mlp.layers;
         let p1 = net.parts(&l[0])?;
         let h = l[0].out;
-        let pt: &[f32] = match edges {
-            Edges::PerEdge { target_rows: Some(rows), .. } => {
-                let per_edge = &mut per_edge[..rows.len() * h];
-                gather(pt, rows, h, per_edge);
-                per_edge
-            }
-            _ => pt,
-        };
         let em = EdgeMlp {
             w1_edge: p1[2],
             b1: l[0].bias,
@@ -205,80 +221,179 @@ impl Par<'_> {
             b3: l[2].bias,
             layer_norm: mlp.layer_norm,
         };
+        let flops = 2 * (em.w1_edge.k() * h + em.w2.k() * em.w2.n() + em.w3.k() * em.w3.n());
+        Ok((em, flops))
+    }
+
+    /// The fused edge kernel of `mlp` on the node projections `proj` of a static edge list, split by target ranges so that no target's sum spans two
+    /// tasks.
+    fn edge_kernel(
+        &mut self,
+        net: &Net<'_>,
+        mlp: &MlpView<'_>,
+        proj: Projections<'_>,
+        (list, split): (&EdgeList, &EdgeSplit),
+        latent: &mut [f32],
+        aggregate: Agg<'_>,
+    ) -> Result<()> {
+        let (em, edge_flops) = Self::edge_parts(net, mlp)?;
+        let h = em.w2.k();
         let k_e = em.w3.n();
         let n_edges = latent.len() / k_e;
-        *self.flops += 2 * (n_edges * (em.w1_edge.k() * h + em.w2.k() * em.w2.n() + em.w3.k() * k_e)) as u64;
+        *self.flops += (n_edges * edge_flops) as u64;
         let latent = Disjoint::new(latent);
-        let aggregate = Disjoint::new(aggregate);
-        let tasks = self.tasks.len().min(n_edges.div_ceil(64)).max(1);
-        match edges {
-            Edges::Split { list, split } => {
-                let n = split.bounds.len() - 1;
-                self.run(n, &|t, tb| {
-                    let (a, b) = (split.bounds[t], split.bounds[t + 1]);
-                    if a == b {
-                        return Ok(());
-                    }
-                    let (lo, hi) = (list.target[a] as usize, list.target[b - 1] as usize + 1);
-                    let inputs = EdgeInputs {
-                        p_target: &pt[lo * h..hi * h],
-                        p_source: ps,
-                        target: &split.rebased[a..b],
-                        source: &list.source[a..b],
-                    };
-                    // SAFETY: edge ranges are disjoint, and so are their target ranges (the split
-                    // never cuts a target's edges).
-                    let (lat, agg) = unsafe { (latent.range(a * k_e..b * k_e), aggregate.range(lo * k_e..hi * k_e)) };
-                    net.kernels.edge_mlp(&em, &inputs, lat, agg, &mut tb.edge)
-                })
+        let (aggregate, scatter) = match aggregate {
+            Agg::Rows(rows) => (Disjoint::new(rows), None),
+            Agg::Scattered { local, nodes, slot } => (Disjoint::new(local), Some((nodes, Disjoint::new(slot)))),
+        };
+        let n = split.bounds.len() - 1;
+        self.run(n, &|t, tb| {
+            let (a, b) = (split.bounds[t], split.bounds[t + 1]);
+            if a == b {
+                return Ok(());
             }
-            Edges::PerEdge { source, iota, .. } => self.run(tasks, &|t, tb| {
-                let r = split(n_edges, tasks, t);
-                if r.is_empty() {
-                    return Ok(());
+            let (lo, hi) = (list.target[a] as usize, list.target[b - 1] as usize + 1);
+            let inputs = EdgeInputs {
+                p_target: &proj.target[lo * h..hi * h],
+                p_source: proj.source,
+                target: &split.rebased[a..b],
+                source: &list.source[a..b],
+            };
+            // SAFETY: edge ranges are disjoint, and so are their target ranges (the split never
+            // cuts a target's edges).
+            let (lat, agg) = unsafe { (latent.range(a * k_e..b * k_e), aggregate.range(lo * k_e..hi * k_e)) };
+            if scatter.is_some() {
+                agg.fill(0.0);
+            }
+            net.kernels.edge_mlp(&em, &inputs, lat, agg, &mut tb.edge)?;
+            if let Some((nodes, slot)) = &scatter {
+                for (row, &node) in agg.chunks_exact(k_e).zip(&nodes[lo..hi]) {
+                    let node = node as usize;
+                    // SAFETY: `nodes` holds distinct rows (a coarse level's fine vertices), and
+                    // tasks copy the rows of disjoint target ranges.
+                    unsafe { slot.range(node * k_e..(node + 1) * k_e) }.copy_from_slice(row);
                 }
-                let inputs = EdgeInputs {
-                    p_target: &pt[r.start * h..r.end * h],
-                    p_source: ps,
-                    target: &iota[..r.len()],
-                    source: &source[r.clone()],
-                };
-                // SAFETY: edge ranges (and so their message rows) are disjoint between tasks.
-                let (lat, agg) =
-                    unsafe { (latent.range(r.start * k_e..r.end * k_e), aggregate.range(r.start * k_e..r.end * k_e)) };
-                net.kernels.edge_mlp(&em, &inputs, lat, agg, &mut tb.edge)
-            }),
-        }
+            }
+            Ok(())
+        })
+    }
+
+    /// Both directions of a block's body edges through the body edge MLP `mlp` (one set of
+    /// weights on swapped ends), in one job split by edge ranges. Each task, for its edges:
+    /// body -> garment, whose target ends each have one body edge, so that a message is its
+    /// garment vertex's sum, copied into row `garment[e]` of `slot` (the garment rows of the
+    /// block's body slot); then garment -> body, one message per edge into `msgs`, for
+    /// [`Par::reduce_rows`] to sum per active body node. `b2g` are the node projections of the
+    /// body -> garment direction (target: per edge, source: per active body node), `g2b` those
+    /// of the garment -> body direction (target: per active body node, gathered per edge into
+    /// `per_edge` first; source: per edge).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn body_messages(
+        &mut self,
+        net: &Net<'_>,
+        mlp: &MlpView<'_>,
+        links: &BodyLinks<'_>,
+        (b2g, g2b): (Projections<'_>, Projections<'_>),
+        (b2g_latent, g2b_latent): (&mut [f32], &mut [f32]),
+        msgs: &mut [f32],
+        per_edge: &mut [f32],
+        slot: &mut [f32],
+    ) -> Result<()> {
+        let (em, edge_flops) = Self::edge_parts(net, mlp)?;
+        let h = em.w2.k();
+        let k_e = em.w3.n();
+        let n_edges = links.garment.len();
+        *self.flops += (2 * n_edges * edge_flops) as u64;
+        let (b2g_latent, g2b_latent) = (Disjoint::new(b2g_latent), Disjoint::new(g2b_latent));
+        let (msgs, per_edge, slot) = (Disjoint::new(msgs), Disjoint::new(per_edge), Disjoint::new(slot));
+        let tasks = self.tasks.len().min(n_edges.div_ceil(64)).max(1);
+        self.run(tasks, &|t, tb| {
+            let r = split(n_edges, tasks, t);
+            if r.is_empty() {
+                return Ok(());
+            }
+            let iota = &links.iota[..r.len()];
+            // SAFETY: edge ranges (and so their message, latent and gathered rows) are disjoint
+            // between tasks.
+            let (m, pe) = unsafe { (msgs.range(r.start * k_e..r.end * k_e), per_edge.range(r.start * h..r.end * h)) };
+            // body -> garment.
+            m.fill(0.0);
+            let inputs = EdgeInputs {
+                p_target: &b2g.target[r.start * h..r.end * h],
+                p_source: b2g.source,
+                target: iota,
+                source: &links.body[r.clone()],
+            };
+            // SAFETY: as above.
+            let lat = unsafe { b2g_latent.range(r.start * k_e..r.end * k_e) };
+            net.kernels.edge_mlp(&em, &inputs, lat, m, &mut tb.edge)?;
+            for (row, &g) in m.chunks_exact(k_e).zip(&links.garment[r.clone()]) {
+                let g = g as usize;
+                // SAFETY: each garment vertex has at most one body edge, and tasks copy the rows
+                // of disjoint edge ranges.
+                unsafe { slot.range(g * k_e..(g + 1) * k_e) }.copy_from_slice(row);
+            }
+            // garment -> body.
+            gather(g2b.target, &links.body[r.clone()], h, pe);
+            m.fill(0.0);
+            let inputs =
+                EdgeInputs { p_target: pe, p_source: g2b.source, target: iota, source: &links.iota[r.clone()] };
+            // SAFETY: as above.
+            let lat = unsafe { g2b_latent.range(r.start * k_e..r.end * k_e) };
+            net.kernels.edge_mlp(&em, &inputs, lat, m, &mut tb.edge)
+        })
     }
 
     /// `out_i = x_i · W_iᵀ` for each product (no bias), in one job: task `t` computes its share
     /// of the rows of each, the rows it would have in that product alone, so that each thread
     /// keeps the rows its edge kernel then reads (rather than one thread writing all of one
-    /// product, whose rows the other would pull across cores). One hand-off instead of `N`;
-    /// rows are independent, so the split changes no bit. Returns the outputs.
+    /// product, whose rows the other would pull across cores). With `gather_first`, each task
+    /// first copies its share of the gathered rows, which its [`Input::Gathered`] products then
+    /// read. One hand-off instead of `N` (and the gather's); rows are independent, so the split
+    /// changes no bit. Returns the outputs.
     fn linear_each<'o, const N: usize>(
         &mut self,
         net: &Net<'_>,
-        mut products: [(&[f32], kernels::Weights<'_>, &'o mut [f32]); N],
+        gather_first: Option<Gather<'_>>,
+        mut products: [(Input<'_>, kernels::Weights<'_>, &'o mut [f32]); N],
     ) -> Result<[&'o [f32]; N]> {
-        let mut max_rows = 0;
+        let gathered_rows = gather_first.as_ref().map_or(0, |g| g.idx.len());
+        let rows_of = |x: &Input<'_>, k: usize| match x {
+            Input::Rows(x) => x.len() / k.max(1),
+            Input::Gathered => gathered_rows,
+        };
+        let mut max_rows = gathered_rows;
         for (x, w, _) in &products {
-            let rows = x.len() / w.k().max(1);
+            let rows = rows_of(x, w.k());
             max_rows = max_rows.max(rows);
             *self.flops += 2 * (rows * w.k() * w.n()) as u64;
         }
         let n = self.tasks.len().min(max_rows.div_ceil(64)).max(1);
+        let gather_first = gather_first.map(|g| (g.src, g.idx, g.width, Disjoint::new(g.into)));
         let outs = products.each_mut().map(|(x, w, out)| (*x, *w, Disjoint::new(out)));
         self.run(n, &|t, tb| {
+            let mut gathered: &[f32] = &[];
+            if let Some((src, idx, width, into)) = &gather_first {
+                let range = split(idx.len(), n, t);
+                // SAFETY: row ranges of different tasks are disjoint.
+                let rows = unsafe { into.range(range.start * width..range.end * width) };
+                gather(src, &idx[range], *width, rows);
+                gathered = rows;
+            }
             for (x, w, out) in &outs {
                 let (k, n_out) = (w.k(), w.n());
-                let range = split(x.len() / k.max(1), n, t);
+                let range = split(rows_of(x, k), n, t);
                 if range.is_empty() {
                     continue;
                 }
+                let x = match x {
+                    Input::Rows(x) => &x[range.start * k..range.end * k],
+                    // The task's own gathered rows: the same split of the same row count.
+                    Input::Gathered => gathered,
+                };
                 // SAFETY: row ranges of different tasks are disjoint, in each output.
                 let o = unsafe { out.range(range.start * n_out..range.end * n_out) };
-                let op = [Operand { x: &x[range.start * k..range.end * k], w: *w }];
+                let op = [Operand { x, w: *w }];
                 net.kernels.linear(&op, None, &Epilogue::default(), o, &mut tb.lin)?;
             }
             Ok(())
