@@ -3,7 +3,7 @@
 //! clipping, Adam) and its parts. Skipped with a message when the assets folder ([`hood::assets`]) is absent.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use hood::bench::{core_to_core_ns, Placement};
+use hood::bench::ThreadPair;
 use hood::body::{BodyFrame, Nearest};
 use hood::features::DT;
 use hood::mesh::Garment;
@@ -166,11 +166,10 @@ fn bench_train(c: &mut Criterion) {
         for threads in [1, 2] {
             let pool = ThreadPool::new(threads);
             let id = |what: &str| BenchmarkId::new(what, format!("h{h}/t{threads}"));
-            // Where the two threads ran (see `core_to_core_ns`): before and after their figures.
+            // Where the two threads ran (see `ThreadPair`): before and after their figures.
             let placement = || {
-                if let Some(ns) = (threads > 1).then(core_to_core_ns).flatten() {
-                    let placement = Placement::from_latency_ns(ns).describe();
-                    eprintln!("train h{h}/t{threads}: core-to-core latency {ns:.0} ns one way: {placement}");
+                if let Some(pair) = (threads > 1).then(ThreadPair::measure).flatten() {
+                    eprintln!("train h{h}/t{threads}: two threads: {pair}");
                 }
             };
             placement();

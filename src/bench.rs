@@ -5,6 +5,7 @@
 
 use crate::error::Result;
 use crate::exec::{Executor, ThreadPool};
+pub use crate::kernels::peak::two_thread_share;
 use crate::kernels::{peak, Kernels, Tier};
 use crate::model::file::Model;
 use crate::sim::{BodyDesc, Precision, Sim, SimConfig, StepMode};
@@ -143,12 +144,14 @@ pub fn machine_peak() -> peak::Peak {
     peak::measure(Kernels::best(), 200.0)
 }
 
-/// Where two threads ran, as their one-way core-to-core latency ([`core_to_core_ns`]) places
+/// Where two threads ran, as the share of its FMA rate each keeps while both compute
+/// ([`two_thread_share`]) and their one-way core-to-core latency ([`core_to_core_ns`]) place
 /// them. Two-thread step times depend on it: hyperthreads of one core share its FMA units, so a
 /// step's two halves barely overlap; cores on different chiplets pay for every hand-off.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Placement {
-    /// Two hardware threads of one core (under about 25 ns: the line stays in the core's caches).
+    /// Two hardware threads of one core (each keeps at most about 3/4 of its lone FMA rate; by
+    /// latency alone, under about 25 ns).
     SameCore,
     /// Two cores that share a last-level cache (about 25–120 ns).
     SharedCache,
@@ -157,6 +160,23 @@ pub enum Placement {
 }
 
 impl Placement {
+    /// A thread sharing its core keeps at most this share of its lone FMA rate.
+    pub const SHARED_CORE_SHARE: f64 = 0.75;
+
+    /// The placement of two threads that each keep `share` of their lone FMA rate while both
+    /// compute, `ns` nanoseconds apart one way: the share tells whether they share a core (two
+    /// cores of one cache can pass a line as fast as one core's two threads: 16 ns on a Zen 4
+    /// EPYC whose two threads each kept 99 % of their rate), the latency how far apart cores
+    /// are. Without a share, the latency alone ([`Placement::from_latency_ns`]).
+    pub fn from_measurements(share: Option<f64>, ns: f64) -> Placement {
+        match share {
+            Some(share) if share < Self::SHARED_CORE_SHARE => Placement::SameCore,
+            Some(_) if ns <= 120.0 => Placement::SharedCache,
+            Some(_) => Placement::Distant,
+            None => Placement::from_latency_ns(ns),
+        }
+    }
+
     /// The placement a one-way latency of `ns` nanoseconds suggests.
     pub fn from_latency_ns(ns: f64) -> Placement {
         if ns < 25.0 {
@@ -178,12 +198,43 @@ impl Placement {
     }
 }
 
+/// Where a run's two threads sit, measured at its start.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ThreadPair {
+    /// [`two_thread_share`] of [`Kernels::best`]'s path, if a second thread could start.
+    pub share: Option<f64>,
+    /// [`core_to_core_ns`].
+    pub latency_ns: f64,
+}
+
+impl ThreadPair {
+    /// Measures both (about 0.6 s), or `None` when a second thread cannot run.
+    pub fn measure() -> Option<ThreadPair> {
+        let latency_ns = core_to_core_ns()?;
+        Some(ThreadPair { share: two_thread_share(Kernels::best(), 50.0), latency_ns })
+    }
+
+    /// Where the measurements place the two threads.
+    pub fn placement(&self) -> Placement {
+        Placement::from_measurements(self.share, self.latency_ns)
+    }
+}
+
+impl core::fmt::Display for ThreadPair {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        if let Some(share) = self.share {
+            write!(f, "computing at once, each keeps {:.0} % of its lone FMA rate; ", 100.0 * share)?;
+        }
+        write!(f, "core-to-core latency {:.0} ns one way: {}", self.latency_ns, self.placement().describe())
+    }
+}
+
 /// One-way latency of a cache line between two threads, ns (median over five rounds of up to
 /// 20,000 round trips through one atomic, 20 ms at most each), or `None` when a second thread
 /// cannot run.
 ///
-/// It says where two-thread timings were taken: about 30–40 ns when the threads' cores share
-/// an L3 cache, 170–200 ns across chiplets (on a two-core AMD EPYC). On a virtual machine the
+/// It says where two-thread timings were taken: about 15–40 ns when the threads' cores share
+/// an L3 cache, 170–200 ns across chiplets (on two-core AMD EPYCs). On a virtual machine the
 /// host may move the two virtual CPUs between such placements while a benchmark runs; steps that
 /// hand data between threads (the trainer's above all) then run up to 1.6 times slower, so print
 /// this beside two-thread figures.
@@ -461,6 +512,28 @@ mod tests {
         assert_eq!(Placement::from_latency_ns(120.0), Placement::SharedCache);
         assert_eq!(Placement::from_latency_ns(185.0), Placement::Distant);
         assert_ne!(Placement::SameCore.describe(), Placement::Distant.describe());
+    }
+
+    #[test]
+    fn bench_placement_asks_the_fma_share_whether_a_core_is_shared() {
+        // A fast line between two cores that each keep their FMA rate: two cores, not one.
+        assert_eq!(Placement::from_measurements(Some(0.99), 16.0), Placement::SharedCache);
+        assert_eq!(Placement::from_measurements(Some(0.95), 185.0), Placement::Distant);
+        // Halved rates: one core's two threads, however slow the line.
+        assert_eq!(Placement::from_measurements(Some(0.52), 16.0), Placement::SameCore);
+        assert_eq!(Placement::from_measurements(Some(0.6), 60.0), Placement::SameCore);
+        assert_eq!(Placement::from_measurements(None, 16.0), Placement::SameCore);
+        assert_eq!(Placement::from_measurements(None, 60.0), Placement::SharedCache);
+    }
+
+    #[test]
+    fn bench_two_thread_share_is_a_share() {
+        // On any machine: between a time-sliced single core (~0.5, or less when busy) and two
+        // free cores (~1); never more than a little above 1.
+        match two_thread_share(Kernels::best(), 5.0) {
+            Some(share) => assert!(share.is_finite() && share > 0.05 && share < 1.3, "{share}"),
+            None => assert!(std::thread::available_parallelism().map_or(true, |n| n.get() < 2)),
+        }
     }
 
     #[test]

@@ -35,18 +35,7 @@ pub struct Peak {
 /// of their arguments, and with the same count in every repetition the optimiser may otherwise
 /// run one and reuse its result for the rest, which then time nothing.
 fn best_gflops(flops_per_iter: f64, target_ms: f64, reps: usize, mut f: impl FnMut(usize) -> f32) -> f64 {
-    // Calibrate: grow until a run takes at least 2 ms.
-    let mut iters = 1usize << 12;
-    loop {
-        let t = Stopwatch::start();
-        std::hint::black_box(f(std::hint::black_box(iters)));
-        let s = t.seconds();
-        if s > 2e-3 || iters > 1 << 30 {
-            iters = ((iters as f64) * (target_ms * 1e-3 / s.max(1e-9))).max(1.0) as usize;
-            break;
-        }
-        iters *= 4;
-    }
+    let iters = calibrate(target_ms, &mut f);
     let mut best = 0.0f64;
     for _ in 0..reps {
         let t = Stopwatch::start();
@@ -55,6 +44,21 @@ fn best_gflops(flops_per_iter: f64, target_ms: f64, reps: usize, mut f: impl FnM
         best = best.max(flops_per_iter * iters as f64 / s / 1e9);
     }
     best
+}
+
+/// Iterations of `f` that last about `target_ms` (grown until a run takes at least 2 ms, then
+/// scaled).
+fn calibrate(target_ms: f64, mut f: impl FnMut(usize) -> f32) -> usize {
+    let mut iters = 1usize << 12;
+    loop {
+        let t = Stopwatch::start();
+        std::hint::black_box(f(std::hint::black_box(iters)));
+        let s = t.seconds();
+        if s > 2e-3 || iters > 1 << 30 {
+            return ((iters as f64) * (target_ms * 1e-3 / s.max(1e-9))).max(1.0) as usize;
+        }
+        iters *= 4;
+    }
 }
 
 /// Scalar multiply-add chains (the scalar tier's peak): `iters · 8 · 2` FLOPs.
@@ -127,6 +131,74 @@ pub fn measure(k: Kernels, target_ms: f64) -> Peak {
         _ => best_gflops(8.0 * 2.0, target_ms, reps, |n| scalar_loop(n, a, b)),
     };
     Peak { tier, f32_gflops: f, bf16_gflops: f, bf16_native: false }
+}
+
+/// The f32 throughput loop of `tier` (the one [`measure`] times, four chains on the portable
+/// tier), as a function of the iteration count.
+fn f32_loop(tier: Tier) -> impl Fn(usize) -> f32 + Sync {
+    let (a, b) = (std::hint::black_box(0.999_f32), std::hint::black_box(1e-3_f32));
+    move |iters| {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use super::x86::{peak_loops, Avx2Fma, Avx512};
+            match tier {
+                Tier::Avx2Fma => {
+                    if let Some(t) = Avx2Fma::new() {
+                        return peak_loops::fma_avx2(t, iters, a, b);
+                    }
+                }
+                Tier::Avx512 | Tier::Avx512Bf16 | Tier::Amx => {
+                    if let Some(t) = Avx512::new() {
+                        return peak_loops::fma_avx512(t, iters, a, b);
+                    }
+                }
+                Tier::Scalar | Tier::Portable => {}
+            }
+        }
+        match tier {
+            Tier::Portable => portable_loop::<4>(iters, a, b),
+            _ => scalar_loop(iters, a, b),
+        }
+    }
+}
+
+/// The share of its lone f32 throughput each of two threads keeps while both run the path's
+/// FMA loop at once (the mean of the two, best of three tries of about `target_ms`): near 1 on
+/// two cores, near 0.5 on two hardware threads of one core, which share its FMA units (a
+/// latency between the threads cannot tell those apart: on some CPUs two cores of one cache
+/// pass a line as fast as one core's two threads). `None` when a second thread cannot start.
+/// Threads run on CPU time ([`Stopwatch`]), so other processes' time slices do not count.
+pub fn two_thread_share(k: Kernels, target_ms: f64) -> Option<f64> {
+    if std::thread::available_parallelism().map_or(true, |n| n.get() < 2) {
+        return None;
+    }
+    let f = f32_loop(k.tier());
+    let iters = calibrate(target_ms, &f);
+    let timed = || {
+        let t = Stopwatch::start();
+        std::hint::black_box(f(std::hint::black_box(iters)));
+        t.seconds().max(1e-9)
+    };
+    let alone = (0..3).map(|_| timed()).fold(f64::INFINITY, f64::min);
+    let barrier = std::sync::Barrier::new(2);
+    let mut best: Option<f64> = None;
+    for _ in 0..3 {
+        let pair = std::thread::scope(|scope| {
+            let other = std::thread::Builder::new()
+                .spawn_scoped(scope, || {
+                    barrier.wait();
+                    timed()
+                })
+                .ok()?;
+            barrier.wait();
+            let mine = timed();
+            Some((mine, other.join().ok()?))
+        });
+        let (mine, theirs) = pair?;
+        let share = 0.5 * (alone / mine + alone / theirs);
+        best = Some(best.map_or(share, |b| b.max(share)));
+    }
+    best
 }
 
 /// Measures the peak of [`Kernels::best`] with ~20 ms runs.

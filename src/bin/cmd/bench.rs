@@ -6,7 +6,7 @@ use crate::progress::Progress;
 use crate::random_model;
 use crate::reference::{Forward, Reference, ReferenceTime, DEFAULT_SCRIPT};
 use clap::Args;
-use hood::bench::{core_to_core_ns, machine_peak, paired_ratio, round_order, BenchRow, Placement, StepBench};
+use hood::bench::{core_to_core_ns, machine_peak, paired_ratio, round_order, BenchRow, StepBench, ThreadPair};
 use hood::kernels::peak::Peak;
 use hood::model::{Model, ModelBytes, ModelSpec};
 use hood::sim::{Precision, StepMode};
@@ -131,13 +131,10 @@ pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
     for c in &choices {
         eprintln!("{c}");
     }
-    let mut core_to_core = None;
     let multi_thread = a.threads.iter().any(|&t| t > 1);
-    if multi_thread {
-        if let Some(ns) = core_to_core_ns() {
-            eprintln!("core-to-core latency: {ns:.0} ns one way: {}", Placement::from_latency_ns(ns).describe());
-            core_to_core = Some(ns);
-        }
+    let pair = if multi_thread { ThreadPair::measure() } else { None };
+    if let Some(pair) = &pair {
+        eprintln!("two threads: {pair}");
     }
     let reference = match (&a.reference, &assets) {
         (Some(python), Ok(dir)) => Some(Reference {
@@ -236,7 +233,7 @@ pub(crate) fn bench(a: BenchArgs) -> hood::Result<()> {
     }
     if let Some(path) = &a.markdown {
         let choices = (!choices.is_empty()).then(|| choices.join(". "));
-        let text = markdown(&rows, &latencies, &references, &peak, choices.as_deref(), core_to_core, a.round_warmup);
+        let text = markdown(&rows, &latencies, &references, &peak, choices.as_deref(), pair, a.round_warmup);
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| hood::Error::io(dir, e))?;
         }
@@ -425,7 +422,7 @@ fn markdown(
     references: &[ReferenceTime],
     peak: &Peak,
     choices: Option<&str>,
-    core_to_core_ns: Option<f64>,
+    pair: Option<ThreadPair>,
     round_warmup: usize,
 ) -> String {
     let mut s = String::new();
@@ -451,12 +448,8 @@ fn markdown(
     if let Some(choices) = choices {
         let _ = write!(s, " {choices}.");
     }
-    if let Some(ns) = core_to_core_ns {
-        let _ = write!(
-            s,
-            " Core-to-core latency at the start {ns:.0} ns one way: {}.",
-            Placement::from_latency_ns(ns).describe()
-        );
+    if let Some(pair) = pair {
+        let _ = write!(s, " Two threads at the start: {pair}.");
     }
     let _ = writeln!(
         s,
@@ -468,8 +461,9 @@ fn markdown(
          busy elsewhere); GFLOP/step: the network's useful floating-point work \
          (matrix products); efficiency: achieved GFLOP/s over the peak times the threads; x 1 thread: the \
          same step on one thread over this one; x f32: the same step in f32 over this one in bf16; \
-         latency: the median core-to-core latency measured at the start of the workload's rounds (under \
-         about 25 ns: one core's two hardware threads; over 120 ns: farther apart than a shared cache); \
+         latency: the median core-to-core latency measured at the start of the workload's rounds (over \
+         120 ns: farther apart than a shared cache; whether the two threads share a core, the FMA share \
+         above tells); \
          hand-offs: jobs of the step split between threads (each a synchronisation, costlier the farther \
          apart the cores); in jobs: the share of the step's time inside those jobs (the rest runs on one \
          thread); busy: the share of the threads' time in those jobs that their tasks ran (the rest is \
@@ -571,7 +565,7 @@ fn markdown(
 mod tests {
     use super::markdown;
     use crate::reference::ReferenceTime;
-    use hood::bench::BenchRow;
+    use hood::bench::{BenchRow, ThreadPair};
     use hood::kernels::peak::Peak;
     use hood::kernels::Tier;
     use hood::sim::{Precision, StepMode};
@@ -643,11 +637,17 @@ mod tests {
             torch: "2.2.2".into(),
         };
         let references = [reference(1, 1000.0), reference(2, 750.0)];
-        let text = markdown(&rows, &latencies, &references, &peak, Some("bf16 widened"), Some(40.0), 1);
+        let pair = ThreadPair { share: Some(0.98), latency_ns: 40.0 };
+        let text = markdown(&rows, &latencies, &references, &peak, Some("bf16 widened"), Some(pair), 1);
         assert!(text.starts_with("# Step latency\n"));
         assert!(text.contains("each row takes 1 untimed one(s)"), "{text}");
         assert!(text.contains("\nMachine: "), "{text}");
-        assert!(text.contains("f32 100.0 GFLOP/s") && text.contains("bf16 widened.") && text.contains("40 ns"));
+        assert!(
+            text.contains("f32 100.0 GFLOP/s")
+                && text.contains("bf16 widened.")
+                && text.contains("40 ns")
+                && text.contains("keeps 98 %")
+        );
         // The reference's time over the row's, at the row's threads, round by round.
         assert!(line(&text, "tee", "network", "f32", 1).ends_with("| - | - | - | - | - | - | 5.0 |"));
         assert!(line(&text, "tee", "network", "f32", 2).ends_with("| 1.60 | - | 11 | 180 | 90 % | 80 % | 6.0 |"));
