@@ -104,60 +104,82 @@ pub fn measure(k: Kernels, target_ms: f64) -> Peak {
     let (a, b) = (std::hint::black_box(0.999_f32), std::hint::black_box(1e-3_f32));
     let reps = 5;
     let tier = k.tier();
-    #[cfg(target_arch = "x86_64")]
-    {
-        use super::x86::{peak_loops, Avx2Fma, Avx512, Avx512Bf16};
-        let f32_gflops = match tier {
-            Tier::Scalar | Tier::Portable => None,
-            Tier::Avx2Fma => Avx2Fma::new()
-                .map(|t| best_gflops(12.0 * 8.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx2(t, n, a, b))),
-            Tier::Avx512 | Tier::Avx512Bf16 | Tier::Amx => Avx512::new()
-                .map(|t| best_gflops(12.0 * 16.0 * 2.0, target_ms, reps, |n| peak_loops::fma_avx512(t, n, a, b))),
-        };
-        if let Some(f32_gflops) = f32_gflops {
-            let native = match tier {
-                Tier::Avx512Bf16 => Avx512Bf16::new()
-                    .map(|t| best_gflops(12.0 * 16.0 * 4.0, target_ms, reps, |n| peak_loops::dpbf16(t, n, a, b))),
-                Tier::Amx => super::x86::AmxBf16::new().map(|t| {
-                    best_gflops(4.0 * 16.0 * 16.0 * 32.0 * 2.0, target_ms, reps, |n| super::amx::peak_loop(t, n))
-                }),
-                _ => None,
-            };
-            return Peak { tier, f32_gflops, bf16_gflops: native.unwrap_or(f32_gflops), bf16_native: native.is_some() };
-        }
-    }
-    let f = match tier {
-        Tier::Portable => portable_peak(target_ms, reps, a, b),
-        _ => best_gflops(8.0 * 2.0, target_ms, reps, |n| scalar_loop(n, a, b)),
+    let fma = FmaLoop::of(tier);
+    let f32_gflops = match fma {
+        FmaLoop::Portable => portable_peak(target_ms, reps, a, b),
+        _ => best_gflops(fma.flops_per_iter(), target_ms, reps, |n| fma.run(n, a, b)),
     };
-    Peak { tier, f32_gflops: f, bf16_gflops: f, bf16_native: false }
+    #[cfg(target_arch = "x86_64")]
+    let native = {
+        use super::x86::{peak_loops, AmxBf16, Avx512Bf16};
+        match tier {
+            Tier::Avx512Bf16 => Avx512Bf16::new()
+                .map(|t| best_gflops(12.0 * 16.0 * 4.0, target_ms, reps, |n| peak_loops::dpbf16(t, n, a, b))),
+            Tier::Amx => AmxBf16::new()
+                .map(|t| best_gflops(4.0 * 16.0 * 16.0 * 32.0 * 2.0, target_ms, reps, |n| super::amx::peak_loop(t, n))),
+            _ => None,
+        }
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let native: Option<f64> = None;
+    Peak { tier, f32_gflops, bf16_gflops: native.unwrap_or(f32_gflops), bf16_native: native.is_some() }
 }
 
-/// The f32 throughput loop of `tier` (the one [`measure`] times, four chains on the portable
-/// tier), as a function of the iteration count.
-fn f32_loop(tier: Tier) -> impl Fn(usize) -> f32 + Sync {
-    let (a, b) = (std::hint::black_box(0.999_f32), std::hint::black_box(1e-3_f32));
-    move |iters| {
+/// The f32 multiply-add loop of a tier: FMA chains on its widest x86 vectors, eight-lane chains
+/// in plain Rust on the portable tier (four of them; [`measure`] also tries more), scalar
+/// chains on the scalar tier.
+#[derive(Clone, Copy)]
+enum FmaLoop {
+    #[cfg(target_arch = "x86_64")]
+    Avx2(super::x86::Avx2Fma),
+    #[cfg(target_arch = "x86_64")]
+    Avx512(super::x86::Avx512),
+    Portable,
+    Scalar,
+}
+
+impl FmaLoop {
+    /// `tier`'s loop (the scalar one where the CPU lacks the tier's vectors).
+    fn of(tier: Tier) -> FmaLoop {
         #[cfg(target_arch = "x86_64")]
         {
-            use super::x86::{peak_loops, Avx2Fma, Avx512};
-            match tier {
-                Tier::Avx2Fma => {
-                    if let Some(t) = Avx2Fma::new() {
-                        return peak_loops::fma_avx2(t, iters, a, b);
-                    }
-                }
-                Tier::Avx512 | Tier::Avx512Bf16 | Tier::Amx => {
-                    if let Some(t) = Avx512::new() {
-                        return peak_loops::fma_avx512(t, iters, a, b);
-                    }
-                }
-                Tier::Scalar | Tier::Portable => {}
+            use super::x86::{Avx2Fma, Avx512};
+            let vector = match tier {
+                Tier::Avx2Fma => Avx2Fma::new().map(FmaLoop::Avx2),
+                Tier::Avx512 | Tier::Avx512Bf16 | Tier::Amx => Avx512::new().map(FmaLoop::Avx512),
+                Tier::Scalar | Tier::Portable => None,
+            };
+            if let Some(vector) = vector {
+                return vector;
             }
         }
         match tier {
-            Tier::Portable => portable_loop::<4>(iters, a, b),
-            _ => scalar_loop(iters, a, b),
+            Tier::Portable => FmaLoop::Portable,
+            _ => FmaLoop::Scalar,
+        }
+    }
+
+    /// FLOPs of one iteration of [`FmaLoop::run`].
+    fn flops_per_iter(self) -> f64 {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            FmaLoop::Avx2(_) => 12.0 * 8.0 * 2.0,
+            #[cfg(target_arch = "x86_64")]
+            FmaLoop::Avx512(_) => 12.0 * 16.0 * 2.0,
+            FmaLoop::Portable => 4.0 * 8.0 * 2.0,
+            FmaLoop::Scalar => 8.0 * 2.0,
+        }
+    }
+
+    /// `iters` iterations of the loop.
+    fn run(self, iters: usize, a: f32, b: f32) -> f32 {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            FmaLoop::Avx2(t) => super::x86::peak_loops::fma_avx2(t, iters, a, b),
+            #[cfg(target_arch = "x86_64")]
+            FmaLoop::Avx512(t) => super::x86::peak_loops::fma_avx512(t, iters, a, b),
+            FmaLoop::Portable => portable_loop::<4>(iters, a, b),
+            FmaLoop::Scalar => scalar_loop(iters, a, b),
         }
     }
 }
@@ -172,11 +194,12 @@ pub fn two_thread_share(k: Kernels, target_ms: f64) -> Option<f64> {
     if std::thread::available_parallelism().map_or(true, |n| n.get() < 2) {
         return None;
     }
-    let f = f32_loop(k.tier());
-    let iters = calibrate(target_ms, &f);
+    let (a, b) = (std::hint::black_box(0.999_f32), std::hint::black_box(1e-3_f32));
+    let fma = FmaLoop::of(k.tier());
+    let iters = calibrate(target_ms, |n| fma.run(n, a, b));
     let timed = || {
         let t = Stopwatch::start();
-        std::hint::black_box(f(std::hint::black_box(iters)));
+        std::hint::black_box(fma.run(std::hint::black_box(iters), a, b));
         t.seconds().max(1e-9)
     };
     let alone = (0..3).map(|_| timed()).fold(f64::INFINITY, f64::min);
