@@ -1,4 +1,5 @@
-//! Edge-MLP chain and plain packed linear, f32 and bf16, h = 128, 64, 32, at two sizes: 6,000
+//! Edge-MLP chain, plain packed linear and a linear over three operands (the shape of a node
+//! MLP's first layer: a latent and two aggregates), f32 and bf16, h = 128, 64, 32, at two sizes: 6,000
 //! edges over 2,000 nodes (a garment of the fixture t-shirt's size, whose buffers stay in a
 //! server core's L2 and L3 as in the step) and 30,000 over 10,000 (buffers that outgrow the
 //! last-level cache, so that memory bandwidth shows). Prints useful FLOPs (from shapes), GFLOP/s
@@ -148,6 +149,15 @@ fn bench(c: &mut Criterion) {
                 print_row(&format!("linear   h={h:>3} {prec:>4} {edges:>6} rows: "), s, lflops, peak_g);
                 g.throughput(Throughput::Elements(lflops as u64));
                 g.bench_function(format!("linear_h{h}_{prec}_e{edges}"), |b| b.iter(&mut run_lin));
+
+                let ops3 =
+                    [Operand { x: &x, w: l1.w(bf) }, Operand { x: &x, w: l2.w(bf) }, Operand { x: &x, w: l3.w(bf) }];
+                let mut lscratch3 = vec![0.0f32; linear_scratch_len(&ops3, h)];
+                let mut run_lin3 = || k.linear(black_box(&ops3), Some(&b2), &epi, &mut out, &mut lscratch3).unwrap();
+                let s = best_secs(15, &mut run_lin3);
+                print_row(&format!("linear3  h={h:>3} {prec:>4} {edges:>6} rows: "), s, 3.0 * lflops, peak_g);
+                g.throughput(Throughput::Elements(3 * lflops as u64));
+                g.bench_function(format!("linear3_h{h}_{prec}_e{edges}"), |b| b.iter(&mut run_lin3));
             }
         }
     }

@@ -79,7 +79,13 @@ pub(crate) unsafe fn linear<S: Simd>(
             Segs::F32(&f32_segs[..ops.len()])
         };
         let out_blk = &mut out[b0 * n..(b0 + br) * n];
-        let tepi = TileEpi { bias: bias_ptr(bias), addend: core::ptr::null(), relu: epi.relu, accumulate: false };
+        let tepi = TileEpi {
+            bias: bias_ptr(bias),
+            addend: core::ptr::null(),
+            relu: epi.relu,
+            accumulate: false,
+            prefetch_out: true,
+        };
         match (&epi.layer_norm, epi.residual) {
             (None, residual) => {
                 let tepi = TileEpi { accumulate: residual, ..tepi };
@@ -95,6 +101,7 @@ pub(crate) unsafe fn linear<S: Simd>(
             }
             (Some(ln), true) => {
                 let tmp = &mut pre_ln[..br * n];
+                let tepi = TileEpi { prefetch_out: false, ..tepi };
                 // SAFETY: as above, into the scratch rows.
                 unsafe { gemm(s, segs, br, n, tmp.as_mut_ptr(), n, &tepi) };
                 for (y, o) in tmp.chunks_exact_mut(n).zip(out_blk.chunks_exact_mut(n)) {
@@ -214,9 +221,15 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
         }
         let lat = &mut latent[e0 * k_e..(e0 + br) * k_e];
         let none = core::ptr::null();
-        let epi1 = TileEpi { bias: mlp.b1.as_ptr(), addend: buf_b.as_ptr(), relu: true, accumulate: false };
-        let epi2 = TileEpi { bias: mlp.b2.as_ptr(), addend: none, relu: true, accumulate: false };
-        let epi3 = TileEpi { bias: mlp.b3.as_ptr(), addend: none, relu: false, accumulate: false };
+        let epi1 = TileEpi {
+            bias: mlp.b1.as_ptr(),
+            addend: buf_b.as_ptr(),
+            relu: true,
+            accumulate: false,
+            prefetch_out: false,
+        };
+        let epi2 = TileEpi { bias: mlp.b2.as_ptr(), addend: none, relu: true, accumulate: false, prefetch_out: false };
+        let epi3 = TileEpi { bias: mlp.b3.as_ptr(), addend: none, relu: false, accumulate: false, prefetch_out: false };
         // SAFETY: shapes validated by `Kernels::edge_mlp` (indices checked against the projection
         // rows); scratch buffers hold `EDGE_BLOCK` rows of their widths.
         unsafe {
