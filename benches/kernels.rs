@@ -1,10 +1,10 @@
-//! Edge-MLP chain, plain packed linear and a linear over three operands (the shape of a node
-//! MLP's first layer: a latent and two aggregates), f32 and bf16, h = 128, 64, 32, at two sizes: 6,000
-//! edges over 2,000 nodes (a garment of the fixture t-shirt's size, whose buffers stay in a
-//! server core's L2 and L3 as in the step) and 30,000 over 10,000 (buffers that outgrow the
-//! last-level cache, so that memory bandwidth shows). Prints useful FLOPs (from shapes), GFLOP/s
-//! and efficiency against the single-core peak measured in the same run, then hands the same
-//! closures to criterion.
+//! Edge-MLP chain, plain packed linear, a linear over three operands (the shape of a node MLP's
+//! first layer: a latent and two aggregates) and one with LayerNorm and residual (its last), f32
+//! and bf16, h = 128, 64, 32, at two sizes: 6,000 edges over 2,000 nodes (a garment of the
+//! fixture t-shirt's size, whose buffers stay in a server core's L2 and L3 as in the step) and
+//! 30,000 over 10,000 (buffers that outgrow the last-level cache, so that memory bandwidth
+//! shows). Prints useful FLOPs (from shapes), GFLOP/s and efficiency against the single-core peak
+//! measured in the same run, then hands the same closures to criterion.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use half::bf16;
@@ -158,6 +158,16 @@ fn bench(c: &mut Criterion) {
                 print_row(&format!("linear3  h={h:>3} {prec:>4} {edges:>6} rows: "), s, 3.0 * lflops, peak_g);
                 g.throughput(Throughput::Elements(3 * lflops as u64));
                 g.bench_function(format!("linear3_h{h}_{prec}_e{edges}"), |b| b.iter(&mut run_lin3));
+
+                // A node MLP's last layer: LayerNorm, added to the residual (`out` only grows by
+                // O(1) LayerNorm outputs per run, as the edge latents above).
+                let ln = LayerNorm { gamma: &gamma, beta: &beta };
+                let epi_ln = Epilogue { relu: false, layer_norm: Some(ln), residual: true };
+                let mut run_ln = || k.linear(black_box(&ops), Some(&b2), &epi_ln, &mut out, &mut lscratch).unwrap();
+                let s = best_secs(15, &mut run_ln);
+                print_row(&format!("linear+ln h={h:>3} {prec:>4} {edges:>6} rows: "), s, lflops, peak_g);
+                g.throughput(Throughput::Elements(lflops as u64));
+                g.bench_function(format!("linear_ln_residual_h{h}_{prec}_e{edges}"), |b| b.iter(&mut run_ln));
             }
         }
     }

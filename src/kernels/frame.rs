@@ -23,7 +23,9 @@ pub(crate) use layers::{edge_mlp, linear};
 pub(crate) use rows::layer_norm_stats;
 #[cfg(feature = "train")]
 pub(crate) use rows::{lane_dot, lane_sum};
-pub(crate) use rows::{layer_norm_row, layer_norm_stats_rows, pack_bf16_pairs, round_bf16, widen_bf16};
+pub(crate) use rows::{
+    layer_norm_apply, layer_norm_row, layer_norm_stats_rows, pack_bf16_pairs, round_bf16, widen_bf16,
+};
 
 /// The vector vocabulary a tier provides, implemented only by capability tokens: a value of the
 /// implementing type exists only on a CPU with the tier's instructions (each token's constructor

@@ -1,7 +1,7 @@
 //! The layers a tier runs through the frame: a linear layer ([`linear`]) and the fused split
 //! edge MLP ([`edge_mlp`]), in row blocks, with their bf16 activations prepared per block.
 
-use super::{gemm, layer_norm_row, widen_bf16, SegBf16, SegF32, Segs, Simd, TileEpi};
+use super::{gemm, layer_norm_apply, widen_bf16, SegBf16, SegF32, Segs, Simd, TileEpi};
 use crate::kernels::{
     packed_len_f32, padded_cols, EdgeInputs, EdgeMlp, Epilogue, Operand, Weights, EDGE_BLOCK, LINEAR_BLOCK_ROWS,
     MAX_OPERANDS,
@@ -47,6 +47,9 @@ pub(crate) unsafe fn linear<S: Simd>(
     if native_bf16 {
         s.bf16_begin();
     }
+    // LayerNorm statistics of a block's rows, computed for all of them before any is normalised
+    // (as in the edge MLP: independent chains the core can overlap).
+    let mut stats = [(0.0f32, 0.0f32); LINEAR_BLOCK_ROWS];
     let mut b0 = 0;
     while b0 < rows {
         let br = (rows - b0).min(LINEAR_BLOCK_ROWS);
@@ -95,8 +98,9 @@ pub(crate) unsafe fn linear<S: Simd>(
             (Some(ln), false) => {
                 // SAFETY: as above.
                 unsafe { gemm(s, segs, br, n, out_blk.as_mut_ptr(), n, &tepi) };
-                for y in out_blk.chunks_exact_mut(n) {
-                    layer_norm_row(y, ln.gamma, ln.beta);
+                s.layer_norm_stats_rows(out_blk, n, &mut stats[..br]);
+                for (y, &st) in out_blk.chunks_exact_mut(n).zip(&stats[..br]) {
+                    layer_norm_apply(y, st, ln.gamma, ln.beta);
                 }
             }
             (Some(ln), true) => {
@@ -104,10 +108,11 @@ pub(crate) unsafe fn linear<S: Simd>(
                 let tepi = TileEpi { prefetch_out: false, ..tepi };
                 // SAFETY: as above, into the scratch rows.
                 unsafe { gemm(s, segs, br, n, tmp.as_mut_ptr(), n, &tepi) };
-                for (y, o) in tmp.chunks_exact_mut(n).zip(out_blk.chunks_exact_mut(n)) {
-                    layer_norm_row(y, ln.gamma, ln.beta);
-                    for (o, v) in o.iter_mut().zip(y.iter()) {
-                        *o += v;
+                s.layer_norm_stats_rows(tmp, n, &mut stats[..br]);
+                for ((y, o), &(mean, inv)) in tmp.chunks_exact(n).zip(out_blk.chunks_exact_mut(n)).zip(&stats[..br]) {
+                    // `layer_norm_apply`'s arithmetic, added to the residual in the same pass.
+                    for ((o, v), (g, b)) in o.iter_mut().zip(y).zip(ln.gamma.iter().zip(ln.beta)) {
+                        *o += (*v - mean) * inv * g + b;
                     }
                 }
             }

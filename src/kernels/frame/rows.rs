@@ -72,7 +72,13 @@ pub(crate) fn layer_norm_stats_rows(y: &[f32], width: usize, stats: &mut [(f32, 
 /// In-place affine LayerNorm of one row (two-pass mean and variance, eps [`LN_EPS`]).
 #[inline(always)]
 pub(crate) fn layer_norm_row(y: &mut [f32], gamma: &[f32], beta: &[f32]) {
-    let (mean, inv) = layer_norm_stats(y);
+    layer_norm_apply(y, layer_norm_stats(y), gamma, beta);
+}
+
+/// In-place affine LayerNorm of one row with its statistics `(mean, inverse deviation)` from
+/// [`layer_norm_stats`] (or a tier's batched form of it).
+#[inline(always)]
+pub(crate) fn layer_norm_apply(y: &mut [f32], (mean, inv): (f32, f32), gamma: &[f32], beta: &[f32]) {
     for ((v, g), b) in y.iter_mut().zip(gamma).zip(beta) {
         *v = (*v - mean) * inv * g + b;
     }
