@@ -24,7 +24,7 @@ pub(crate) use rows::layer_norm_stats;
 #[cfg(feature = "train")]
 pub(crate) use rows::{lane_dot, lane_sum};
 pub(crate) use rows::{
-    layer_norm_apply, layer_norm_row, layer_norm_stats_rows, pack_bf16_pairs, round_bf16, widen_bf16,
+    layer_norm_apply, layer_norm_row, layer_norm_stats_rows, layer_norm_value, pack_bf16_pairs, round_bf16, widen_bf16,
 };
 
 /// The vector vocabulary a tier provides, implemented only by capability tokens: a value of the

@@ -1,7 +1,7 @@
 //! The layers a tier runs through the frame: a linear layer ([`linear`]) and the fused split
 //! edge MLP ([`edge_mlp`]), in row blocks, with their bf16 activations prepared per block.
 
-use super::{gemm, layer_norm_apply, widen_bf16, SegBf16, SegF32, Segs, Simd, TileEpi};
+use super::{gemm, layer_norm_apply, layer_norm_value, widen_bf16, SegBf16, SegF32, Segs, Simd, TileEpi};
 use crate::kernels::{
     packed_len_f32, padded_cols, EdgeInputs, EdgeMlp, Epilogue, Operand, Weights, EDGE_BLOCK, LINEAR_BLOCK_ROWS,
     MAX_OPERANDS,
@@ -109,10 +109,10 @@ pub(crate) unsafe fn linear<S: Simd>(
                 // SAFETY: as above, into the scratch rows.
                 unsafe { gemm(s, segs, br, n, tmp.as_mut_ptr(), n, &tepi) };
                 s.layer_norm_stats_rows(tmp, n, &mut stats[..br]);
-                for ((y, o), &(mean, inv)) in tmp.chunks_exact(n).zip(out_blk.chunks_exact_mut(n)).zip(&stats[..br]) {
-                    // `layer_norm_apply`'s arithmetic, added to the residual in the same pass.
+                for ((y, o), &st) in tmp.chunks_exact(n).zip(out_blk.chunks_exact_mut(n)).zip(&stats[..br]) {
+                    // Normalised and added to the residual in one pass.
                     for ((o, v), (g, b)) in o.iter_mut().zip(y).zip(ln.gamma.iter().zip(ln.beta)) {
-                        *o += (*v - mean) * inv * g + b;
+                        *o += layer_norm_value(*v, st, *g, *b);
                     }
                 }
             }
@@ -254,9 +254,8 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
             let agg = aggregate[t * k_e..(t + 1) * k_e].iter_mut().zip(l.iter_mut());
             match &mlp.layer_norm {
                 Some(ln) => {
-                    let (mean, inv) = stats[i];
                     for (((a, l), v), (g, b)) in agg.zip(m).zip(ln.gamma.iter().zip(ln.beta)) {
-                        let y = (*v - mean) * inv * g + b;
+                        let y = layer_norm_value(*v, stats[i], *g, *b);
                         *a += y;
                         *l += y;
                     }

@@ -78,10 +78,17 @@ pub(crate) fn layer_norm_row(y: &mut [f32], gamma: &[f32], beta: &[f32]) {
 /// In-place affine LayerNorm of one row with its statistics `(mean, inverse deviation)` from
 /// [`layer_norm_stats`] (or a tier's batched form of it).
 #[inline(always)]
-pub(crate) fn layer_norm_apply(y: &mut [f32], (mean, inv): (f32, f32), gamma: &[f32], beta: &[f32]) {
+pub(crate) fn layer_norm_apply(y: &mut [f32], stats: (f32, f32), gamma: &[f32], beta: &[f32]) {
     for ((v, g), b) in y.iter_mut().zip(gamma).zip(beta) {
-        *v = (*v - mean) * inv * g + b;
+        *v = layer_norm_value(*v, stats, *g, *b);
     }
+}
+
+/// One LayerNorm output: `(v - mean) · inv · gamma + beta`, with the row's `(mean, inv)`. Every
+/// tier and layer normalises through this, so that they all round alike.
+#[inline(always)]
+pub(crate) fn layer_norm_value(v: f32, (mean, inv): (f32, f32), gamma: f32, beta: f32) -> f32 {
+    (v - mean) * inv * gamma + beta
 }
 
 /// Widens packed bf16 weights into the f32 panel layout (same `k` and `n`), for tiers without
