@@ -17,7 +17,7 @@ mod rows;
 // For the AMX tiles, which accumulate outside registers.
 #[cfg(target_arch = "x86_64")]
 pub(crate) use gemm::epilogue_row;
-pub(crate) use gemm::{gemm, SegBf16, SegF32, Segs, TileEpi};
+pub(crate) use gemm::{gemm, Ahead, SegBf16, SegF32, Segs, TileEpi};
 pub(crate) use layers::{edge_mlp, linear};
 #[cfg(any(test, feature = "train"))]
 pub(crate) use rows::layer_norm_stats;

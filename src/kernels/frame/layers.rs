@@ -1,7 +1,7 @@
 //! The layers a tier runs through the frame: a linear layer ([`linear`]) and the fused split
 //! edge MLP ([`edge_mlp`]), in row blocks, with their bf16 activations prepared per block.
 
-use super::{gemm, layer_norm_apply, layer_norm_value, widen_bf16, SegBf16, SegF32, Segs, Simd, TileEpi};
+use super::{gemm, layer_norm_apply, layer_norm_value, widen_bf16, Ahead, SegBf16, SegF32, Segs, Simd, TileEpi};
 use crate::kernels::{
     packed_len_f32, padded_cols, EdgeInputs, EdgeMlp, Epilogue, Operand, Weights, EDGE_BLOCK, LINEAR_BLOCK_ROWS,
     MAX_OPERANDS,
@@ -54,7 +54,8 @@ pub(crate) unsafe fn linear<S: Simd>(
     while b0 < rows {
         let br = (rows - b0).min(LINEAR_BLOCK_ROWS);
         let mut f32_segs = [SegF32 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), k: 0 }; MAX_OPERANDS];
-        let mut bf_segs = [SegBf16 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), pairs: 0 }; MAX_OPERANDS];
+        let mut bf_segs = [SegBf16 { x: core::ptr::null(), ldx: 0, w: core::ptr::null(), pairs: 0, ahead: Ahead::NONE };
+            MAX_OPERANDS];
         // Each bf16 operand's prepared rows are split off the rest of `prep`, so that preparing
         // the next operand does not reborrow (and so invalidate the pointers into) this one's.
         let mut free: &mut [f32] = &mut *prep;
@@ -70,8 +71,14 @@ pub(crate) unsafe fn linear<S: Simd>(
                     for (src, dst) in x.chunks_exact(k.max(1)).zip(area.chunks_exact_mut(kp.max(1))) {
                         s.prep_bf16(src, dst);
                     }
-                    bf_segs[i] =
-                        SegBf16 { x: area.as_ptr(), ldx: kp, w: w.data().as_ptr() as *const u16, pairs: kp / 2 };
+                    let next = &op.x[(b0 + br) * k..(b0 + br + (rows - b0 - br).min(LINEAR_BLOCK_ROWS)) * k];
+                    bf_segs[i] = SegBf16 {
+                        x: area.as_ptr(),
+                        ldx: kp,
+                        w: w.data().as_ptr() as *const u16,
+                        pairs: kp / 2,
+                        ahead: Ahead::new(next.as_ptr() as *const u8, core::mem::size_of_val(next), br),
+                    };
                     f32_segs[i] = SegF32 { x: area.as_ptr(), ldx: kp, w: wide_ptr[i], k };
                 }
             }
@@ -136,6 +143,7 @@ unsafe fn chain_layer<S: Simd>(
     wide: &[f32],
     out: &mut [f32],
     epi: &TileEpi,
+    ahead: Ahead,
 ) {
     let (k, n) = (w.k(), w.n());
     match w {
@@ -155,7 +163,8 @@ unsafe fn chain_layer<S: Simd>(
                 // SAFETY: as above with the prepared rows and the widened weights.
                 unsafe { gemm(s, Segs::F32(&seg), br, n, out.as_mut_ptr(), n, epi) };
             } else {
-                let seg = [SegBf16 { x: prep.as_ptr(), ldx: kp, w: wb.data().as_ptr() as *const u16, pairs: kp / 2 }];
+                let seg =
+                    [SegBf16 { x: prep.as_ptr(), ldx: kp, w: wb.data().as_ptr() as *const u16, pairs: kp / 2, ahead }];
                 // SAFETY: as above with the prepared rows.
                 unsafe { gemm(s, Segs::Bf16(&seg), br, n, out.as_mut_ptr(), n, epi) };
             }
@@ -215,7 +224,8 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
         // those of the block after next now (one block ahead left part of their latency
         // exposed). Target rows are sequential (edges are sorted by target): the hardware
         // prefetcher has them, and prefetching them too cost 2.5 % of the bf16 edge MLP.
-        // (Prefetching the next block's latent rows gained 3 % in f32 but lost 2 % in bf16.)
+        // (The next block's latent rows: in bf16 the first layer's tiles request them, spread
+        // over its pair steps, see `Ahead`; requested here at once they lost 2 % in bf16.)
         for e in (e0 + 2 * br).min(n_edges)..(e0 + 3 * br).min(n_edges) {
             let src = edges.source[e] as usize * h;
             for c in (0..h).step_by(16) {
@@ -224,6 +234,9 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
                 unsafe { s.prefetch(edges.p_source.as_ptr().add(src + c) as *const u8) };
             }
         }
+        // The next block's latent rows, requested while this block's first layer runs.
+        let next = &latent[(e0 + br) * k_e..(e0 + br + (n_edges - e0 - br).min(EDGE_BLOCK)) * k_e];
+        let ahead = Ahead::new(next.as_ptr() as *const u8, core::mem::size_of_val(next), br);
         let lat = &mut latent[e0 * k_e..(e0 + br) * k_e];
         let none = core::ptr::null();
         let epi1 = TileEpi {
@@ -238,9 +251,9 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
         // SAFETY: shapes validated by `Kernels::edge_mlp` (indices checked against the projection
         // rows); scratch buffers hold `EDGE_BLOCK` rows of their widths.
         unsafe {
-            chain_layer(s, &mlp.w1_edge, lat, br, prep, wide1, buf_a, &epi1);
-            chain_layer(s, &mlp.w2, buf_a, br, prep, wide2, buf_b, &epi2);
-            chain_layer(s, &mlp.w3, buf_b, br, prep, wide3, buf_a, &epi3);
+            chain_layer(s, &mlp.w1_edge, lat, br, prep, wide1, buf_a, &epi1, ahead);
+            chain_layer(s, &mlp.w2, buf_a, br, prep, wide2, buf_b, &epi2, Ahead::NONE);
+            chain_layer(s, &mlp.w3, buf_b, br, prep, wide3, buf_a, &epi3, Ahead::NONE);
         }
         // LayerNorm statistics for all rows first: independent chains the core can overlap
         // (one row at a time would serialise on each row's sum -> sqrt -> divide latency).
