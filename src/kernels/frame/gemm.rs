@@ -454,3 +454,30 @@ pub(crate) unsafe fn gemm<S: Simd>(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::{Ahead, LINE_BYTES, MR};
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The row tiles of a product share out the region ahead whole: every cache line of it is
+        /// requested by exactly one tile, and no tile reaches past its end.
+        #[test]
+        fn ahead_shares_cover_the_region_once(rows in 1usize..400, bytes in 0usize..200_000) {
+            // Only the shares' arithmetic is tested: the address is never used.
+            let ahead = Ahead::new(core::ptr::NonNull::dangling().as_ptr(), bytes, rows);
+            let mut next = 0;
+            for row0 in (0..rows).step_by(MR) {
+                let (from, to) = ahead.share(row0);
+                prop_assert!(from <= to && to <= bytes);
+                if from < to {
+                    prop_assert_eq!(from, next);
+                    next = to;
+                }
+            }
+            prop_assert_eq!(next, bytes);
+            prop_assert!(ahead.lines_per_tile * LINE_BYTES * rows.div_ceil(MR) >= bytes);
+        }
+    }
+}
