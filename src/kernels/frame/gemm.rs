@@ -30,8 +30,9 @@ pub(crate) struct SegBf16 {
     pub ahead: Ahead,
 }
 
-/// Memory to request a share of in every row tile of a product's first column pass: the f32
-/// source rows of the next row block, which its bf16 preparation will read. Prepared all at
+/// A region of memory that the row tiles of a product's first column pass request between them,
+/// a share each: the f32 source rows of the next row block, which its bf16 preparation will
+/// read (the AMX path does not request it; it was not measured there). Prepared all at
 /// once, a block's rows came from L3 or memory in one burst that the core waited on (about a
 /// tenth of a bf16 linear layer's time); requested a few lines per pair step over the block
 /// before, they are in cache when it starts. (Requested all at once, they pushed the tiles'
