@@ -40,24 +40,26 @@ pub(crate) struct SegBf16 {
 #[derive(Clone, Copy)]
 pub(crate) struct Ahead {
     /// First byte of the region, or null for none.
-    pub start: *const u8,
+    start: *const u8,
     /// Its length in bytes.
-    pub bytes: usize,
+    bytes: usize,
     /// Cache lines each row tile requests: the region's lines over the row tiles.
-    pub lines_per_tile: usize,
+    lines_per_tile: usize,
 }
 
 impl Ahead {
     /// No region.
     pub(crate) const NONE: Ahead = Ahead { start: core::ptr::null(), bytes: 0, lines_per_tile: 0 };
 
-    /// The region of `bytes` from `start`, shared among the row tiles of a product of `rows`
-    /// rows.
-    pub(crate) fn new(start: *const u8, bytes: usize, rows: usize) -> Ahead {
+    /// The rows `next` (the next block's, possibly none), shared among the row tiles of a
+    /// product of `rows` rows.
+    pub(crate) fn new(next: &[f32], rows: usize) -> Ahead {
+        let bytes = core::mem::size_of_val(next);
         if bytes == 0 || rows == 0 {
             return Ahead::NONE;
         }
-        Ahead { start, bytes, lines_per_tile: bytes.div_ceil(LINE_BYTES).div_ceil(rows.div_ceil(MR)) }
+        let lines_per_tile = bytes.div_ceil(LINE_BYTES).div_ceil(rows.div_ceil(MR));
+        Ahead { start: next.as_ptr() as *const u8, bytes, lines_per_tile }
     }
 
     /// The byte range `[from, to)` of the region that the row tile from row `row0` requests.
@@ -459,15 +461,17 @@ pub(crate) unsafe fn gemm<S: Simd>(
 #[cfg(test)]
 mod tests {
     use super::{Ahead, LINE_BYTES, MR};
+    use alloc::vec;
     use proptest::prelude::*;
 
     proptest! {
         /// The row tiles of a product share out the region ahead whole: every cache line of it is
         /// requested by exactly one tile, and no tile reaches past its end.
         #[test]
-        fn ahead_shares_cover_the_region_once(rows in 1usize..400, bytes in 0usize..200_000) {
-            // Only the shares' arithmetic is tested: the address is never used.
-            let ahead = Ahead::new(core::ptr::NonNull::dangling().as_ptr(), bytes, rows);
+        fn ahead_shares_cover_the_region_once(rows in 1usize..400, floats in 0usize..50_000) {
+            let next = vec![0.0f32; floats];
+            let bytes = 4 * floats;
+            let ahead = Ahead::new(&next, rows);
             let mut next = 0;
             for row0 in (0..rows).step_by(MR) {
                 let (from, to) = ahead.share(row0);

@@ -77,7 +77,7 @@ pub(crate) unsafe fn linear<S: Simd>(
                         ldx: kp,
                         w: w.data().as_ptr() as *const u16,
                         pairs: kp / 2,
-                        ahead: Ahead::new(next.as_ptr() as *const u8, core::mem::size_of_val(next), br),
+                        ahead: Ahead::new(next, br),
                     };
                     f32_segs[i] = SegF32 { x: area.as_ptr(), ldx: kp, w: wide_ptr[i], k };
                 }
@@ -236,7 +236,7 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
         }
         // The next block's latent rows, requested while this block's first layer runs.
         let next = &latent[(e0 + br) * k_e..(e0 + br + (n_edges - e0 - br).min(EDGE_BLOCK)) * k_e];
-        let ahead = Ahead::new(next.as_ptr() as *const u8, core::mem::size_of_val(next), br);
+        let ahead = Ahead::new(next, br);
         let lat = &mut latent[e0 * k_e..(e0 + br) * k_e];
         let none = core::ptr::null();
         let epi1 = TileEpi {
