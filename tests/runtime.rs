@@ -925,3 +925,40 @@ fn runtime_network_step_hands_off_few_jobs() {
     }
     assert!(body_covered, "no step had enough body edges to split their work");
 }
+
+/// Without an observer the last block leaves out the body's rows (nothing reads them): the
+/// garment comes out bitwise as in an observed step, which computes every row, for less work.
+#[test]
+fn runtime_unobserved_last_block_skips_only_unread_body_rows() {
+    let scene = Scene::new(24, 24);
+    let mut split_between_tasks = false;
+    for precision in [Precision::F32, Precision::Bf16] {
+        let bytes = random_model(32, 5, true);
+        let model = bytes.model().unwrap();
+        let cfg = SimConfig::network().with_precision(precision).with_threads(2);
+        let (mut plain, mut observed) = (scene.sim(&model, cfg).unwrap(), scene.sim(&model, cfg).unwrap());
+        for t in 1..=4 {
+            // The body just under the cloth, for many body edges.
+            let body: Vec<[f32; 3]> = scene.body_at(t).iter().map(|p| [p[0], p[1] + 0.018, p[2]]).collect();
+            plain.step(&body).unwrap();
+            let mut last_body_rows = 0;
+            let last = hood::sim::Stage::Block(model.spec().blocks.len() - 1);
+            observed
+                .step_observed(&body, &mut |p| {
+                    if p.stage == last {
+                        last_body_rows = p.body.len();
+                    }
+                })
+                .unwrap();
+            assert_eq!(plain.positions(), observed.positions(), "step {t}, {precision:?}");
+            let (edges, active) = plain.last_body_counts();
+            println!("step {t}: {edges} body edges, {active} active body nodes");
+            assert!(edges > 0 && active > 0, "step {t}: no body edges");
+            split_between_tasks |= edges > 64;
+            assert_eq!(last_body_rows, active * 32, "step {t}: the observer sees the last block whole");
+            let (less, all) = (plain.last_step_flops(), observed.last_step_flops());
+            assert!(less < all, "step {t}: {less} FLOPs unobserved, {all} observed");
+        }
+    }
+    assert!(split_between_tasks, "no step had enough body edges to split them between tasks");
+}

@@ -576,11 +576,13 @@ impl<'m> Sim<'m> {
     /// so is what the sim reports about the last step ([`Sim::last_step_flops`],
     /// [`Sim::last_projected`], [`Sim::last_tethered`], [`Sim::tethered_vertices`], ...).
     pub fn step(&mut self, body_next: &[[f32; 3]]) -> Result<&[[f32; 3]]> {
-        self.step_observed(body_next, &mut |_| {})
+        self.step_with(body_next, None)
     }
 
     /// [`Sim::step`] with an observer called with the node latents after the encoders and
-    /// after every block (for parity tests and debugging).
+    /// after every block (for parity tests and debugging). The observed step computes the body's
+    /// rows of the last block too, which [`Sim::step`] leaves out (nothing reads them); the
+    /// garment's positions are bitwise the same.
     ///
     /// # Errors
     /// See [`Sim::step`].
@@ -590,6 +592,15 @@ impl<'m> Sim<'m> {
         &mut self,
         body_next: &[[f32; 3]],
         observer: &mut dyn FnMut(Probe<'_>),
+    ) -> Result<&[[f32; 3]]> {
+        self.step_with(body_next, Some(observer))
+    }
+
+    /// [`Sim::step`] with an observer, if any.
+    fn step_with(
+        &mut self,
+        body_next: &[[f32; 3]],
+        observer: Option<&mut dyn FnMut(Probe<'_>)>,
     ) -> Result<&[[f32; 3]]> {
         // A refused step also leaves the last step's figures as they were.
         let figures = self.last_step_figures();
@@ -646,7 +657,7 @@ impl<'m> Sim<'m> {
         &mut self,
         mut query: Option<&mut BodyQuery>,
         body_next: &[[f32; 3]],
-        observer: &mut dyn FnMut(Probe<'_>),
+        mut observer: Option<&mut dyn FnMut(Probe<'_>)>,
     ) -> Result<()> {
         if let Some(r) = &mut self.refiner {
             r.start_step(self.clock.as_deref());
@@ -688,7 +699,8 @@ impl<'m> Sim<'m> {
             let mut rollback = StartupRollback { last_carry: self.last_carry, sim: self, done: false };
             let sim = &mut *rollback.sim;
             sim.state.velocity.iter_mut().for_each(|v| *v = [0.0; 3]);
-            sim.advance(query.as_deref_mut(), None, [0.0; 3], DT_STARTUP, observer)?;
+            let startup_observer = observer.as_mut().map(|o| &mut **o as &mut dyn FnMut(Probe<'_>));
+            sim.advance(query.as_deref_mut(), None, [0.0; 3], DT_STARTUP, startup_observer)?;
             startup_projected = sim.last_projected() > 0;
             startup_tethered = sim.last_tethered() > 0;
             sim.state.started = true;

@@ -150,7 +150,7 @@ impl<'m> Outfit<'m> {
             before.figures = sim.last_step_figures();
             // The figures just kept serve this garment's own refusal as well as the put-back of
             // those that stepped before it: one snapshot per garment and frame.
-            if let Err(e) = sim.step_frame(self.query.as_mut(), body_next, &mut |_| {}) {
+            if let Err(e) = sim.step_frame(self.query.as_mut(), body_next, None) {
                 sim.restore_last_step_figures(before.figures);
                 for (done, before) in self.sims[..k].iter_mut().zip(&self.before) {
                     copy_state(&mut done.state, &before.state);

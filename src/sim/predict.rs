@@ -54,7 +54,7 @@ impl Sim<'_> {
         &mut self,
         query: Option<&mut BodyQuery>,
         pass: &Pass<'_>,
-        observer: &mut dyn FnMut(Probe<'_>),
+        observer: Option<&mut dyn FnMut(Probe<'_>)>,
     ) -> Result<()> {
         let Sim {
             net,

@@ -54,7 +54,7 @@ impl Sim<'_> {
         body_next: Option<&[[f32; 3]]>,
         carry: [f32; 3],
         dt: f32,
-        observer: &mut dyn FnMut(Probe<'_>),
+        observer: Option<&mut dyn FnMut(Probe<'_>)>,
     ) -> Result<()> {
         let last_carry = if dt == DT_STARTUP { [0.0; 3] } else { self.last_carry };
         let pass = Pass { body_next, carry, last_carry, dt };

@@ -286,14 +286,15 @@ impl Par<'_> {
     /// [`Par::reduce_rows`] to sum per active body node. `b2g` are the node projections of the
     /// body -> garment direction (target: per edge, source: per active body node), `g2b` those
     /// of the garment -> body direction (target: per active body node, gathered per edge into
-    /// `per_edge` first; source: per edge).
+    /// `per_edge` first; source: per edge), or `None` to leave that direction out (when nothing
+    /// reads the body's next latents).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn body_messages(
         &mut self,
         net: &Net<'_>,
         mlp: &MlpView<'_>,
         links: &BodyLinks<'_>,
-        (b2g, g2b): (Projections<'_>, Projections<'_>),
+        (b2g, g2b): (Projections<'_>, Option<Projections<'_>>),
         (b2g_latent, g2b_latent): (&mut [f32], &mut [f32]),
         msgs: &mut [f32],
         per_edge: &mut [f32],
@@ -303,7 +304,8 @@ impl Par<'_> {
         let h = em.w2.k();
         let k_e = em.w3.n();
         let n_edges = links.garment.len();
-        *self.flops += (2 * n_edges * edge_flops) as u64;
+        let directions = if g2b.is_some() { 2 } else { 1 };
+        *self.flops += (directions * n_edges * edge_flops) as u64;
         let (b2g_latent, g2b_latent) = (Disjoint::new(b2g_latent), Disjoint::new(g2b_latent));
         let (msgs, per_edge, slot) = (Disjoint::new(msgs), Disjoint::new(per_edge), Disjoint::new(slot));
         let tasks = self.tasks.len().min(n_edges.div_ceil(64)).max(1);
@@ -334,6 +336,7 @@ impl Par<'_> {
                 unsafe { slot.range(g * k_e..(g + 1) * k_e) }.copy_from_slice(row);
             }
             // garment -> body.
+            let Some(g2b) = &g2b else { return Ok(()) };
             gather(g2b.target, &links.body[r.clone()], h, pe);
             m.fill(0.0);
             let inputs =
