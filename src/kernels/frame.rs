@@ -127,6 +127,24 @@ pub(crate) trait Simd: Copy {
     #[inline(always)]
     fn bf16_end(self) {}
 
+    /// Writes the `LANES` values of `v` as [`Simd::prep_bf16`] writes them: `LANES ·
+    /// SLOTS_PER_PAIR / 2` slots at `p`.
+    ///
+    /// # Safety
+    /// Those slots are writable at `p`.
+    #[inline(always)]
+    unsafe fn store_prepared(self, p: *mut f32, v: Self::V) {
+        let mut t = [0.0f32; 16];
+        let lanes = Self::LANES.min(t.len());
+        // SAFETY: `t` holds `LANES` floats (at most 16 on every tier); the caller guarantees the
+        // slots at `p`.
+        unsafe {
+            self.store(t.as_mut_ptr(), v);
+            let dst = core::slice::from_raw_parts_mut(p, lanes * Self::SLOTS_PER_PAIR / 2);
+            self.prep_bf16(&t[..lanes], dst);
+        }
+    }
+
     /// Writes `src` (k values) as prepared bf16 activations (`kp · SLOTS_PER_PAIR / 2` slots).
     #[inline(always)]
     fn prep_bf16(self, src: &[f32], dst: &mut [f32]) {

@@ -377,6 +377,15 @@ impl Simd for Avx512Bf16 {
         unsafe { _mm512_dpbf16_ps(acc, w, x) }
     }
 
+    #[inline(always)]
+    unsafe fn store_prepared(self, p: *mut f32, v: __m512) {
+        // SAFETY: the caller guarantees 8 writable slots at `p`; the transmute is a lane rename.
+        unsafe {
+            let packed: __m256i = core::mem::transmute::<__m256bh, __m256i>(_mm512_cvtneps_pbh(v));
+            _mm256_storeu_si256(p as *mut __m256i, packed);
+        }
+    }
+
     /// `vcvtneps2bf16` turns 16 inputs into 8 pair slots in one instruction (the portable
     /// pairing took a fifth of the bf16 edge MLP's time). It rounds to nearest even like
     /// [`frame::round_bf16`], but flushes subnormal inputs (below 1.2e-38 in magnitude) to zero.
@@ -420,6 +429,11 @@ impl<U: TileUnit> Simd for AmxBf16<U> {
     #[inline(always)]
     fn dot2(self, acc: __m512, w: __m512bh, x: __m512bh) -> __m512 {
         self.0.dot2(acc, w, x)
+    }
+    #[inline(always)]
+    unsafe fn store_prepared(self, p: *mut f32, v: __m512) {
+        // SAFETY: forwarded contract; the token holds the AVX-512-BF16 one.
+        unsafe { self.0.store_prepared(p, v) }
     }
     #[inline(always)]
     fn prep_bf16(self, src: &[f32], dst: &mut [f32]) {

@@ -90,6 +90,11 @@ pub(crate) struct TileEpi {
     /// cache instead of stalling on them. The edge chain's outputs are scratch rows already in L1,
     /// where the hints only cost (2-17 % of the kernels bench's edge MLP).
     pub prefetch_out: bool,
+    /// Whether the output rows are the next layer's prepared bf16 activations
+    /// ([`Simd::store_prepared`]: column `c` at slot `c · SLOTS_PER_PAIR / 2` of its row) rather
+    /// than f32 values. Only for `n` a multiple of [`PANEL`] (every vector is whole) and without
+    /// `accumulate`.
+    pub prepared_out: bool,
 }
 
 /// Bytes per cache line.
@@ -250,6 +255,10 @@ unsafe fn epilogue_vec<S: Simd>(s: S, mut y: S::V, c: usize, g: Option<*const f3
         if epi.relu {
             y = s.max(y, s.zero());
         }
+        if epi.prepared_out {
+            s.store_prepared(o.add(c * S::SLOTS_PER_PAIR / 2), y);
+            return;
+        }
         if epi.accumulate {
             y = s.add(y, s.load(o.add(c)));
         }
@@ -257,9 +266,10 @@ unsafe fn epilogue_vec<S: Simd>(s: S, mut y: S::V, c: usize, g: Option<*const f3
     }
 }
 
-/// [`epilogue_vec`] for one value.
+/// [`epilogue_vec`] for one value (of an f32 output: prepared outputs have whole vectors).
 #[inline(always)]
 unsafe fn epilogue_one(mut y: f32, c: usize, g: Option<*const f32>, o: *mut f32, epi: &TileEpi) {
+    debug_assert!(!epi.prepared_out, "a prepared output with a partial vector");
     // SAFETY: the caller's: column `c` exists in the bias, `g` and `o`.
     unsafe {
         if !epi.bias.is_null() {

@@ -4,7 +4,7 @@
 use super::{gemm, layer_norm_apply, layer_norm_value, widen_bf16, Ahead, SegBf16, SegF32, Segs, Simd, TileEpi};
 use crate::kernels::{
     packed_len_f32, padded_cols, EdgeInputs, EdgeMlp, Epilogue, Operand, Weights, EDGE_BLOCK, LINEAR_BLOCK_ROWS,
-    MAX_OPERANDS,
+    MAX_OPERANDS, PANEL,
 };
 
 fn bias_ptr(bias: Option<&[f32]>) -> *const f32 {
@@ -95,6 +95,7 @@ pub(crate) unsafe fn linear<S: Simd>(
             relu: epi.relu,
             accumulate: false,
             prefetch_out: true,
+            prepared_out: false,
         };
         match (&epi.layer_norm, epi.residual) {
             (None, residual) => {
@@ -131,13 +132,23 @@ pub(crate) unsafe fn linear<S: Simd>(
     }
 }
 
-/// Runs one layer of the edge chain on `br` rows: `x` (f32, `k` wide) or its prepared bf16 copy.
+/// The rows a layer of the edge chain reads.
+#[derive(Clone, Copy)]
+enum ChainInput<'a> {
+    /// f32 rows, `k` wide, which bf16 weights prepare into the scratch rows first.
+    F32(&'a [f32]),
+    /// Rows the previous layer's epilogue wrote prepared (`TileEpi::prepared_out`), `kp` slots
+    /// apart.
+    Prepared(&'a [f32]),
+}
+
+/// Runs one layer of the edge chain on `br` rows of `x`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 unsafe fn chain_layer<S: Simd>(
     s: S,
     w: &Weights<'_>,
-    x: &[f32],
+    x: ChainInput<'_>,
     br: usize,
     prep: &mut [f32],
     wide: &[f32],
@@ -146,17 +157,27 @@ unsafe fn chain_layer<S: Simd>(
     ahead: Ahead,
 ) {
     let (k, n) = (w.k(), w.n());
+    let (x, prepared) = match x {
+        ChainInput::F32(x) => (x, false),
+        ChainInput::Prepared(x) => (x, true),
+    };
     match w {
         Weights::F32(wf) => {
+            debug_assert!(!prepared, "prepared rows for f32 weights");
             let seg = [SegF32 { x: x.as_ptr(), ldx: k, w: wf.data().as_ptr(), k }];
             // SAFETY: `x` has `br` rows of `k`, `out` `br` rows of `n`.
             unsafe { gemm(s, Segs::F32(&seg), br, n, out.as_mut_ptr(), n, epi) };
         }
         Weights::Bf16(wb) => {
             let kp = k.next_multiple_of(2);
-            for (src, dst) in x[..br * k].chunks_exact(k).zip(prep.chunks_exact_mut(kp)) {
-                s.prep_bf16(src, dst);
-            }
+            let prep = if prepared {
+                x
+            } else {
+                for (src, dst) in x[..br * k].chunks_exact(k).zip(prep.chunks_exact_mut(kp)) {
+                    s.prep_bf16(src, dst);
+                }
+                &*prep
+            };
             if S::SLOTS_PER_PAIR == 2 {
                 // Widened weights (see `widen_bf16`) and bf16-rounded activations.
                 let seg = [SegF32 { x: prep.as_ptr(), ldx: kp, w: wide.as_ptr(), k }];
@@ -207,6 +228,10 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
     if native_bf16 {
         s.bf16_begin();
     }
+    // With native bf16 products, the hidden layers' epilogues write the next layer's bf16 rows
+    // directly (rounded as its preparation would round them, so no bit changes), which saves
+    // two of the chain's three preparation passes and half of the hidden rows' stores.
+    let hidden_prepared = native_bf16 && h.is_multiple_of(PANEL);
     let mut e0 = 0;
     while e0 < n_edges {
         let br = (n_edges - e0).min(EDGE_BLOCK);
@@ -245,15 +270,23 @@ pub(crate) unsafe fn edge_mlp<S: Simd>(
             relu: true,
             accumulate: false,
             prefetch_out: false,
+            prepared_out: hidden_prepared,
         };
-        let epi2 = TileEpi { bias: mlp.b2.as_ptr(), addend: none, relu: true, accumulate: false, prefetch_out: false };
-        let epi3 = TileEpi { bias: mlp.b3.as_ptr(), addend: none, relu: false, accumulate: false, prefetch_out: false };
+        let epi2 = TileEpi { bias: mlp.b2.as_ptr(), addend: none, relu: true, prepared_out: hidden_prepared, ..epi1 };
+        let epi3 = TileEpi { bias: mlp.b3.as_ptr(), addend: none, relu: false, prepared_out: false, ..epi1 };
         // SAFETY: shapes validated by `Kernels::edge_mlp` (indices checked against the projection
-        // rows); scratch buffers hold `EDGE_BLOCK` rows of their widths.
+        // rows); scratch buffers hold `EDGE_BLOCK` rows of their widths (a prepared row takes
+        // no more slots than its f32 values).
         unsafe {
-            chain_layer(s, &mlp.w1_edge, lat, br, prep, wide1, buf_a, &epi1, ahead);
-            chain_layer(s, &mlp.w2, buf_a, br, prep, wide2, buf_b, &epi2, Ahead::NONE);
-            chain_layer(s, &mlp.w3, buf_b, br, prep, wide3, buf_a, &epi3, Ahead::NONE);
+            chain_layer(s, &mlp.w1_edge, ChainInput::F32(lat), br, prep, wide1, buf_a, &epi1, ahead);
+            if hidden_prepared {
+                // buf_a (prepared) -> prep (prepared) -> buf_a (f32).
+                chain_layer(s, &mlp.w2, ChainInput::Prepared(buf_a), br, &mut [], wide2, prep, &epi2, Ahead::NONE);
+                chain_layer(s, &mlp.w3, ChainInput::Prepared(prep), br, &mut [], wide3, buf_a, &epi3, Ahead::NONE);
+            } else {
+                chain_layer(s, &mlp.w2, ChainInput::F32(buf_a), br, prep, wide2, buf_b, &epi2, Ahead::NONE);
+                chain_layer(s, &mlp.w3, ChainInput::F32(buf_b), br, prep, wide3, buf_a, &epi3, Ahead::NONE);
+            }
         }
         // LayerNorm statistics for all rows first: independent chains the core can overlap
         // (one row at a time would serialise on each row's sum -> sqrt -> divide latency).
