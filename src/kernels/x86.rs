@@ -395,11 +395,7 @@ impl Simd for Avx512Bf16 {
         for b in 0..blocks {
             // SAFETY: the token proves AVX-512F and AVX-512-BF16; block `b` reads floats
             // `16b..16b + 16` of `src` and writes slots `8b..8b + 8` of `dst`, both in bounds.
-            unsafe {
-                let v = _mm512_loadu_ps(src.as_ptr().add(16 * b));
-                let packed: __m256i = core::mem::transmute::<__m256bh, __m256i>(_mm512_cvtneps_pbh(v));
-                _mm256_storeu_si256(dst.as_mut_ptr().add(8 * b) as *mut __m256i, packed);
-            }
+            unsafe { self.store_prepared(dst.as_mut_ptr().add(8 * b), _mm512_loadu_ps(src.as_ptr().add(16 * b))) };
         }
         frame::pack_bf16_pairs(&src[16 * blocks..], &mut dst[8 * blocks..]);
     }
